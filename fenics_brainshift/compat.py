@@ -1,0 +1,102 @@
+"""The only module that knows which DOLFINx it runs on (0.5.2 on Debian 12, 0.9.0 on Debian 13).
+
+Everything else in the package calls these helpers and never branches on the version.
+"""
+from __future__ import annotations
+
+import numpy as np
+import ufl
+import dolfinx
+import dolfinx.fem.petsc  # noqa: F401  (0.9 does not import it with dolfinx.fem)
+import dolfinx.geometry
+import dolfinx.io
+from dolfinx import fem
+
+DOLFINX_VERSION = dolfinx.__version__
+_MAJOR_MINOR = tuple(int(p) for p in DOLFINX_VERSION.split(".")[:2])
+MODERN = _MAJOR_MINOR >= (0, 8)  # functionspace(), basix.ufl, x.petsc_vec, bb_tree
+
+
+def vector_space(mesh, degree: int = 1):
+    """Continuous Lagrange space of 3-vectors (displacement, velocity, acceleration)."""
+    if MODERN:
+        return fem.functionspace(mesh, ("Lagrange", degree, (mesh.geometry.dim,)))
+    return fem.VectorFunctionSpace(mesh, ("Lagrange", degree))
+
+
+def scalar_space(mesh, family: str = "Lagrange", degree: int = 1):
+    if MODERN:
+        return fem.functionspace(mesh, (family, degree))
+    return fem.FunctionSpace(mesh, (family, degree))
+
+
+def petsc_vec(f: fem.Function):
+    """The PETSc vector that shares memory with a Function's values (owned + ghosts)."""
+    return f.x.petsc_vec if MODERN else f.vector
+
+
+def geometry_dofmap(mesh) -> np.ndarray:
+    """(num_cells, nodes_per_cell) indices into mesh.geometry.x."""
+    dm = mesh.geometry.dofmap
+    if MODERN:
+        return np.asarray(dm)
+    return dm.array.reshape(-1, dm.num_links(0)) if dm.num_nodes else np.zeros((0, 4), np.int32)
+
+
+def tetra_domain():
+    """The ufl.Mesh of an affine tetrahedral mesh in 3-D."""
+    if MODERN:
+        import basix.ufl
+
+        return ufl.Mesh(basix.ufl.element("Lagrange", "tetrahedron", 1, shape=(3,)))
+    return ufl.Mesh(ufl.VectorElement("Lagrange", ufl.tetrahedron, 1))
+
+
+def create_mesh(comm, cells: np.ndarray, points: np.ndarray):
+    """Distributed mesh from cells/points given on some ranks (others pass empty arrays)."""
+    cells = np.ascontiguousarray(cells, dtype=np.int64)
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    return dolfinx.mesh.create_mesh(comm, cells, points, tetra_domain())
+
+
+def gmsh_model_to_mesh(model, comm, rank: int = 0):
+    """(mesh, cell_tags, facet_tags) from a gmsh model built on `rank`."""
+    import dolfinx.io.gmshio as gmshio
+
+    out = gmshio.model_to_mesh(model, comm, rank, gdim=3)
+    return out[0], out[1], out[2]
+
+
+def read_msh(path: str, comm, rank: int = 0):
+    import dolfinx.io.gmshio as gmshio
+
+    out = gmshio.read_from_msh(path, comm, rank, gdim=3)
+    return out[0], out[1], out[2]
+
+
+def interpolation_points(V) -> np.ndarray:
+    ip = V.element.interpolation_points
+    return ip() if callable(ip) else ip
+
+
+def expression(expr, V) -> fem.Expression:
+    """A compiled UFL expression evaluated at V's interpolation points."""
+    return fem.Expression(expr, interpolation_points(V))
+
+
+def colliding_cells(mesh, points: np.ndarray) -> list[int]:
+    """For each point (N, 3), the index of one local cell containing it, or -1."""
+    tdim = mesh.topology.dim
+    pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+    if MODERN:
+        tree = dolfinx.geometry.bb_tree(mesh, tdim)
+        candidates = dolfinx.geometry.compute_collisions_points(tree, pts)
+    else:
+        tree = dolfinx.geometry.BoundingBoxTree(mesh, tdim)
+        candidates = dolfinx.geometry.compute_collisions(tree, pts)
+    cells = dolfinx.geometry.compute_colliding_cells(mesh, candidates, pts)
+    found = []
+    for i in range(pts.shape[0]):
+        links = cells.links(i)
+        found.append(int(links[0]) if len(links) else -1)
+    return found

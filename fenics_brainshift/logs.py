@@ -1,0 +1,39 @@
+"""Logging that lets rank 0 speak (other ranks only when asked with all_ranks=True)."""
+from __future__ import annotations
+
+import logging
+
+LOGGER_NAME = "fenics_brainshift"
+
+
+class _RankZero(logging.Filter):
+    def __init__(self, rank: int):
+        super().__init__()
+        self.rank = rank
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return self.rank == 0
+
+
+def get_logger(name: str = "") -> logging.Logger:
+    return logging.getLogger(f"{LOGGER_NAME}.{name}" if name else LOGGER_NAME)
+
+
+def configure(level: str = "INFO", all_ranks: bool = False) -> None:
+    """Install one stderr handler on the package logger (idempotent)."""
+    from mpi4py import MPI
+
+    rank = MPI.COMM_WORLD.rank
+    logger = get_logger()
+    logger.setLevel(level.upper())
+    for handler in list(logger.handlers):
+        logger.removeHandler(handler)
+    handler = logging.StreamHandler()
+    prefix = f"[rank {rank}] " if all_ranks else ""
+    handler.setFormatter(logging.Formatter(f"{prefix}%(message)s"))
+    if not all_ranks:
+        handler.addFilter(_RankZero(rank))
+    logger.addHandler(handler)
+    logger.propagate = False
+    # The form compiler's C build logs through the root logger at INFO; keep it quiet.
+    logging.getLogger().setLevel(logging.WARNING)

@@ -1,0 +1,47 @@
+"""Turn a MeshSpec into a distributed DOLFINx mesh (coordinates in metres)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .. import compat
+from ..scene import MeshSpec, SceneError
+from .hexgrid import structured_box
+from .shapes import gmsh_shape
+
+
+def mesh_from_arrays(comm, points: np.ndarray, tets: np.ndarray):
+    """Distribute a tetrahedral mesh given in full on rank 0 (other ranks' inputs are ignored)."""
+    if comm.rank != 0:
+        points, tets = np.zeros((0, 3)), np.zeros((0, 4), dtype=np.int64)
+    return compat.create_mesh(comm, tets, points)
+
+
+def build_mesh(spec: MeshSpec, comm):
+    if spec.shape == "box" and spec.cells is not None:
+        points, tets = structured_box(spec.size, spec.cells, spec.origin) if comm.rank == 0 else (None, None)
+        return mesh_from_arrays(comm, points, tets)
+    if spec.shape is not None:
+        return gmsh_shape(comm, spec.shape, spec.size, spec.origin, spec.h)
+    path = Path(spec.file)
+    if not path.is_file():
+        raise SceneError(f"[mesh] file '{path}' not found")
+    try:
+        if path.suffix == ".msh":
+            mesh, _, _ = compat.read_msh(str(path), comm, 0)
+        elif path.suffix == ".xdmf":
+            import dolfinx.io
+
+            with dolfinx.io.XDMFFile(comm, str(path), "r") as f:
+                mesh = f.read_mesh(name="mesh")
+        else:
+            raise SceneError(f"[mesh] file '{path.name}' must be .msh or .xdmf")
+    except SceneError:
+        raise
+    except Exception as exc:  # corrupt or unreadable file: say which and why, no traceback
+        raise SceneError(f"[mesh] file '{path.name}' could not be read as a tetrahedral mesh: {exc}") from None
+    if mesh.topology.dim != 3:
+        raise SceneError(f"[mesh] file '{path.name}' holds a {mesh.topology.dim}-D mesh; a volume (tetrahedra) is needed")
+    mesh.geometry.x[:] *= spec.scale
+    return mesh

@@ -1,0 +1,109 @@
+"""All PETSc: Krylov/direct solver setup under the ``brainshift_`` options prefix,
+the rigid-body near-nullspace for AMG, and failures turned into clear errors.
+
+Any PETSc option can be given in the scene (``[solver] options = { ksp_monitor = true }``)
+or in the environment (``PETSC_OPTIONS="-brainshift_ksp_view"``). Precedence: the scene's
+options, then the environment, then this module's defaults for the chosen ``kind``.
+The step (or static) solver reads ``-brainshift_*``; the one-off mass solve for the initial
+acceleration reads ``-brainshift_mass_*``.
+"""
+from __future__ import annotations
+
+import dolfinx.la
+import numpy as np
+from petsc4py import PETSc
+
+from .scene import SolverConfig
+
+PREFIX = "brainshift_"
+
+
+class SolverError(RuntimeError):
+    """A linear solve failed; the message names PETSc's reason and the iteration count."""
+
+
+def rigid_body_modes(V) -> PETSc.NullSpace:
+    """Three translations and three rotations of the dof coordinates, orthonormalised:
+    the near-nullspace that makes smoothed-aggregation AMG work for elasticity."""
+    index_map = V.dofmap.index_map
+    bs = V.dofmap.index_map_bs
+    n_owned = index_map.size_local
+    x = V.tabulate_dof_coordinates()[:n_owned]
+    basis = [dolfinx.la.create_petsc_vector(index_map, bs) for _ in range(6)]
+    arrays = [np.zeros((n_owned, bs)) for _ in range(6)]
+    for i in range(3):
+        arrays[i][:, i] = 1.0
+    arrays[3][:, 0], arrays[3][:, 1] = -x[:, 1], x[:, 0]
+    arrays[4][:, 0], arrays[4][:, 2] = x[:, 2], -x[:, 0]
+    arrays[5][:, 1], arrays[5][:, 2] = -x[:, 2], x[:, 1]
+    for vec, arr in zip(basis, arrays):
+        vec.array[:] = arr.ravel()
+    # modified Gram-Schmidt (collective, exact enough for a preconditioner hint)
+    for i, vi in enumerate(basis):
+        for vj in basis[:i]:
+            vi.axpy(-vi.dot(vj), vj)
+        vi.normalize()
+    return PETSc.NullSpace().create(vectors=basis, comm=V.mesh.comm)
+
+
+class LinearSolver:
+    """A KSP for one fixed matrix, set up once and reused for every right-hand side."""
+
+    def __init__(self, A: PETSc.Mat, config: SolverConfig, name: str, near_nullspace=None):
+        self.config = config
+        self.name = name
+        self.ksp = PETSc.KSP().create(A.getComm())
+        self.ksp.setOperators(A)
+        prefix = f"{PREFIX}{name}_" if name else PREFIX  # name "" for the main solver
+        self.ksp.setOptionsPrefix(prefix)
+        opts = PETSc.Options()
+        defaults = _defaults(config.kind)
+        for key, value in defaults.items():
+            if not opts.hasName(prefix + key):
+                opts.setValue(prefix + key, value)
+        for key, value in config.options.items():
+            opts.setValue(prefix + key.lstrip("-"), _option_text(value))
+        if config.kind == "cg-gamg" and near_nullspace is not None:
+            A.setNearNullSpace(near_nullspace)
+        self.ksp.setTolerances(rtol=config.rtol, atol=config.atol, max_it=config.max_it)
+        self.ksp.setFromOptions()
+        self.ksp.setUp()
+        self.iterations: list[int] = []
+
+    def solve(self, b: PETSc.Vec, x: PETSc.Vec) -> int:
+        """Solve A x = b; x holds the initial guess (the previous step's answer)."""
+        self.ksp.solve(b, x)
+        reason = self.ksp.getConvergedReason()
+        its = self.ksp.getIterationNumber()
+        if reason < 0:
+            raise SolverError(
+                f"{self.name or 'step'} solve diverged: {_reason_name(reason)} after {its} "
+                f"iterations (solver '{self.config.kind}', rtol {self.config.rtol:g}); try "
+                f"[solver] kind = \"cholesky\" or a smaller dt")
+        self.iterations.append(its)
+        return its
+
+    def destroy(self) -> None:
+        self.ksp.destroy()
+
+
+def _defaults(kind: str) -> dict[str, str]:
+    if kind == "cg-gamg":
+        return {"ksp_type": "cg", "pc_type": "gamg", "ksp_initial_guess_nonzero": "true",
+                "pc_gamg_coarse_eq_limit": "1000", "mg_levels_ksp_type": "chebyshev",
+                "mg_levels_pc_type": "jacobi", "mg_levels_esteig_ksp_type": "cg"}
+    if kind == "cg-jacobi":
+        return {"ksp_type": "cg", "pc_type": "jacobi", "ksp_initial_guess_nonzero": "true"}
+    factor = {"pc_factor_mat_solver_type": "mumps"} if PETSc.Sys.hasExternalPackage("mumps") else {}
+    return {"ksp_type": "preonly", "pc_type": kind, **factor}
+
+
+def _option_text(value) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    return str(value)
+
+
+def _reason_name(reason: int) -> str:
+    names = {v: k for k, v in vars(PETSc.KSP.ConvergedReason).items() if isinstance(v, int)}
+    return f"{names.get(reason, 'UNKNOWN')} ({reason})"
