@@ -12,6 +12,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import dolfinx.la
 import numpy as np
 from dolfinx import fem
 from dolfinx.fem.petsc import set_bc
@@ -65,7 +66,8 @@ class Simulation:
         self.t = 0.0
         self.steps_taken = 0
         self._nullspace = rigid_body_modes(V) if self.scene.solver.kind == "cg-gamg" else None
-        self._F = compat.petsc_vec(fem.Function(V))  # work vectors, allocated once
+        # work vectors, allocated once (they own their memory: never wrap a temporary Function)
+        self._F = dolfinx.la.create_petsc_vector(V.dofmap.index_map, V.dofmap.index_map_bs)
         self._rhs = self._F.duplicate()
         self._tmp = self._F.duplicate()
         self._wm = self._F.duplicate()

@@ -1,0 +1,36 @@
+# Two commands on a fresh Debian 12 or 13 machine (see README):
+#   make demo   installs what is missing, then runs the gelatin-cube demo
+#   make test   installs what is missing, then runs the tests serially and under mpirun -n 2
+PY := .venv/bin/python
+# Open MPI refuses to run as root without these (containers, CI).
+export OMPI_ALLOW_RUN_AS_ROOT := 1
+export OMPI_ALLOW_RUN_AS_ROOT_CONFIRM := 1
+# One thread per MPI rank: the solvers are MPI-parallel, BLAS threads only oversubscribe.
+export OMP_NUM_THREADS := 1
+
+.PHONY: install demo test test-serial test-mpi test-debian13 bench clean
+
+install:
+	@scripts/install.sh
+
+demo: install
+	$(PY) demos/cube.py
+
+test: install
+	$(MAKE) --no-print-directory test-serial test-mpi
+
+test-serial:
+	$(PY) -m pytest -q -p no:cacheprovider tests
+
+test-mpi:
+	mpirun -n 2 $(PY) -m pytest -q -p no:cacheprovider -m mpi tests
+
+# The same suite on DOLFINx 0.9 in a Debian 13 root filesystem (needs root; cached).
+test-debian13:
+	scripts/debian13.sh make test
+
+bench: install
+	$(PY) benchmarks/cube_sizes.py
+
+clean:
+	rm -rf out_* .pytest_cache

@@ -1,0 +1,74 @@
+"""Shared helpers: small scenes built from dictionaries, and MPI awareness."""
+from __future__ import annotations
+
+import copy
+import os
+import shutil
+from pathlib import Path
+
+import pytest
+from mpi4py import MPI
+
+ROOT = Path(__file__).resolve().parents[1]
+COMM = MPI.COMM_WORLD
+
+
+def column_dict(layers: int, degree: int = 1, height: float = 0.1, width: float = 0.02,
+                gravity=(0.0, 0.0, -9.81), **sections) -> dict:
+    """A laterally confined column: bottom clamped, sides sliding (rollers), 1 x 1 x layers
+    hexahedra split into tetrahedra. The analytic answer is the 1-D uniaxial-strain column."""
+    eps = 1e-9
+    data = {
+        "name": "column",
+        "mesh": {"shape": "box", "size": [width, width, height], "cells": [1, 1, layers]},
+        "material": {"E": 5000.0, "nu": 0.3, "density": 1000.0},
+        "gravity": {"vector": list(gravity)},
+        "fixed": [
+            {"where": f"z < {eps}", "axes": "xyz"},
+            {"where": f"x < {eps} or x > {width - eps}", "axes": "x"},
+            {"where": f"y < {eps} or y > {width - eps}", "axes": "y"},
+        ],
+        "time": {"mode": "quasi-static"},
+        "solver": {"kind": "cholesky"},
+        "element": {"degree": degree},
+        "probes": {"top": [0.0, 0.0, height]},
+    }
+    for key, value in sections.items():
+        if isinstance(value, dict) and isinstance(data.get(key), dict):
+            data[key] = {**data[key], **value}
+        else:
+            data[key] = copy.deepcopy(value)
+    return data
+
+
+def decay_per_step(q, span: int = 10) -> float:
+    """Measured |lambda| of the dominant complex pair in a sampled oscillation q_n.
+
+    For q_n = Re(c lambda^n), the determinant D_n = q_{n+1} q_{n-1} - q_n^2 equals
+    -|c|^2 |lambda|^(2n) sin^2(arg lambda), so |lambda| = (D_N / D_{N-span})^(1/(2 span))."""
+    import numpy as np
+
+    q = np.asarray(q, dtype=float)
+    D = q[2:] * q[:-2] - q[1:-1] ** 2
+    return float((D[-1] / D[-1 - span]) ** (1.0 / (2 * span)))
+
+
+def mpirun() -> list[str]:
+    exe = shutil.which("mpirun") or shutil.which("mpiexec")
+    if exe is None:
+        pytest.fail("mpirun not found: install openmpi-bin (scripts/install.sh does)")
+    return [exe, "-n", "2"]
+
+
+def subprocess_env() -> dict:
+    env = dict(os.environ)
+    env.setdefault("OMPI_ALLOW_RUN_AS_ROOT", "1")
+    env.setdefault("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
+    env["OMP_NUM_THREADS"] = "1"
+    return env
+
+
+@pytest.fixture
+def serial_only():
+    if COMM.size > 1:
+        pytest.skip("runs its own subprocesses; only meaningful in the serial pass")
