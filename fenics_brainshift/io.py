@@ -21,7 +21,9 @@ class FieldWriter:
 
     def __init__(self, folder: Path, mesh, V, fields: tuple[str, ...], mu: float, lmbda: float):
         self.fields = fields
-        self.file = XDMFFile(mesh.comm, str(folder / "displacement.xdmf"), "w")
+        self.comm = mesh.comm
+        self.path = folder / "displacement.xdmf"
+        self.file = XDMFFile(mesh.comm, str(self.path), "w")
         self.file.write_mesh(mesh)
         self.P1 = compat.vector_space(mesh, 1)
         self.out = {name: fem.Function(self.P1, name=name) for name in ("displacement", "velocity") if name in fields}
@@ -43,6 +45,41 @@ class FieldWriter:
 
     def close(self) -> None:
         self.file.close()
+        if self.comm.rank == 0:
+            merge_time_series(self.path)
+        self.comm.barrier()
+
+
+def merge_time_series(path: Path) -> None:
+    """Put every field of a time step into one grid.
+
+    DOLFINx writes one temporal collection per field; ParaView reads that, but meshio's
+    TimeSeriesReader sees only one collection. One collection whose grids carry all the
+    step's attributes reads in both (and in anything else that speaks XDMF 3)."""
+    import xml.etree.ElementTree as ET
+
+    ET.register_namespace("xi", "http://www.w3.org/2001/XInclude")
+    tree = ET.parse(path)
+    domain = tree.getroot().find("Domain")
+    collections = [g for g in domain.findall("Grid") if g.get("GridType") == "Collection"]
+    if len(collections) < 2:
+        return
+    merged: dict[str, ET.Element] = {}
+    for collection in collections:
+        for grid in collection.findall("Grid"):
+            time = grid.find("Time").get("Value")
+            if time not in merged:
+                grid.set("Name", "fields")
+                merged[time] = grid
+            else:
+                for attribute in grid.findall("Attribute"):
+                    merged[time].append(attribute)
+        domain.remove(collection)
+    series = ET.SubElement(domain, "Grid", Name="fields", GridType="Collection", CollectionType="Temporal")
+    series.extend(merged.values())
+    tmp = path.with_suffix(".xdmf.tmp")
+    tree.write(tmp, xml_declaration=True, encoding="utf-8")
+    os.replace(tmp, path)
 
 
 def write_json(path: Path, data: dict, comm) -> None:

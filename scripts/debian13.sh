@@ -37,6 +37,16 @@ mount_all() {
   cp -L /etc/resolv.conf "$rootfs/etc/resolv.conf"
 }
 
+trust_host_certs() {
+  # Trust what the host trusts (a site CA for an egress proxy, say), as a build on this
+  # host would; pip in the root filesystem verifies PyPI's certificate against it.
+  if compgen -G "/usr/local/share/ca-certificates/*.crt" >/dev/null; then
+    mkdir -p "$rootfs/usr/local/share/ca-certificates"
+    cp /usr/local/share/ca-certificates/*.crt "$rootfs/usr/local/share/ca-certificates/"
+    [ -x "$rootfs/usr/sbin/update-ca-certificates" ] && in_root update-ca-certificates >/dev/null 2>&1 || true
+  fi
+}
+
 in_root() {
   chroot "$rootfs" /usr/bin/env -i HOME=/root PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin \
     LANG=C.UTF-8 OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 "$@"
@@ -45,23 +55,29 @@ in_root() {
 key=$(sha256sum "$here/scripts/install.sh" | cut -c1-16)
 if [ ! -f "$rootfs/.brainshift-$key" ]; then
   say "building $rootfs (install.sh $key)"
-  rm -rf "$rootfs"
+  if grep -q " $rootfs/" /proc/mounts; then
+    echo "[debian13] something is still mounted under $rootfs; unmount it first" >&2; exit 1
+  fi
+  rm -rf --one-file-system "$rootfs"
   mkdir -p "$rootfs"
   debootstrap --variant=minbase trixie "$rootfs" "$mirror" > "$rootfs.debootstrap.log" 2>&1 || {
     tail -20 "$rootfs.debootstrap.log"; exit 1; }
   mount_all
   mkdir -p "$rootfs/opt/install"
   cp "$here/scripts/install.sh" "$rootfs/opt/install/install.sh"
-  in_root bash /opt/install/install.sh system
+  in_root bash /opt/install/install.sh system > "$rootfs.install.log" 2>&1 || {
+    tail -30 "$rootfs.install.log"; exit 1; }
   touch "$rootfs/.brainshift-$key"
 else
   say "reusing $rootfs (install.sh $key)"
   mount_all
 fi
+trust_host_certs
 
 # A fresh copy of the tracked files (plus uncommitted edits), never the host's .venv.
 src=$rootfs/work/fenics-brainshift
 mkdir -p "$src"
+find "$src" -mindepth 1 -maxdepth 1 ! -name .venv -exec rm -rf --one-file-system {} +
 ( cd "$here" && git ls-files -z --cached --others --exclude-standard ) \
   | ( cd "$here" && tar --null -T - -cf - ) | tar -C "$src" -xf -
 if [ $# -eq 0 ]; then set -- make test; fi

@@ -1,0 +1,84 @@
+"""The cube demo end to end: serial and mpirun give the same probe; outputs are readable."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from conftest import ROOT, mpirun, subprocess_env
+from fenics_brainshift.cli import main
+
+pytestmark = pytest.mark.usefixtures("serial_only")
+
+
+def _run_demo(out, ranks: int, *extra):
+    cmd = [sys.executable, str(ROOT / "demos" / "cube.py"), "--out", str(out), *extra]
+    if ranks > 1:
+        cmd = mpirun() + cmd
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=subprocess_env(), cwd=ROOT, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return json.loads((out / "summary.json").read_text()), proc.stdout
+
+
+def test_cube_demo_same_probe_on_one_and_two_ranks(tmp_path):
+    args = ("--end", "1.0", "--cells", "10", "10", "5")
+    one, stdout = _run_demo(tmp_path / "one", 1, *args)
+    two, _ = _run_demo(tmp_path / "two", 2, *args)
+    assert "top-centre displacement" in stdout
+    assert (one["ranks"], two["ranks"]) == (1, 2)
+    assert one["nodes"] == two["nodes"] == 11 * 11 * 6
+    a, b = np.array(one["probes"]["top_centre"]), np.array(two["probes"]["top_centre"])
+    assert a[2] < -1e-4  # it sags
+    assert np.abs(a - b).max() <= 1e-9 * np.abs(a).max()
+    assert two["max_displacement_m"] == pytest.approx(one["max_displacement_m"], rel=1e-9)
+    for key in ("dolfinx_version", "ranks", "nodes", "cells", "dofs", "steps", "setup_s", "step_s_median",
+                "solve_s_total", "final_time", "max_displacement_m", "probes", "fluid_force_N", "gravity_force_N"):
+        assert key in one, key
+    # the weight is exactly rho g V
+    assert one["gravity_force_N"][2] == pytest.approx(-1048.0 * 9.81 * 0.05 * 0.05 * 0.025, rel=1e-12)
+
+
+def test_cube_outputs_open_in_meshio(tmp_path):
+    import meshio
+
+    summary, _ = _run_demo(tmp_path / "o", 1, "--end", "0.2", "--cells", "6", "6", "3")
+    with meshio.xdmf.TimeSeriesReader(str(tmp_path / "o" / "displacement.xdmf")) as reader:
+        points, cells = reader.read_points_cells()
+        times = []
+        for k in range(reader.num_steps):
+            t, point_data, cell_data = reader.read_data(k)
+            times.append(t)
+        assert {"displacement", "velocity"} <= set(point_data)
+        assert "von_mises" in cell_data
+    assert points.shape == (7 * 7 * 4, 3)
+    assert times[0] == 0.0 and times[-1] == pytest.approx(0.2)
+    u = point_data["displacement"]
+    assert np.abs(u).max() == pytest.approx(summary["max_displacement_m"], rel=0.5)
+    csv = np.loadtxt(tmp_path / "o" / "probes.csv", delimiter=",", skiprows=1)
+    assert csv.shape[1] == 2 + 3 and csv[-1, 0] == pytest.approx(0.2)
+
+
+def test_quasi_static_mode_matches_settled_dynamics(tmp_path):
+    """With the load held, the damped dynamic answer settles onto the static one."""
+    from test_scene_errors import write_scene
+    from conftest import column_dict
+
+    data = column_dict(8, 1, fluid={"density": 1000.0, "level": [[0.0, 0.05], [1.0, 0.05]]})
+    static = write_scene(tmp_path / "s.toml", data)
+    assert main(["run", str(static), "--out", str(tmp_path / "s")]) == 0
+    dyn = dict(data, time={"mode": "dynamic", "dt": 0.01, "end": 3.0}, damping={"a": 20.0, "b": 0.0})
+    dynamic = write_scene(tmp_path / "d.toml", dyn)
+    assert main(["run", str(dynamic), "--out", str(tmp_path / "d")]) == 0
+    s = json.loads((tmp_path / "s" / "summary.json").read_text())
+    d = json.loads((tmp_path / "d" / "summary.json").read_text())
+    assert s["mode"] == "quasi-static" and s["steps"] == 2
+    assert d["probes"]["top"][2] == pytest.approx(s["probes"]["top"][2], rel=1e-4)
+
+
+def test_info_command(capsys):
+    assert main(["info"]) == 0
+    out = capsys.readouterr().out
+    assert "dolfinx" in out and "petsc" in out and "scalar_type" in out

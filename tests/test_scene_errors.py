@@ -1,0 +1,128 @@
+"""Bad scene input: one clear line naming the field, exit code 2, no traceback, no output."""
+from __future__ import annotations
+
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import ROOT, column_dict, subprocess_env
+from fenics_brainshift.cli import main
+from fenics_brainshift.regions import PredicateError, parse_predicate
+
+
+def _toml(value, key=None) -> str:
+    """A tiny TOML writer for the test scenes (strings, numbers, lists, tables)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(value, (int, float)):
+        return repr(value)
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{ " + ", ".join(f"{k} = {_toml(v)}" for k, v in value.items()) + " }"
+    raise TypeError(value)
+
+
+def write_scene(path: Path, data: dict) -> Path:
+    lines = []
+    for key, value in data.items():
+        if not isinstance(value, (dict, list)) or (isinstance(value, list) and not all(isinstance(v, dict) for v in value)):
+            lines.append(f"{key} = {_toml(value)}")
+    for key, value in data.items():
+        if isinstance(value, dict):
+            lines.append(f"[{key}]")
+            lines += [f"{k} = {_toml(v)}" for k, v in value.items()]
+        elif isinstance(value, list) and value and all(isinstance(v, dict) for v in value):
+            for item in value:
+                lines.append(f"[[{key}]]")
+                lines += [f"{k} = {_toml(v)}" for k, v in item.items()]
+    path.write_text("\n".join(lines) + "\n")
+    tomllib.loads(path.read_text())  # the writer itself must be right
+    return path
+
+
+def _with(section: str, **changes) -> dict:
+    data = column_dict(4)
+    data[section] = {**data[section], **changes}
+    return data
+
+
+BAD = [
+    ("unknown key", _with("material", Ee=1.0), "[material] unknown key 'Ee'"),
+    ("negative E", _with("material", E=-5.0), "[material] E must be > 0"),
+    ("zero E", _with("material", E=0.0), "[material] E must be > 0"),
+    ("nu = 0.5", _with("material", nu=0.5), "[material] nu must be in (-1, 0.5)"),
+    ("nu > 0.5", _with("material", nu=0.7), "[material] nu"),
+    ("E as text", _with("material", E="soft"), "[material] E must be a finite number"),
+    ("zero density", _with("material", density=0.0), "[material] density must be > 0"),
+    ("dt = 0", _with("time", mode="dynamic", dt=0.0), "[time] dt must be > 0"),
+    ("negative dt", _with("time", mode="dynamic", dt=-0.1), "[time] dt must be > 0"),
+    ("bad scheme", _with("time", scheme="euler"), "[time] scheme must be one of"),
+    ("rho_inf > 1", _with("time", rho_inf=1.5), "[time] rho_inf must be in [0, 1]"),
+    ("bad solver", _with("solver", kind="magic"), "[solver] kind must be one of"),
+    ("degree 3", _with("element", degree=3), "[element] degree must be 1 or 2"),
+    ("lumped P2", _with("element", degree=2, mass="lumped"), "[element] mass = \"lumped\" is only for degree 1"),
+    ("missing mesh file", {**column_dict(4), "mesh": {"file": "nowhere.msh"}}, "[mesh] file"),
+    ("box without size rule", {**column_dict(4), "mesh": {"shape": "box"}}, "[mesh] a box needs"),
+    ("gravity of 2", _with("gravity", vector=[0.0, -9.81]), "[gravity] vector must be a list of 3 numbers"),
+    ("time backwards", {**column_dict(4), "fluid": {"density": 1000.0, "level": [[0.0, 0.05], [2.0, 0.02], [1.0, 0.0]]}},
+     "[fluid] level[2] time 1 s must be later than 2 s"),
+    ("unknown section", {**column_dict(4), "materials": {"E": 1.0}}, "unknown section [materials]"),
+    ("fixed selects nothing", {**column_dict(4), "fixed": [{"where": "z < -1.0"}]}, "selects no node"),
+    ("fixed eval attempt", {**column_dict(4), "fixed": [{"where": "__import__('os').system('true')"}]}, "[[fixed]] where"),
+    ("fixed bad axes", {**column_dict(4), "fixed": [{"where": "z < 0.001", "axes": "w"}]}, "[[fixed]] axes"),
+    ("probe outside", {**column_dict(4), "probes": {"far": [1.0, 1.0, 1.0]}}, "[probes] far"),
+]
+
+
+@pytest.mark.parametrize("label, data, expected", BAD, ids=[b[0] for b in BAD])
+def test_bad_scene_gives_one_line_error_and_no_output(tmp_path, capsys, label, data, expected):
+    scene = write_scene(tmp_path / "scene.toml", data)
+    out = tmp_path / "out"
+    code = main(["run", str(scene), "--out", str(out)])
+    err = capsys.readouterr().err.strip()
+    assert code == 2
+    assert expected in err, err
+    assert len(err.splitlines()) == 1 and "Traceback" not in err
+    assert not out.exists()
+
+
+def test_not_toml_and_missing_scene(tmp_path, capsys):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[material\nE = 1")
+    assert main(["run", str(bad)]) == 2
+    assert "not valid TOML" in capsys.readouterr().err
+    assert main(["run", str(tmp_path / "none.toml")]) == 2
+    assert "not found" in capsys.readouterr().err
+
+
+def test_command_line_error_has_no_traceback(tmp_path, serial_only):
+    scene = write_scene(tmp_path / "scene.toml", _with("material", E=-1.0))
+    proc = subprocess.run([sys.executable, "-m", "fenics_brainshift.cli", "run", str(scene), "--out", str(tmp_path / "o")],
+                          capture_output=True, text=True, env=subprocess_env(), cwd=ROOT)
+    assert proc.returncode == 2
+    assert proc.stderr.strip() == "brainshift: error: [material] E must be > 0 (got -1)"
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("text", [
+    "__import__('os')", "x.real < 1", "open('f')", "lambda: 1", "[x][0] < 1", "z == 1", "'a' < 'b'",
+    "x < y < ", "exec('1')", "q < 1", "x + 1",
+])
+def test_predicates_reject_everything_but_arithmetic_conditions(text):
+    with pytest.raises(PredicateError):
+        parse_predicate(text)
+
+
+def test_predicates_evaluate_vectorised():
+    x = np.array([[0.0, 0.5, 1.0], [0.0, 0.2, 0.9], [0.0, 0.0, 0.3]])
+    assert parse_predicate("z < 0.01 and y < 0.1 or y > 0.5").__call__(x).tolist() == [True, False, True]
+    assert parse_predicate("0.1 < x <= 0.5 and not y > 0.3").__call__(x).tolist() == [False, True, False]
+    assert parse_predicate("sqrt((x - 1)**2 + y**2) < 1.0").__call__(x).tolist() == [False, True, True]
+    assert parse_predicate("abs(x - 0.5) < 0.1 and -z > -1").__call__(x).tolist() == [False, True, False]
