@@ -21,6 +21,9 @@ def _parser() -> argparse.ArgumentParser:
                          formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     run.add_argument("scene", help="scene TOML file")
     run.add_argument("--out", help="output folder (default: the scene's [output] folder)")
+    run.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                     help="override a scene value, e.g. --set time.end=2 --set solver.kind=cholesky "
+                          "(repeatable; arrays by index: fixed.0.where='z < 0.01')")
     sub.add_parser("info", help="versions of DOLFINx, PETSc, MPI and the scalar type")
     return parser
 
@@ -60,7 +63,7 @@ def main(argv: list[str] | None = None) -> int:
         from .scene import load_scene
         from .simulation import run
 
-        scene = load_scene(args.scene)
+        scene = load_scene(args.scene, args.set)
         summary = run(scene, args.out or scene.output.folder, comm)
         if comm.rank == 0:
             probes = ", ".join(f"{k}=[{', '.join(f'{c * 1e3:.3f}' for c in v)}] mm"

@@ -408,8 +408,41 @@ def scene_from_dict(data: dict, base: Path | None = None) -> Scene:
     return Scene(**kwargs)
 
 
-def load_scene(path: str | Path) -> Scene:
-    """Read and validate a scene file; every problem is a one-line SceneError."""
+def apply_override(data: dict, assignment: str) -> None:
+    """Apply ``section.key=value`` (``fixed.0.where=...`` indexes arrays) to parsed TOML.
+
+    The value is read as a TOML value (numbers, booleans, strings, arrays); a bare word that
+    is not valid TOML is taken as a string, so ``solver.kind=cholesky`` works unquoted."""
+    key, sep, text = assignment.partition("=")
+    if not sep or not key.strip():
+        raise SceneError(f"--set '{assignment}': expected section.key=value, e.g. time.end=2.0")
+    try:
+        value = tomllib.loads(f"v = {text.strip()}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = text.strip()
+    node: Any = data
+    parts = key.strip().split(".")
+    for i, part in enumerate(parts):
+        last = i == len(parts) - 1
+        if isinstance(node, list):
+            if not part.isdigit() or int(part) >= len(node):
+                raise SceneError(f"--set '{key}': '{part}' is not an index of that array (0..{len(node) - 1})")
+            if last:
+                node[int(part)] = value
+            else:
+                node = node[int(part)]
+        elif isinstance(node, dict):
+            if last:
+                node[part] = value
+            else:
+                node = node.setdefault(part, {})
+        else:
+            raise SceneError(f"--set '{key}': '{'.'.join(parts[:i])}' is a value, not a table")
+
+
+def load_scene(path: str | Path, overrides: list[str] = ()) -> Scene:
+    """Read and validate a scene file; every problem is a one-line SceneError.
+    ``overrides`` are ``section.key=value`` strings applied before validation."""
     path = Path(path)
     if not path.is_file():
         raise SceneError(f"scene file '{path}' not found")
@@ -417,6 +450,8 @@ def load_scene(path: str | Path) -> Scene:
         data = tomllib.loads(path.read_text())
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise SceneError(f"{path.name}: not valid TOML ({exc})") from None
+    for assignment in overrides:
+        apply_override(data, assignment)
     scene = scene_from_dict(data, base=path.parent)
     if scene.mesh.file is not None:
         mesh_file = Path(scene.mesh.file)
