@@ -67,13 +67,6 @@ def gmsh_model_to_mesh(model, comm, rank: int = 0):
     return out[0], out[1], out[2]
 
 
-def read_msh(path: str, comm, rank: int = 0):
-    import dolfinx.io.gmshio as gmshio
-
-    out = gmshio.read_from_msh(path, comm, rank, gdim=3)
-    return out[0], out[1], out[2]
-
-
 def interpolation_points(V) -> np.ndarray:
     ip = V.element.interpolation_points
     return ip() if callable(ip) else ip

@@ -43,8 +43,8 @@ def _lowest_mode(model):
     return np.sqrt(x.dot(Kx) / x.dot(Mx)), x
 
 
-def _free_vibration(scheme: dict, damping: dict, omega_dt: float, steps: int):
-    data = column_dict(16, 1, height=H, gravity=(0.0, 0.0, 0.0),
+def _free_vibration(scheme: dict, damping: dict, omega_dt: float, steps: int, degree: int = 1):
+    data = column_dict(16, degree, height=H, gravity=(0.0, 0.0, 0.0),
                        time={"mode": "dynamic", "dt": 1.0, "end": 1.0, **scheme},
                        damping=damping)
     scene = scene_from_dict(data)
@@ -64,9 +64,10 @@ def _free_vibration(scheme: dict, damping: dict, omega_dt: float, steps: int):
     return omega, scene.time.dt, top / top[0], sim
 
 
+@pytest.mark.parametrize("degree", [1, 2])  # P2: consistent mass
 @pytest.mark.parametrize("omega_dt", [0.2, 1.0])
-def test_newmark_no_amplitude_decay_and_theoretical_period_elongation(omega_dt):
-    omega, dt, q, _ = _free_vibration({"scheme": "newmark"}, {}, omega_dt, 200)
+def test_newmark_no_amplitude_decay_and_theoretical_period_elongation(omega_dt, degree):
+    omega, dt, q, _ = _free_vibration({"scheme": "newmark"}, {}, omega_dt, 200, degree)
     wbar = newmark_discrete_frequency(omega, dt)
     n = np.arange(q.size)
     np.testing.assert_allclose(q, np.cos(n * wbar * dt), atol=1e-7)

@@ -8,7 +8,7 @@ import numpy as np
 from .. import compat
 from ..scene import MeshSpec, SceneError
 from .hexgrid import structured_box
-from .shapes import gmsh_shape
+from .shapes import gmsh_shape, read_msh
 
 
 def mesh_from_arrays(comm, points: np.ndarray, tets: np.ndarray):
@@ -29,7 +29,7 @@ def build_mesh(spec: MeshSpec, comm):
         raise SceneError(f"[mesh] file '{path}' not found")
     try:
         if path.suffix == ".msh":
-            mesh, _, _ = compat.read_msh(str(path), comm, 0)
+            mesh = read_msh(comm, str(path))
         elif path.suffix == ".xdmf":
             import dolfinx.io
 

@@ -1,20 +1,34 @@
-"""Unstructured meshes of simple shapes with gmsh (built on rank 0, then distributed)."""
+"""Unstructured meshes with gmsh (built or read on rank 0, then distributed)."""
 from __future__ import annotations
 
+from contextlib import contextmanager
+
 from .. import compat
+
+
+@contextmanager
+def gmsh_session():
+    """gmsh initialised for the block and finalised after, unless the caller already runs it.
+    (gmsh 4.8 on Debian 12 cannot say whether it is initialised; then we start our own.)"""
+    import gmsh
+
+    probe = getattr(gmsh, "isInitialized", None) or getattr(gmsh, "is_initialized", None)
+    started = not (probe() if probe else False)
+    if started:
+        gmsh.initialize()
+    gmsh.option.setNumber("General.Terminal", 0)
+    try:
+        yield gmsh
+    finally:
+        if started:
+            gmsh.finalize()
 
 
 def gmsh_shape(comm, shape: str, size, origin, h: float):
     """A tetrahedral mesh of a box (size = extents, origin = corner) or an ellipsoid
     (size = semi-axes, origin = centre) with element size h."""
-    import gmsh
-
-    initialised_here = not gmsh.isInitialized()
-    if initialised_here:
-        gmsh.initialize()
-    gmsh.option.setNumber("General.Terminal", 0)
-    model = gmsh.model
-    try:
+    with gmsh_session() as gmsh:
+        model = gmsh.model
         if comm.rank == 0:
             model.add(f"brainshift_{shape}")
             if shape == "box":
@@ -28,9 +42,31 @@ def gmsh_shape(comm, shape: str, size, origin, h: float):
             gmsh.option.setNumber("Mesh.CharacteristicLengthMax", h)
             model.mesh.generate(3)
         mesh, _, _ = compat.gmsh_model_to_mesh(model, comm, 0)
-    finally:
         if comm.rank == 0:
             model.remove()
-        if initialised_here:
-            gmsh.finalize()
+    return mesh
+
+
+def read_msh(comm, path: str):
+    """A gmsh .msh file's volume mesh. (DOLFINx 0.5.2's own read_from_msh is broken:
+    NameError 'msh'; opening the file in gmsh and converting the model works in 0.5 and 0.9.)"""
+    with gmsh_session() as gmsh:
+        error = None
+        if comm.rank == 0:
+            try:
+                gmsh.open(path)
+                volumes = gmsh.model.getEntities(3)
+                if not volumes:
+                    error = "it holds no volume (tetrahedra), only a surface or nothing"
+                elif not gmsh.model.getPhysicalGroups(3):  # model_to_mesh reads physical volumes
+                    for _, tag in volumes:
+                        gmsh.model.addPhysicalGroup(3, [tag])
+            except Exception as exc:  # gmsh says what it could not parse
+                error = str(exc) or type(exc).__name__
+        error = comm.bcast(error, root=0)  # every rank raises, none waits for the others
+        if error:
+            raise ValueError(error)
+        mesh, _, _ = compat.gmsh_model_to_mesh(gmsh.model, comm, 0)
+        if comm.rank == 0:
+            gmsh.model.remove()
     return mesh
