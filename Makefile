@@ -8,7 +8,7 @@ export OMPI_ALLOW_RUN_AS_ROOT_CONFIRM := 1
 # One thread per MPI rank: the solvers are MPI-parallel, BLAS threads only oversubscribe.
 export OMP_NUM_THREADS := 1
 
-.PHONY: install demo test test-serial test-mpi test-debian13 bench clean
+.PHONY: install demo test test-serial test-mpi test-debian13 docker bench clean
 
 install:
 	@scripts/install.sh
@@ -28,6 +28,10 @@ test-mpi:
 # The same suite on DOLFINx 0.9 in a Debian 13 root filesystem (needs root; cached).
 test-debian13:
 	scripts/debian13.sh make test
+
+# docker/Dockerfile, with the tests and a demo as build steps (docker, or podman as root).
+docker:
+	scripts/docker-build.sh fenics-brainshift
 
 bench: install
 	$(PY) benchmarks/cube_sizes.py

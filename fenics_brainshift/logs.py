@@ -35,5 +35,10 @@ def configure(level: str = "INFO", all_ranks: bool = False) -> None:
         handler.addFilter(_RankZero(rank))
     logger.addHandler(handler)
     logger.propagate = False
-    # The form compiler's C build logs through the root logger at INFO; keep it quiet.
-    logging.getLogger().setLevel(logging.WARNING)
+    # The form compiler's C build logs through the root logger at INFO and would set up a
+    # root handler of its own (basicConfig) on first use; a root handler here makes that a
+    # no-op, and the root level keeps the compile chatter out of the user's terminal.
+    root = logging.getLogger()
+    if not root.handlers:
+        root.addHandler(logging.NullHandler())
+    root.setLevel(logging.WARNING)

@@ -82,3 +82,20 @@ def test_info_command(capsys):
     assert main(["info"]) == 0
     out = capsys.readouterr().out
     assert "dolfinx" in out and "petsc" in out and "scalar_type" in out
+
+
+def test_phantom_mesh_file_in_mm_sags_posteriorly(tmp_path):
+    """demos/phantom.toml: a .msh in millimetres, supine gravity in RAS (-y)."""
+    out = tmp_path / "ph"
+    code = main(["run", str(ROOT / "demos" / "phantom.toml"), "--out", str(out),
+                 "--set", "time.mode=quasi-static"])
+    assert code == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["mode"] == "quasi-static" and s["steps"] == 3  # one solve per level breakpoint
+    assert 1000 < s["nodes"] < 1100  # meshes/phantom_ellipsoid_mm.msh, scaled to metres
+    frontal = s["probes"]["frontal"]
+    assert frontal[1] < -2e-3  # sinks towards posterior by millimetres
+    assert abs(frontal[1]) > 5 * abs(frontal[0])
+    # weight: rho g V along -y, V a little under the ellipsoid's 4/3 pi abc
+    volume = -s["gravity_force_N"][1] / (1036.0 * 9.81)
+    assert volume == pytest.approx(4 / 3 * np.pi * 0.07 * 0.085 * 0.06, rel=0.05)
