@@ -40,7 +40,20 @@ def geometry_dofmap(mesh) -> np.ndarray:
     dm = mesh.geometry.dofmap
     if MODERN:
         return np.asarray(dm)
-    return dm.array.reshape(-1, dm.num_links(0)) if dm.num_nodes else np.zeros((0, 4), np.int32)
+    return dm.array.reshape(-1, dm.offsets[1] - dm.offsets[0]) if len(dm.offsets) > 1 else np.zeros((0, 4), np.int32)
+
+
+def element_degree(V) -> int:
+    degree = V.ufl_element().degree  # a method in 0.5, a property in 0.9
+    return int(degree() if callable(degree) else degree)
+
+
+def dofmap_array(V) -> np.ndarray:
+    """(num_cells, dofs_per_cell) block dof indices of a function space."""
+    dm = V.dofmap.list
+    if MODERN:
+        return np.asarray(dm)
+    return dm.array.reshape(-1, dm.offsets[1] - dm.offsets[0]) if len(dm.offsets) > 1 else np.zeros((0, 1), np.int32)
 
 
 def tetra_domain():

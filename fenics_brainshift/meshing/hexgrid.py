@@ -63,3 +63,25 @@ def structured_box(size, cells, origin=(0.0, 0.0, 0.0)) -> tuple[np.ndarray, np.
     corners = np.column_stack([node(I + o[0], J + o[1], K + o[2]) for o in _OFFSETS])
     tets = hexes_to_tets(corners, (I + J + K) % 2)
     return points, orient_positive(points, tets)
+
+
+def voxel_mesh(mask: np.ndarray, spacing, origin=(0.0, 0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
+    """Points and conforming tetrahedra (five per voxel) of the voxels where ``mask`` is True.
+
+    The split pattern follows the parity of the voxel's global index, so the tetrahedra of
+    neighbouring voxels share their faces exactly. Only corners of kept voxels become points."""
+    mask = np.asarray(mask, dtype=bool)
+    nx, ny, nz = mask.shape
+    I, J, K = np.nonzero(mask)
+
+    def node(i, j, k):
+        return (i * (ny + 1) + j) * (nz + 1) + k
+
+    corners = np.column_stack([node(I + o[0], J + o[1], K + o[2]) for o in _OFFSETS])
+    used, compact = np.unique(corners, return_inverse=True)
+    corners = compact.reshape(corners.shape)
+    ci, rest = np.divmod(used, (ny + 1) * (nz + 1))
+    cj, ck = np.divmod(rest, nz + 1)
+    points = np.asarray(origin, dtype=float) + np.column_stack([ci, cj, ck]) * np.asarray(spacing, dtype=float)
+    tets = hexes_to_tets(corners, (I + J + K) % 2)
+    return points, orient_positive(points, tets)
