@@ -203,10 +203,8 @@ class HydrostaticLoad:
         self._quadrature = None
         if rule == "quadrature":
             from .loads import QuadratureFluidLoad
-            from .scene import Fluid, Gravity
 
-            self._quadrature = QuadratureFluidLoad(
-                V, Fluid(density=rho_fluid, quadrature_degree=quadrature_degree), Gravity(tuple(g)))
+            self._quadrature = QuadratureFluidLoad(V, rho_fluid, g, quadrature_degree)
         self.force = np.zeros(3)
         self.submerged_volume = 0.0
         self.wet_facets = 0
@@ -218,6 +216,16 @@ class HydrostaticLoad:
             return f.x_vertices, f.x_opposite
         values = u.x.array.reshape(-1, 3)
         return f.x_vertices + values[f.vertex_dofs], f.x_opposite + values[f.opposite_dofs]
+
+    def volume_below(self, level: float, u=None) -> float:
+        """Volume of the body below the level (global), from the surface alone:
+        V = sum over wet sub-triangles of area * depth(centroid) * (-n.up) (divergence theorem)."""
+        X, X_opp = self.geometry(u)
+        depth = level - X @ self.up
+        wet = np.flatnonzero((depth > 0).any(axis=1))
+        n, area = triangle_geometry(X[wet], X_opp[wet])
+        local = float(np.sum(paper_loads(depth[wet], area).sum(axis=1) * -(n @ self.up)))
+        return self.comm.allreduce(local, op=MPI.SUM)
 
     def assemble(self, level: float, u=None) -> PETSc.Vec:
         """The assembled nodal load (owned entries summed over ranks, ghosts updated)."""

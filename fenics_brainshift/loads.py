@@ -13,7 +13,7 @@ from dolfinx.fem.petsc import assemble_vector, create_vector
 from petsc4py import PETSc
 
 from . import forms
-from .scene import Fluid, Gravity
+from .scene import Fluid, Gravity, SceneError
 
 
 def assemble_into(b: PETSc.Vec, compiled_form) -> PETSc.Vec:
@@ -41,16 +41,18 @@ class GravityLoad:
 
 
 class QuadratureFluidLoad:
-    """-p n on the exterior surface, p = rho_f |g| max(level - x.up, 0), by quadrature."""
+    """-p n on the exterior surface, p = rho_f |g| max(level - x.up, 0), by quadrature of the
+    given degree on the reference geometry (the reference the exact rule is measured against)."""
 
-    def __init__(self, V, fluid: Fluid, gravity: Gravity):
+    def __init__(self, V, rho_fluid: float, gravity, quadrature_degree: int):
         mesh = V.mesh
         v = ufl.TestFunction(V)
+        g = np.asarray(gravity, dtype=float)
         self.level = fem.Constant(mesh, PETSc.ScalarType(0.0))
-        up = fem.Constant(mesh, np.array(gravity.up, dtype=PETSc.ScalarType))
+        up = fem.Constant(mesh, np.array(-g / np.linalg.norm(g), dtype=PETSc.ScalarType))
         x = ufl.SpatialCoordinate(mesh)
-        p = forms.clipped_hydrostatic_pressure(x, fluid.density, gravity.magnitude, up, self.level)
-        self.form = fem.form(forms.pressure_load(v, p, ufl.FacetNormal(mesh), fluid.quadrature_degree))
+        p = forms.clipped_hydrostatic_pressure(x, rho_fluid, float(np.linalg.norm(g)), up, self.level)
+        self.form = fem.form(forms.pressure_load(v, p, ufl.FacetNormal(mesh), quadrature_degree))
         self.vector = create_vector(self.form)
         self._assembled_level: float | None = None
 
@@ -61,3 +63,50 @@ class QuadratureFluidLoad:
             assemble_into(self.vector, self.form)
             self._assembled_level = level
         return self.vector
+
+
+class FluidLoad:
+    """The fluid's nodal load at time t: the level comes from the schedule, or from the fluid
+    volume in a container (then it depends on how much of the body is under water)."""
+
+    def __init__(self, V, fluid: Fluid, gravity: Gravity):
+        from .hydrostatics import HydrostaticLoad
+
+        self.fluid = fluid
+        self.hydro = HydrostaticLoad(V, fluid.density, gravity.vector, fluid.rule, fluid.quadrature_degree)
+        self.level = float("nan")
+        self._assembled_key = None
+        self.assemblies = 0
+
+    def level_at(self, t: float, u=None) -> float:
+        fluid = self.fluid
+        if fluid.level is not None:
+            return fluid.level(t)
+        return self.container_level(fluid.volume(t), u)
+
+    def container_level(self, volume: float, u=None) -> float:
+        """Solve area (h - floor) - V_below(h) = volume for h (monotone in h: bisection-safe)."""
+        from scipy.optimize import brentq
+
+        area, floor = self.fluid.container_area, self.fluid.floor
+        if volume == 0.0:
+            return floor
+        body = self.hydro.volume_below(1e30, u)
+        top = floor + (volume + body) / area
+        if self.hydro.volume_below(floor, u) > 1e-12 * body:
+            raise SceneError(f"[fluid] floor = {floor:g} m cuts through the body; it must be at or below its lowest point")
+        return brentq(lambda h: area * (h - floor) - self.hydro.volume_below(h, u) - volume,
+                      floor, top, xtol=1e-14, rtol=1e-15, maxiter=200)
+
+    def assemble(self, t: float, u=None) -> PETSc.Vec:
+        """The load at time t on the geometry x + u (u ignored unless follower loading is on).
+        Without follower loading it is reassembled only when the level changes."""
+        u = u if self.fluid.follower else None
+        level = self.level_at(t, u)
+        key = level if u is None else None
+        if key is None or key != self._assembled_key:
+            self.hydro.assemble(level, u)
+            self.assemblies += 1
+        self._assembled_key = key
+        self.level = level
+        return self.hydro.vector

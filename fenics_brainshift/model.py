@@ -13,7 +13,7 @@ from dolfinx.fem.petsc import assemble_matrix
 from petsc4py import PETSc
 
 from . import compat, forms
-from .loads import GravityLoad, QuadratureFluidLoad
+from .loads import FluidLoad, GravityLoad
 from .meshing import build_mesh
 from .scene import Scene, SceneError
 
@@ -27,7 +27,7 @@ class Model:
     mu: float
     lmbda: float
     gravity: GravityLoad
-    fluid: QuadratureFluidLoad | None
+    fluid: FluidLoad | None
 
     @property
     def comm(self):
@@ -69,9 +69,10 @@ class Model:
             "dofs": int(im.size_global * self.V.dofmap.index_map_bs),
         }
 
-    def external_load(self, level: float | None) -> tuple[PETSc.Vec, PETSc.Vec | None]:
-        """(F_gravity, F_fluid at this level) as assembled vectors (fluid None when dry)."""
-        fluid = self.fluid.assemble(level) if self.fluid is not None and level is not None else None
+    def external_load(self, t: float, u=None) -> tuple[PETSc.Vec, PETSc.Vec | None]:
+        """(F_gravity, F_fluid at time t on the geometry x + u) as assembled vectors; the
+        fluid part is None without a [fluid]."""
+        fluid = self.fluid.assemble(t, u) if self.fluid is not None else None
         return self.gravity.vector, fluid
 
 
@@ -110,5 +111,5 @@ def build_model(scene: Scene, comm) -> Model:
     bcs = fixed_conditions(V, scene)
     mat = scene.material
     gravity = GravityLoad(V, mat.density, scene.gravity)
-    fluid = QuadratureFluidLoad(V, scene.fluid, scene.gravity) if scene.fluid is not None else None
+    fluid = FluidLoad(V, scene.fluid, scene.gravity) if scene.fluid is not None else None
     return Model(scene, mesh, V, bcs, mat.mu, mat.lmbda, gravity, fluid)

@@ -157,23 +157,23 @@ class Gravity:
         return tuple(-c / g for c in self.vector)  # type: ignore[return-value]
 
 
-@dataclass(slots=True)
-class LevelSchedule:
-    """Piecewise-linear fluid level h(t): points (t, h), constant before the first and after the last."""
+class Schedule:
+    """Piecewise linear in time: points (t, value), held constant before the first and after
+    the last. A single number means constant."""
 
-    points: tuple[tuple[float, float], ...]
+    __slots__ = ("points", "where")
 
-    def __post_init__(self):
-        where = "[fluid] level"
-        if isinstance(self.points, (int, float)) and not isinstance(self.points, bool):
-            self.points = ((0.0, float(self.points)),)
-        if not isinstance(self.points, (list, tuple)) or not self.points:
-            raise SceneError(f"{where} must be a height (m) or a list of [time, height] pairs")
+    def __init__(self, points, where: str):
+        self.where = where
+        if isinstance(points, (int, float)) and not isinstance(points, bool):
+            points = ((0.0, float(points)),)
+        if not isinstance(points, (list, tuple)) or not points:
+            raise SceneError(f"{where} must be a number or a list of [time, value] pairs")
         pts = []
-        for i, p in enumerate(self.points):
+        for i, p in enumerate(points):
             if not isinstance(p, (list, tuple)) or len(p) != 2:
-                raise SceneError(f"{where}[{i}] must be a [time, height] pair (got {p!r})")
-            pts.append((_number(f"{where}[{i}] time", p[0]), _number(f"{where}[{i}] height", p[1])))
+                raise SceneError(f"{where}[{i}] must be a [time, value] pair (got {p!r})")
+            pts.append((_number(f"{where}[{i}] time", p[0]), _number(f"{where}[{i}] value", p[1])))
         for i in range(1, len(pts)):
             if pts[i][0] <= pts[i - 1][0]:
                 raise SceneError(f"{where}[{i}] time {pts[i][0]:g} s must be later than {pts[i - 1][0]:g} s (times must increase)")
@@ -188,20 +188,63 @@ class LevelSchedule:
                 return h0 + (h1 - h0) * (t - t0) / (t1 - t0)
         return pts[-1][1]
 
+    @property
+    def times(self) -> list[float]:
+        return [t for t, _ in self.points]
+
+
+FLUID_RULES = ("consistent", "paper", "quadrature")
+
 
 @dataclass(slots=True)
 class Fluid:
-    """CSF (or oil): density and free-surface height along up = -gravity/|gravity|."""
+    """CSF (or oil) with a free surface at a height along up = -gravity/|gravity|.
+
+    Give the surface either as ``level`` (m, a number or [[t, h], ...]) or, for a container,
+    as ``volume`` (m3, a number or [[t, V], ...]) with the container's ``container_area``
+    (m2, its footprint) and ``floor`` (the floor's height along up, m): the level then follows
+    from volume = area (level - floor) - submerged volume of the body, recomputed as the body
+    deforms. ``rule``: "consistent" (exact integral of p N_i over the wet part), "paper"
+    (the paper's depth-weighted nodal shares, P1), "quadrature" (plain UFL quadrature of
+    degree ``quadrature_degree``, a reference). ``follower``: evaluate the load on the current
+    geometry x + u (the paper does), lagged by one step in dynamics and iterated to
+    convergence in quasi-static solves."""
 
     density: float = 1000.0
-    level: LevelSchedule | Any = 0.0
+    level: Schedule | Any = None
+    volume: Schedule | Any = None
+    container_area: float | None = None
+    floor: float = 0.0
+    rule: str = "consistent"
+    follower: bool = True
     quadrature_degree: int = 4
 
     def __post_init__(self):
         self.density = _positive("[fluid] density", self.density)
-        if not isinstance(self.level, LevelSchedule):
-            self.level = LevelSchedule(self.level)
+        if (self.level is None) == (self.volume is None):
+            raise SceneError("[fluid] give exactly one of level (m) or volume (m3, with container_area)")
+        if self.level is not None and not isinstance(self.level, Schedule):
+            self.level = Schedule(self.level, "[fluid] level")
+        if self.volume is not None:
+            if not isinstance(self.volume, Schedule):
+                self.volume = Schedule(self.volume, "[fluid] volume")
+            for i, (_, v) in enumerate(self.volume.points):
+                if v < 0:
+                    raise SceneError(f"[fluid] volume[{i}] must be >= 0 m3 (got {v:g})")
+            if self.container_area is None:
+                raise SceneError("[fluid] volume needs container_area (m2), the container's footprint")
+            self.container_area = _positive("[fluid] container_area", self.container_area)
+        self.floor = _number("[fluid] floor", self.floor)
+        _choice("[fluid] rule", self.rule, FLUID_RULES)
+        if not isinstance(self.follower, bool):
+            raise SceneError(f"[fluid] follower must be true or false (got {self.follower!r})")
+        if self.rule == "quadrature" and self.follower:
+            self.follower = False  # the UFL reference integrates on the reference geometry
         self.quadrature_degree = _integer("[fluid] quadrature_degree", self.quadrature_degree, 1)
+
+    @property
+    def schedule(self) -> Schedule:
+        return self.level if self.level is not None else self.volume
 
 
 @dataclass(slots=True)
@@ -353,6 +396,8 @@ class Scene:
     def __post_init__(self):
         if self.fluid is not None and self.gravity.magnitude == 0.0:
             raise SceneError("[gravity] vector must be non-zero when a [fluid] is present (it defines 'up')")
+        if self.fluid is not None and self.fluid.rule == "paper" and self.element.degree != 1:
+            raise SceneError("[fluid] rule = \"paper\" shares forces among triangle vertices: degree 1 only; use \"consistent\"")
         if self.time.mode == "quasi-static" and not self.fixed:
             raise SceneError("[[fixed]] a quasi-static scene needs at least one fixed region (K alone is singular)")
         self.probes = {str(k): _vector3(f"[probes] {k}", v) for k, v in self.probes.items()}

@@ -25,8 +25,9 @@ from .io import FieldWriter, write_csv, write_json
 from .logs import get_logger
 from .model import Model, build_model
 from .probes import Probes
+from .relaxation import AitkenRelaxation
 from .scene import Scene, SolverConfig
-from .solver import LinearSolver, rigid_body_modes
+from .solver import LinearSolver, SolverError, rigid_body_modes
 
 log = get_logger("simulation")
 
@@ -62,6 +63,7 @@ class Simulation:
         self.du = fem.Function(V)
         self.n_owned = V.dofmap.index_map.size_local * V.dofmap.index_map_bs
         self.probes = Probes(model.mesh, self.scene.probes)
+        self.follower_iterations = 0
         self.history = History()
         self.t = 0.0
         self.steps_taken = 0
@@ -72,26 +74,38 @@ class Simulation:
         self._tmp = self._F.duplicate()
         self._wm = self._F.duplicate()
         self._wk = self._F.duplicate()
+        self._base = self._F.duplicate()
+        self._trial = self._F.duplicate()
+        self._geometry = fem.Function(V)
+        self.follower = model.fluid is not None and self.scene.fluid.follower
+        self.follower_tol = 1e-10
+        self.max_follower_iterations = 100
+        self.relaxation = AitkenRelaxation(self._F)
 
     # -- loads -----------------------------------------------------------------------------
-    def level(self, t: float) -> float | None:
-        fluid = self.scene.fluid
-        return fluid.level(t) if fluid is not None else None
+    @property
+    def level(self) -> float | None:
+        """The fluid level of the last load evaluation (None when dry)."""
+        return self.model.fluid.level if self.model.fluid is not None else None
 
-    def load(self, t: float, out: PETSc.Vec) -> PETSc.Vec:
-        """F(t) = F_gravity + F_fluid(level(t)) into out (owned entries)."""
-        grav, fluid = self.model.external_load(self.level(t))
+    def load(self, t: float, out: PETSc.Vec, geometry=None) -> PETSc.Vec:
+        """F(t) = F_gravity + F_fluid into out (owned entries); with follower loading the
+        fluid load is evaluated on x + geometry (a displacement Function)."""
+        grav, fluid = self.model.external_load(t, geometry)
         out.array[:] = grav.array_r if fluid is None else grav.array_r + fluid.array_r
         return out
 
     def forces(self) -> dict:
-        """Resultant gravity and fluid forces (N) at the current time."""
+        """Resultant gravity and fluid forces (N), the fluid level and the submerged volume,
+        evaluated on the current state."""
         from .loads import total_force
 
-        grav, fluid = self.model.external_load(self.level(self.t))
-        zero = np.zeros(3)
+        grav, fluid = self.model.external_load(self.t, self.u)
+        hydro = self.model.fluid.hydro if fluid is not None else None
         return {"gravity_force_N": total_force(grav, self.model.comm),
-                "fluid_force_N": total_force(fluid, self.model.comm) if fluid is not None else zero}
+                "fluid_force_N": hydro.force if hydro else np.zeros(3),
+                "submerged_volume_m3": hydro.submerged_volume if hydro else 0.0,
+                "final_level_m": self.level}
 
     # -- dynamic -----------------------------------------------------------------------------
     def setup_dynamic(self) -> None:
@@ -102,7 +116,7 @@ class Simulation:
         self.K = m.assemble(m.stiffness_form(), with_bcs=False)
         self.A = m.assemble(m.combined(cm, ck), with_bcs=True)
         self.solver = LinearSolver(self.A, sc.solver, "", self._nullspace)
-        self._F_old = self.load(self.t, self._F.duplicate())
+        self._F_old = self.load(self.t, self._F.duplicate(), self.u)
         self._initial_acceleration()
 
     def _initial_acceleration(self) -> None:
@@ -131,26 +145,46 @@ class Simulation:
         M_bc.destroy()
 
     def step(self) -> int:
-        """Advance one time step; returns the Krylov iteration count."""
+        """Advance one time step; returns the Krylov iteration count. With follower loading
+        the fluid load at t_{n+1} is evaluated on x + u_{n+1}, iterated within the step
+        (Aitken-relaxed); without it, one solve."""
         ti, sc = self.integrator, self.scene
         n = self.n_owned
         t_new = (self.steps_taken + 1) * ti.dt  # not a running sum: no drift in t
-        F_new = self.load(t_new, self._F)
         w_new, w_old = ti.load_weights()
-        rhs = self._rhs
-        rhs.array[:] = w_new * F_new.array_r + w_old * self._F_old.array_r
         u, v, a = self.u.x.array[:n], self.v.x.array[:n], self.a.x.array[:n]
         wm, wk = ti.rhs_vectors(u, v, a, sc.damping.a, sc.damping.b)
+        base = self._base  # everything but w_new F_{n+1}
+        base.array[:] = w_old * self._F_old.array_r
         self._wm.array[:] = wm
         self._wk.array[:] = wk
         self.M.mult(self._wm, self._tmp)
-        rhs.axpy(-1.0, self._tmp)
+        base.axpy(-1.0, self._tmp)
         self.K.mult(self._wk, self._tmp)
-        rhs.axpy(-1.0, self._tmp)
-        set_bc(rhs, self.model.bcs)
-        t0 = time.perf_counter()
-        its = self.solver.solve(rhs, compat.petsc_vec(self.du))
-        self.history.solve_seconds += time.perf_counter() - t0
+        base.axpy(-1.0, self._tmp)
+        du = compat.petsc_vec(self.du)
+        self.relaxation.reset()
+        for k in range(1, self.max_follower_iterations + 1):
+            if self.follower:  # the geometry of this iterate: x + u_n + du
+                self._geometry.x.array[:] = self.u.x.array + self.du.x.array
+            F_new = self.load(t_new, self._F, self._geometry if self.follower else self.u)
+            rhs = self._rhs
+            base.copy(rhs)
+            rhs.axpy(w_new, F_new)
+            set_bc(rhs, self.model.bcs)
+            du.copy(self._trial)
+            its = self._solve(rhs, self._trial)
+            if not self.follower:
+                self._trial.copy(du)
+                break
+            change = self.relaxation.update(du, self._trial)
+            self.du.x.scatter_forward()
+            if change <= self.follower_tol:
+                break
+        else:
+            self._not_settled(change)
+        self.follower_iterations = k
+        self.du.x.scatter_forward()
         ti.update(u, v, a, self.du.x.array[:n])
         for f in (self.u, self.v, self.a):
             f.x.scatter_forward()
@@ -166,21 +200,50 @@ class Simulation:
         self.solver = LinearSolver(self.K_bc, self.scene.solver, "", self._nullspace)
 
     def solve_static(self, t: float) -> int:
-        """K u = F(t) with the supports; u keeps the previous answer as initial guess."""
-        rhs = self.load(t, self._rhs)
-        set_bc(rhs, self.model.bcs)
-        t0 = time.perf_counter()
-        its = self.solver.solve(rhs, compat.petsc_vec(self.u))
-        self.history.solve_seconds += time.perf_counter() - t0
-        self.u.x.scatter_forward()
+        """K u = F(t) with the supports; u keeps the previous answer as initial guess. With
+        follower loading F depends on u: iterated to the tolerance with Aitken relaxation.
+        Returns the Krylov iterations of the last solve."""
+        u_vec = compat.petsc_vec(self.u)
+        trial = self._trial
+        self.relaxation.reset()
+        for k in range(1, self.max_follower_iterations + 1):
+            rhs = self.load(t, self._rhs, self.u)
+            set_bc(rhs, self.model.bcs)
+            u_vec.copy(trial)
+            its = self._solve(rhs, trial)
+            if not self.follower:
+                trial.copy(u_vec)
+                self.u.x.scatter_forward()
+                break
+            change = self.relaxation.update(u_vec, trial)
+            self.u.x.scatter_forward()
+            if change <= self.follower_tol:
+                break
+        else:
+            self._not_settled(change)
+        self.follower_iterations = k
         self.t = t
         return its
+
+    def _solve(self, rhs: PETSc.Vec, x: PETSc.Vec) -> int:
+        t0 = time.perf_counter()
+        its = self.solver.solve(rhs, x)
+        self.history.solve_seconds += time.perf_counter() - t0
+        if not np.isfinite(x.norm()):
+            raise SolverError(f"the solution is no longer finite at t = {self.t:g} s (NaN or Inf); "
+                              f"reduce [time] dt or check the loads")
+        return its
+
+    def _not_settled(self, change: float) -> None:
+        raise SolverError(f"follower-load iteration did not settle in {self.max_follower_iterations} "
+                          f"iterations at t = {self.t:g} s (relative change {change:.1e}); use "
+                          f"[fluid] follower = false")
 
     # -- reporting ---------------------------------------------------------------------------
     def record(self) -> None:
         h = self.history
         h.times.append(self.t)
-        level = self.level(self.t)
+        level = self.level
         h.levels.append(np.nan if level is None else level)
         h.probes.append(self.probes.values(self.u))
 
@@ -191,8 +254,8 @@ class Simulation:
 
 
 def static_times(scene: Scene) -> list[float]:
-    """Quasi-static solves happen at each breakpoint of the level schedule (t = 0 when dry)."""
-    return [t for t, _ in scene.fluid.level.points] if scene.fluid is not None else [0.0]
+    """Quasi-static solves happen at each breakpoint of the fluid schedule (t = 0 when dry)."""
+    return scene.fluid.schedule.times if scene.fluid is not None else [0.0]
 
 
 def run(scene: Scene, out_dir: str | Path, comm=MPI.COMM_WORLD) -> dict:
@@ -235,7 +298,7 @@ def run(scene: Scene, out_dir: str | Path, comm=MPI.COMM_WORLD) -> dict:
                 next_write += max(interval, scene.time.dt) if interval > 0 else 0.0
             if n % max(1, steps // 10) == 0 or n == steps:
                 log.info("  step %d/%d  t=%.3f s  level=%s  its=%d  |u|max=%.3e m", n, steps,
-                         sim.t, _fmt(sim.level(sim.t)), its, sim.max_displacement())
+                         sim.t, _fmt(sim.level), its, sim.max_displacement())
     else:
         times = static_times(scene)
         for t in times:
@@ -244,7 +307,8 @@ def run(scene: Scene, out_dir: str | Path, comm=MPI.COMM_WORLD) -> dict:
             h.step_seconds.append(time.perf_counter() - t0)
             sim.record()
             writer.write(sim.t, sim.u, sim.v)
-            log.info("  level=%s  its=%d  |u|max=%.3e m", _fmt(sim.level(t)), its, sim.max_displacement())
+            log.info("  t=%g s  level=%s  its=%d  follower iterations=%d  |u|max=%.3e m", t,
+                     _fmt(sim.level), its, sim.follower_iterations, sim.max_displacement())
     writer.close()
 
     probe_header = ["t", "level"] + [f"{n}_{c}" for n in sim.probes.names for c in "xyz"]
@@ -268,7 +332,6 @@ def run(scene: Scene, out_dir: str | Path, comm=MPI.COMM_WORLD) -> dict:
         "iterations_mean": float(np.mean(its)) if its else 0.0,
         "iterations_max": int(max(its)) if its else 0,
         "final_time": sim.t,
-        "final_level_m": sim.level(sim.t),
         "max_displacement_m": sim.max_displacement(),
         "probes": sim.probes.as_dict(h.probes[-1]),
         **sim.forces(),
