@@ -217,6 +217,12 @@ class HydrostaticLoad:
         values = u.x.array.reshape(-1, 3)
         return f.x_vertices + values[f.vertex_dofs], f.x_opposite + values[f.opposite_dofs]
 
+    def highest(self, u=None) -> float:
+        """The greatest height (x.up) of the surface, global."""
+        X, _ = self.geometry(u)
+        local = float((X @ self.up).max()) if len(X) else -np.inf
+        return self.comm.allreduce(local, op=MPI.MAX)
+
     def volume_below(self, level: float, u=None) -> float:
         """Volume of the body below the level (global), from the surface alone:
         V = sum over wet sub-triangles of area * depth(centroid) * (-n.up) (divergence theorem)."""

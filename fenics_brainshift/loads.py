@@ -77,6 +77,13 @@ class FluidLoad:
         self.level = float("nan")
         self._assembled_key = None
         self.assemblies = 0
+        self._last_level = float("nan")
+        self._last_slope = fluid.container_area or 1.0
+        if fluid.volume is not None:
+            body = self.hydro.volume_below(self.hydro.highest())
+            if self.hydro.volume_below(fluid.floor) > 1e-9 * body:
+                raise SceneError(f"[fluid] floor = {fluid.floor:g} m cuts through the body; "
+                                 f"it must be at or below the body's lowest point")
 
     def level_at(self, t: float, u=None) -> float:
         fluid = self.fluid
@@ -85,18 +92,39 @@ class FluidLoad:
         return self.container_level(fluid.volume(t), u)
 
     def container_level(self, volume: float, u=None) -> float:
-        """Solve area (h - floor) - V_below(h) = volume for h (monotone in h: bisection-safe)."""
+        """Solve f(h) = area (h - floor) - V_below(h) - volume = 0 for the level h.
+
+        f is increasing (f' = area - wet cross-section, in (0, area]), so secant steps from
+        the last level settle in two or three surface integrals; Brent's method on a
+        guaranteed bracket takes over if they do not."""
         from scipy.optimize import brentq
 
         area, floor = self.fluid.container_area, self.fluid.floor
         if volume == 0.0:
             return floor
-        body = self.hydro.volume_below(1e30, u)
-        top = floor + (volume + body) / area
-        if self.hydro.volume_below(floor, u) > 1e-12 * body:
-            raise SceneError(f"[fluid] floor = {floor:g} m cuts through the body; it must be at or below its lowest point")
-        return brentq(lambda h: area * (h - floor) - self.hydro.volume_below(h, u) - volume,
-                      floor, top, xtol=1e-14, rtol=1e-15, maxiter=200)
+
+        def f(h):
+            return area * (h - floor) - self.hydro.volume_below(h, u) - volume
+
+        h0 = self._last_level if np.isfinite(self._last_level) else floor + volume / area
+        f0, slope = f(h0), self._last_slope
+        for _ in range(12):
+            if f0 == 0.0:
+                return self._remember(h0, slope)
+            h1 = h0 - f0 / slope
+            f1 = f(h1)
+            if abs(h1 - h0) <= 1e-13:
+                return self._remember(h1, slope)
+            slope = min(max((f1 - f0) / (h1 - h0), 1e-6 * area), area)
+            h0, f0 = h1, f1
+        body = self.hydro.volume_below(self.hydro.highest(u), u)
+        top = floor + 1.001 * (volume + body) / area  # f(top) >= 0.001 (volume + body) > 0
+        h = brentq(f, floor, top, xtol=1e-14, rtol=1e-15, maxiter=200)
+        return self._remember(h, slope)
+
+    def _remember(self, level: float, slope: float) -> float:
+        self._last_level, self._last_slope = level, slope
+        return level
 
     def assemble(self, t: float, u=None) -> PETSc.Vec:
         """The load at time t on the geometry x + u (u ignored unless follower loading is on).

@@ -36,3 +36,46 @@ class Probes:
 
     def as_dict(self, values: np.ndarray) -> dict[str, list[float]]:
         return {n: [float(c) for c in v] for n, v in zip(self.names, values)}
+
+
+class SurfaceAverages:
+    """Area-weighted mean displacement over parts of the exterior surface, each given by a
+    coordinate predicate that all vertices of a facet must satisfy (e.g. the cube's top face,
+    as the paper's camera averaged the top surface's point cloud)."""
+
+    def __init__(self, u, regions: dict):
+        import dolfinx.mesh
+        import ufl
+        from dolfinx import fem
+
+        mesh = u.function_space.mesh
+        self.names = list(regions)
+        self.comm = mesh.comm
+        self.forms = []
+        if not self.names:
+            return
+        mesh.topology.create_connectivity(2, 3)
+        n_owned = mesh.topology.index_map(2).size_local
+        for name in self.names:
+            facets = dolfinx.mesh.locate_entities_boundary(mesh, 2, regions[name])
+            if self.comm.allreduce(int(np.sum(facets < n_owned)), op=MPI.SUM) == 0:
+                raise SceneError(f"[surfaces] {name} = \"{regions[name].text}\" selects no boundary facet")
+            tags = dolfinx.mesh.meshtags(mesh, 2, np.sort(facets).astype(np.int32),
+                                         np.ones(len(facets), dtype=np.int32))
+            ds = ufl.Measure("ds", domain=mesh, subdomain_data=tags)(1)
+            one = fem.Constant(mesh, 1.0)
+            self.forms.append([fem.form(one * ds)] + [fem.form(u[i] * ds) for i in range(3)])
+
+    def values(self) -> np.ndarray:
+        """(n_regions, 3) mean displacement of each region (global)."""
+        from dolfinx import fem
+
+        out = np.zeros((len(self.names), 3))
+        for k, forms in enumerate(self.forms):
+            local = np.array([fem.assemble_scalar(f) for f in forms])
+            area, *integrals = self.comm.allreduce(local, op=MPI.SUM)
+            out[k] = np.array(integrals) / area
+        return out
+
+    def as_dict(self, values: np.ndarray) -> dict[str, list[float]]:
+        return {n: [float(c) for c in v] for n, v in zip(self.names, values)}

@@ -20,13 +20,16 @@ class AitkenRelaxation:
         self.diff = template.duplicate()
         self.reset()
 
-    def reset(self) -> None:
-        self.omega = self.omega0
+    def reset(self, keep_omega: bool = False) -> None:
+        """Start a new fixed-point problem; keep_omega starts from the last factor (a time
+        step's coupling is much like the previous step's)."""
+        if not keep_omega:
+            self.omega = self.omega0
         self.iteration = 0
 
     def update(self, x: PETSc.Vec, gx: PETSc.Vec) -> float:
         """x <- x + omega (G(x) - x), with omega from the last two residuals.
-        Returns |G(x) - x| / |G(x)|, the relative size of the update."""
+        Returns |G(x) - x|, for the caller to compare with its own scale."""
         r, last, diff = self.residual, self.last, self.diff
         gx.copy(r)
         r.axpy(-1.0, x)
@@ -39,4 +42,4 @@ class AitkenRelaxation:
         r.copy(last)
         self.iteration += 1
         x.axpy(self.omega, r)
-        return r.norm() / max(gx.norm(), 1e-300)
+        return r.norm()

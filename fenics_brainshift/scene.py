@@ -390,6 +390,7 @@ class Scene:
     solver: SolverConfig = field(default_factory=SolverConfig)
     element: Element = field(default_factory=Element)
     probes: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+    surfaces: dict[str, Predicate] = field(default_factory=dict)
     output: Output = field(default_factory=Output)
     name: str = "scene"
 
@@ -401,6 +402,13 @@ class Scene:
         if self.time.mode == "quasi-static" and not self.fixed:
             raise SceneError("[[fixed]] a quasi-static scene needs at least one fixed region (K alone is singular)")
         self.probes = {str(k): _vector3(f"[probes] {k}", v) for k, v in self.probes.items()}
+        surfaces = {}
+        for k, v in self.surfaces.items():
+            try:
+                surfaces[str(k)] = v if isinstance(v, Predicate) else parse_predicate(v)
+            except PredicateError as exc:
+                raise SceneError(f"[surfaces] {k}: {exc}") from None
+        self.surfaces = surfaces
 
 
 # ---------------------------------------------------------------- TOML loading
@@ -426,7 +434,7 @@ def _build(cls, table: Any, where: str):
 
 def scene_from_dict(data: dict, base: Path | None = None) -> Scene:
     """Build a Scene from parsed TOML; relative mesh files resolve against ``base``."""
-    known = list(_SECTIONS) + ["fixed", "probes", "name"]
+    known = list(_SECTIONS) + ["fixed", "probes", "surfaces", "name"]
     for key in data:
         if key not in known:
             raise SceneError(f"unknown section [{key}]; known sections: {', '.join(known)}")
@@ -443,6 +451,10 @@ def scene_from_dict(data: dict, base: Path | None = None) -> Scene:
     if not isinstance(probes, dict):
         raise SceneError("[probes] must be a table of name = [x, y, z]")
     kwargs["probes"] = probes
+    surfaces = data.get("surfaces", {})
+    if not isinstance(surfaces, dict):
+        raise SceneError("[surfaces] must be a table of name = \"condition on x, y, z\"")
+    kwargs["surfaces"] = surfaces
     if "name" in data:
         if not isinstance(data["name"], str):
             raise SceneError("name must be a string")

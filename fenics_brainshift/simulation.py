@@ -24,7 +24,7 @@ from .integrators import TimeIntegrator
 from .io import FieldWriter, write_csv, write_json
 from .logs import get_logger
 from .model import Model, build_model
-from .probes import Probes
+from .probes import Probes, SurfaceAverages
 from .relaxation import AitkenRelaxation
 from .scene import Scene, SolverConfig
 from .solver import LinearSolver, SolverError, rigid_body_modes
@@ -46,8 +46,10 @@ class History:
     times: list[float] = field(default_factory=list)
     levels: list[float] = field(default_factory=list)
     probes: list[np.ndarray] = field(default_factory=list)
+    surfaces: list[np.ndarray] = field(default_factory=list)
     step_seconds: list[float] = field(default_factory=list)
     solve_seconds: float = 0.0
+    solves: int = 0
 
 
 class Simulation:
@@ -63,6 +65,7 @@ class Simulation:
         self.du = fem.Function(V)
         self.n_owned = V.dofmap.index_map.size_local * V.dofmap.index_map_bs
         self.probes = Probes(model.mesh, self.scene.probes)
+        self.surfaces = SurfaceAverages(self.u, self.scene.surfaces)
         self.follower_iterations = 0
         self.history = History()
         self.t = 0.0
@@ -78,7 +81,7 @@ class Simulation:
         self._trial = self._F.duplicate()
         self._geometry = fem.Function(V)
         self.follower = model.fluid is not None and self.scene.fluid.follower
-        self.follower_tol = 1e-10
+        self.follower_tol = 1e-6  # relative to |u|: nanometres on millimetres
         self.max_follower_iterations = 100
         self.relaxation = AitkenRelaxation(self._F)
 
@@ -163,7 +166,8 @@ class Simulation:
         self.K.mult(self._wk, self._tmp)
         base.axpy(-1.0, self._tmp)
         du = compat.petsc_vec(self.du)
-        self.relaxation.reset()
+        scale = compat.petsc_vec(self.u).norm()  # changes are measured against |u|, not |du|
+        self.relaxation.reset(keep_omega=True)
         for k in range(1, self.max_follower_iterations + 1):
             if self.follower:  # the geometry of this iterate: x + u_n + du
                 self._geometry.x.array[:] = self.u.x.array + self.du.x.array
@@ -177,7 +181,7 @@ class Simulation:
             if not self.follower:
                 self._trial.copy(du)
                 break
-            change = self.relaxation.update(du, self._trial)
+            change = self.relaxation.update(du, self._trial) / max(scale, self._trial.norm(), 1e-300)
             self.du.x.scatter_forward()
             if change <= self.follower_tol:
                 break
@@ -215,7 +219,7 @@ class Simulation:
                 trial.copy(u_vec)
                 self.u.x.scatter_forward()
                 break
-            change = self.relaxation.update(u_vec, trial)
+            change = self.relaxation.update(u_vec, trial) / max(trial.norm(), 1e-300)
             self.u.x.scatter_forward()
             if change <= self.follower_tol:
                 break
@@ -229,6 +233,7 @@ class Simulation:
         t0 = time.perf_counter()
         its = self.solver.solve(rhs, x)
         self.history.solve_seconds += time.perf_counter() - t0
+        self.history.solves += 1
         if not np.isfinite(x.norm()):
             raise SolverError(f"the solution is no longer finite at t = {self.t:g} s (NaN or Inf); "
                               f"reduce [time] dt or check the loads")
@@ -246,6 +251,7 @@ class Simulation:
         level = self.level
         h.levels.append(np.nan if level is None else level)
         h.probes.append(self.probes.values(self.u))
+        h.surfaces.append(self.surfaces.values())
 
     def max_displacement(self) -> float:
         local = self.u.x.array[: self.n_owned].reshape(-1, 3)
@@ -311,8 +317,9 @@ def run(scene: Scene, out_dir: str | Path, comm=MPI.COMM_WORLD) -> dict:
                      _fmt(sim.level), its, sim.follower_iterations, sim.max_displacement())
     writer.close()
 
-    probe_header = ["t", "level"] + [f"{n}_{c}" for n in sim.probes.names for c in "xyz"]
-    rows = [[t, lv, *p.ravel()] for t, lv, p in zip(h.times, h.levels, h.probes)]
+    probe_header = (["t", "level"] + [f"{n}_{c}" for n in sim.probes.names for c in "xyz"]
+                    + [f"{n}_mean_{c}" for n in sim.surfaces.names for c in "xyz"])
+    rows = [[t, lv, *p.ravel(), *s.ravel()] for t, lv, p, s in zip(h.times, h.levels, h.probes, h.surfaces)]
     write_csv(out / "probes.csv", probe_header, rows, comm)
     its = sim.solver.iterations
     summary = {
@@ -329,11 +336,13 @@ def run(scene: Scene, out_dir: str | Path, comm=MPI.COMM_WORLD) -> dict:
         "setup_s": setup_s,
         "step_s_median": statistics.median(h.step_seconds),
         "solve_s_total": h.solve_seconds,
+        "linear_solves": h.solves,
         "iterations_mean": float(np.mean(its)) if its else 0.0,
         "iterations_max": int(max(its)) if its else 0,
         "final_time": sim.t,
         "max_displacement_m": sim.max_displacement(),
         "probes": sim.probes.as_dict(h.probes[-1]),
+        "surfaces": sim.surfaces.as_dict(h.surfaces[-1]),
         **sim.forces(),
     }
     write_json(out / "summary.json", summary, comm)

@@ -14,37 +14,70 @@ from fenics_brainshift.cli import main
 pytestmark = pytest.mark.usefixtures("serial_only")
 
 
-def _run_demo(out, ranks: int, *extra):
-    cmd = [sys.executable, str(ROOT / "demos" / "cube.py"), "--out", str(out), *extra]
+def _run(out, ranks: int, *cmd):
+    cmd = [sys.executable, *cmd]
     if ranks > 1:
         cmd = mpirun() + cmd
-    proc = subprocess.run(cmd, capture_output=True, text=True, env=subprocess_env(), cwd=ROOT, timeout=600)
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=subprocess_env(), cwd=ROOT, timeout=900)
     assert proc.returncode == 0, proc.stderr[-3000:]
-    return json.loads((out / "summary.json").read_text()), proc.stdout
+    return proc.stdout
 
 
-def test_cube_demo_same_probe_on_one_and_two_ranks(tmp_path):
-    args = ("--end", "1.0", "--cells", "10", "10", "5")
-    one, stdout = _run_demo(tmp_path / "one", 1, *args)
-    two, _ = _run_demo(tmp_path / "two", 2, *args)
-    assert "top-centre displacement" in stdout
+def _run_scene(out, ranks: int, *overrides):
+    sets = [a for o in overrides for a in ("--set", o)]
+    _run(out, ranks, "-m", "fenics_brainshift.cli", "run", str(ROOT / "demos" / "cube.toml"), "--out", str(out), *sets)
+    return json.loads((out / "summary.json").read_text())
+
+
+def test_cube_scene_same_probe_on_one_and_two_ranks(tmp_path):
+    overrides = ("mesh.cells=[10, 10, 5]", "time.end=1.0")
+    one = _run_scene(tmp_path / "one", 1, *overrides)
+    two = _run_scene(tmp_path / "two", 2, *overrides)
     assert (one["ranks"], two["ranks"]) == (1, 2)
     assert one["nodes"] == two["nodes"] == 11 * 11 * 6
-    a, b = np.array(one["probes"]["top_centre"]), np.array(two["probes"]["top_centre"])
-    assert a[2] < -1e-4  # it sags
+    for key in ("top_centre",):
+        a, b = np.array(one["probes"][key]), np.array(two["probes"][key])
+        assert a[2] < -1e-4  # it sags
+        assert np.abs(a - b).max() <= 1e-9 * np.abs(a).max()
+    a, b = np.array(one["surfaces"]["top"]), np.array(two["surfaces"]["top"])
     assert np.abs(a - b).max() <= 1e-9 * np.abs(a).max()
     assert two["max_displacement_m"] == pytest.approx(one["max_displacement_m"], rel=1e-9)
+    assert two["final_level_m"] == pytest.approx(one["final_level_m"], rel=1e-12)
     for key in ("dolfinx_version", "ranks", "nodes", "cells", "dofs", "steps", "setup_s", "step_s_median",
-                "solve_s_total", "final_time", "max_displacement_m", "probes", "fluid_force_N", "gravity_force_N"):
+                "solve_s_total", "final_time", "max_displacement_m", "probes", "fluid_force_N", "gravity_force_N",
+                "submerged_volume_m3", "final_level_m"):
         assert key in one, key
-    # the weight is exactly rho g V
+    # the weight is exactly rho g V; the buoyancy is rho_oil g V_submerged, pointing up
     assert one["gravity_force_N"][2] == pytest.approx(-1048.0 * 9.81 * 0.05 * 0.05 * 0.025, rel=1e-12)
+    assert one["fluid_force_N"][2] == pytest.approx(975.0 * 9.81 * one["submerged_volume_m3"], rel=1e-12)
+
+
+def test_cube_demo_figures_serial_and_mpi(tmp_path):
+    args = ("--cells", "6x6x3", "--grids", "4x4x2", "6x6x3")
+    outputs = {}
+    for ranks in (1, 2):
+        out = tmp_path / f"r{ranks}"
+        stdout = _run(out, ranks, str(ROOT / "demos" / "cube.py"), "--out", str(out), *args)
+        assert "top mean u_z" in stdout
+        for name in ("fig6_top_vs_volume", "fig7_mesh_sizes"):
+            assert (out / f"{name}.csv").is_file()
+            png = (out / f"{name}.png").read_bytes()
+            assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
+        outputs[ranks] = np.loadtxt(out / "fig6_top_vs_volume.csv", delimiter=",", skiprows=1)
+    fig6 = outputs[1]
+    assert fig6[:, 0].tolist() == [175, 150, 125, 100, 75, 50, 25, 10]
+    assert np.all(np.diff(fig6[:, 1]) < 0)  # the level falls
+    assert np.all(np.diff(fig6[:, 2]) < 0)  # and the top sinks further each time
+    np.testing.assert_allclose(outputs[2], outputs[1], rtol=1e-6, atol=1e-6)
+    fig7 = np.loadtxt(tmp_path / "r1" / "fig7_mesh_sizes.csv", delimiter=",", skiprows=1)
+    # the dynamic run settles onto the quasi-static answer of the same grid (6x6x3)
+    np.testing.assert_allclose(fig6[1:, 2], fig7[1:, 2], rtol=1e-3)
 
 
 def test_cube_outputs_open_in_meshio(tmp_path):
     import meshio
 
-    summary, _ = _run_demo(tmp_path / "o", 1, "--end", "0.2", "--cells", "6", "6", "3")
+    summary = _run_scene(tmp_path / "o", 1, "mesh.cells=[6, 6, 3]", "time.end=0.2")
     with meshio.xdmf.TimeSeriesReader(str(tmp_path / "o" / "displacement.xdmf")) as reader:
         points, cells = reader.read_points_cells()
         times = []
@@ -57,8 +90,10 @@ def test_cube_outputs_open_in_meshio(tmp_path):
     assert times[0] == 0.0 and times[-1] == pytest.approx(0.2)
     u = point_data["displacement"]
     assert np.abs(u).max() == pytest.approx(summary["max_displacement_m"], rel=0.5)
+    header = (tmp_path / "o" / "probes.csv").read_text().splitlines()[0].split(",")
+    assert header == ["t", "level", "top_centre_x", "top_centre_y", "top_centre_z", "top_mean_x", "top_mean_y", "top_mean_z"]
     csv = np.loadtxt(tmp_path / "o" / "probes.csv", delimiter=",", skiprows=1)
-    assert csv.shape[1] == 2 + 3 and csv[-1, 0] == pytest.approx(0.2)
+    assert csv[-1, 0] == pytest.approx(0.2)
 
 
 def test_quasi_static_mode_matches_settled_dynamics(tmp_path):
