@@ -130,35 +130,30 @@ def write_figures(out: Path, volumes, dynamic, sweep, summary, main_grid: str) -
 
 
 def plot(out: Path, volumes, top, sweep) -> None:
+    series = {"dynamic FEM, settled": top}
+    figure(out / "fig6_top_vs_volume.png", volumes, series, "Gelatin cube: sag as the oil drains (cf. paper Fig. 6)")
+    series = {f"{nodes} nodes": states[:, 2] * 1e3 for nodes, states in sweep.values()}
+    figure(out / "fig7_mesh_sizes.png", volumes, series, "Mesh size (cf. paper Fig. 7)")
+
+
+def figure(path: Path, volumes, series: dict, title: str) -> None:
+    """Top displacement relative to the first volume against oil volume, one line a series."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(6, 4))
-    ax.plot(volumes, top - top[0], "o-", label="dynamic FEM, settled (this work)")
+    for label, z in series.items():
+        ax.plot(volumes, z - z[0], "o-", label=label)
     ax.set_xlabel("silicone oil volume (ml)")
     ax.set_ylabel("top surface displacement (mm)\nrelative to 175 ml")
     ax.invert_xaxis()
     ax.grid(True, alpha=0.3)
     ax.legend()
-    ax.set_title("Gelatin cube: sag as the oil drains (cf. paper Fig. 6)")
+    ax.set_title(title)
     fig.tight_layout()
-    fig.savefig(out / "fig6_top_vs_volume.png", dpi=120)
-    plt.close(fig)
-
-    fig, ax = plt.subplots(figsize=(6, 4))
-    for nodes, states in sweep.values():
-        z = states[:, 2] * 1e3
-        ax.plot(volumes, z - z[0], "o-", label=f"{nodes} nodes")
-    ax.set_xlabel("silicone oil volume (ml)")
-    ax.set_ylabel("top surface displacement (mm)\nrelative to 175 ml")
-    ax.invert_xaxis()
-    ax.grid(True, alpha=0.3)
-    ax.legend()
-    ax.set_title("Mesh size (cf. paper Fig. 7)")
-    fig.tight_layout()
-    fig.savefig(out / "fig7_mesh_sizes.png", dpi=120)
+    fig.savefig(path, dpi=120)
     plt.close(fig)
 # -
 

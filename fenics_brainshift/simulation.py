@@ -165,34 +165,21 @@ class Simulation:
         base.axpy(-1.0, self._tmp)
         self.K.mult(self._wk, self._tmp)
         base.axpy(-1.0, self._tmp)
-        du = compat.petsc_vec(self.du)
-        scale = compat.petsc_vec(self.u).norm()  # changes are measured against |u|, not |du|
-        self.relaxation.reset(keep_omega=True)
-        for k in range(1, self.max_follower_iterations + 1):
+
+        def rhs_for_current_du() -> PETSc.Vec:
             if self.follower:  # the geometry of this iterate: x + u_n + du
                 self._geometry.x.array[:] = self.u.x.array + self.du.x.array
             F_new = self.load(t_new, self._F, self._geometry if self.follower else self.u)
-            rhs = self._rhs
-            base.copy(rhs)
-            rhs.axpy(w_new, F_new)
-            set_bc(rhs, self.model.bcs)
-            du.copy(self._trial)
-            its = self._solve(rhs, self._trial)
-            if not self.follower:
-                self._trial.copy(du)
-                break
-            change = self.relaxation.update(du, self._trial) / max(scale, self._trial.norm(), 1e-300)
-            self.du.x.scatter_forward()
-            if change <= self.follower_tol:
-                break
-        else:
-            self._not_settled(change)
-        self.follower_iterations = k
-        self.du.x.scatter_forward()
+            base.copy(self._rhs)
+            self._rhs.axpy(w_new, F_new)
+            return self._rhs
+
+        # changes are measured against |u|, not |du|; a step's coupling is like the last one's
+        its = self._settle(self.du, rhs_for_current_du, scale=compat.petsc_vec(self.u).norm(), keep_omega=True)
         ti.update(u, v, a, self.du.x.array[:n])
         for f in (self.u, self.v, self.a):
             f.x.scatter_forward()
-        F_new.copy(self._F_old)
+        self._F.copy(self._F_old)  # F_{n+1} becomes F_n
         self.t = t_new
         self.steps_taken += 1
         return its
@@ -207,26 +194,33 @@ class Simulation:
         """K u = F(t) with the supports; u keeps the previous answer as initial guess. With
         follower loading F depends on u: iterated to the tolerance with Aitken relaxation.
         Returns the Krylov iterations of the last solve."""
-        u_vec = compat.petsc_vec(self.u)
-        trial = self._trial
-        self.relaxation.reset()
+        its = self._settle(self.u, lambda: self.load(t, self._rhs, self.u), scale=0.0, keep_omega=False)
+        self.t = t
+        return its
+
+    def _settle(self, x, rhs_for_current_x, scale: float, keep_omega: bool) -> int:
+        """Solve A x = rhs(x) for the Function x, where the rhs depends on x only through the
+        follower load: one solve without follower loading, else Aitken-relaxed fixed-point
+        iteration until the update is below follower_tol of max(scale, |x|). Returns the
+        Krylov iterations of the last solve."""
+        x_vec, trial = compat.petsc_vec(x), self._trial
+        self.relaxation.reset(keep_omega=keep_omega)
         for k in range(1, self.max_follower_iterations + 1):
-            rhs = self.load(t, self._rhs, self.u)
+            rhs = rhs_for_current_x()
             set_bc(rhs, self.model.bcs)
-            u_vec.copy(trial)
+            x_vec.copy(trial)  # warm start from the current iterate
             its = self._solve(rhs, trial)
             if not self.follower:
-                trial.copy(u_vec)
-                self.u.x.scatter_forward()
+                trial.copy(x_vec)
+                x.x.scatter_forward()
                 break
-            change = self.relaxation.update(u_vec, trial) / max(trial.norm(), 1e-300)
-            self.u.x.scatter_forward()
+            change = self.relaxation.update(x_vec, trial) / max(scale, trial.norm(), 1e-300)
+            x.x.scatter_forward()
             if change <= self.follower_tol:
                 break
         else:
             self._not_settled(change)
         self.follower_iterations = k
-        self.t = t
         return its
 
     def _solve(self, rhs: PETSc.Vec, x: PETSc.Vec) -> int:

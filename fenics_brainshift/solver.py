@@ -56,18 +56,26 @@ class LinearSolver:
         self.ksp.setOperators(A)
         prefix = f"{PREFIX}{name}_" if name else PREFIX  # name "" for the main solver
         self.ksp.setOptionsPrefix(prefix)
+        # Options go into PETSc's global database only for this setFromOptions, then out again,
+        # so one scene's choices never leak into the next solver made in the same process.
         opts = PETSc.Options()
-        defaults = _defaults(config.kind)
-        for key, value in defaults.items():
-            if not opts.hasName(prefix + key):
-                opts.setValue(prefix + key, value)
+        inserted = {}
+        for key, value in _defaults(config.kind).items():
+            if not opts.hasName(prefix + key):  # PETSC_OPTIONS from the environment wins
+                inserted[prefix + key] = value
         for key, value in config.options.items():
-            opts.setValue(prefix + key.lstrip("-"), _option_text(value))
+            inserted[prefix + key.lstrip("-")] = _option_text(value)
+        for key, value in inserted.items():
+            opts.setValue(key, value)
         if config.kind == "cg-gamg" and near_nullspace is not None:
             A.setNearNullSpace(near_nullspace)
         self.ksp.setTolerances(rtol=config.rtol, atol=config.atol, max_it=config.max_it)
-        self.ksp.setFromOptions()
-        self.ksp.setUp()
+        try:
+            self.ksp.setFromOptions()
+            self.ksp.setUp()  # the factor and the multigrid levels read their options here
+        finally:
+            for key in inserted:
+                opts.delValue(key)
         self.iterations: list[int] = []
 
     def solve(self, b: PETSc.Vec, x: PETSc.Vec) -> int:
@@ -76,8 +84,9 @@ class LinearSolver:
         reason = self.ksp.getConvergedReason()
         its = self.ksp.getIterationNumber()
         if reason < 0:
+            detail = _factor_detail(self.ksp)
             raise SolverError(
-                f"{self.name or 'step'} solve diverged: {_reason_name(reason)} after {its} "
+                f"{self.name or 'step'} solve diverged: {_reason_name(reason)}{detail} after {its} "
                 f"iterations (solver '{self.config.kind}', rtol {self.config.rtol:g}); try "
                 f"[solver] kind = \"cholesky\" or a smaller dt")
         self.iterations.append(its)
@@ -94,8 +103,20 @@ def _defaults(kind: str) -> dict[str, str]:
                 "mg_levels_pc_type": "jacobi", "mg_levels_esteig_ksp_type": "cg"}
     if kind == "cg-jacobi":
         return {"ksp_type": "cg", "pc_type": "jacobi", "ksp_initial_guess_nonzero": "true"}
-    factor = {"pc_factor_mat_solver_type": "mumps"} if PETSc.Sys.hasExternalPackage("mumps") else {}
+    # MUMPS, with room to spare: its workspace estimate (ICNTL(14), default +20 %) was seen
+    # to fall short once in parallel (INFOG(1) = -9 style failure in PCSetUp).
+    factor = ({"pc_factor_mat_solver_type": "mumps", "mat_mumps_icntl_14": "100"}
+              if PETSc.Sys.hasExternalPackage("mumps") else {})
     return {"ksp_type": "preonly", "pc_type": kind, **factor}
+
+
+def _factor_detail(ksp) -> str:
+    """MUMPS's own error code, when a factorisation failed."""
+    try:
+        factor = ksp.getPC().getFactorMatrix()
+        return f" (MUMPS INFOG(1) = {factor.getMumpsInfog(1)}, INFOG(2) = {factor.getMumpsInfog(2)})"
+    except Exception:  # not a MUMPS factor, or no factor at all
+        return ""
 
 
 def _option_text(value) -> str:

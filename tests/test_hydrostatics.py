@@ -247,3 +247,17 @@ def test_follower_geometry_translation_equals_lower_level():
     moved = load.assemble(0.0, u).copy()
     reference = load.assemble(0.0 + shift @ direction).copy()  # up . shift = -direction . shift
     assert np.abs(moved.array_r - reference.array_r).max() < 1e-15 * RHO * G
+
+
+@pytest.mark.mpi
+def test_hydrostatic_load_function_api():
+    from fenics_brainshift.hydrostatics import hydrostatic_load
+
+    mesh = MESHES["box"](COMM)
+    V = compat.vector_space(mesh, 1)
+    f = hydrostatic_load(V, 0.004, RHO, (0.0, 0.0, -G))
+    n = V.dofmap.index_map.size_local * 3
+    total = COMM.allreduce(f.x.array[:n].reshape(-1, 3).sum(axis=0), op=MPI.SUM)
+    assert total[2] == pytest.approx(RHO * G * 0.03 * 0.02 * 0.004, rel=1e-12)
+    with pytest.raises(ValueError, match="rule must be one of"):
+        hydrostatic_load(V, 0.004, RHO, (0.0, 0.0, -G), rule="exact")
