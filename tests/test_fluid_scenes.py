@@ -47,13 +47,13 @@ def test_quasi_static_follower_solution_is_a_fixed_point():
     sim.solver.solve(rhs, again)  # one more plain iteration changes nothing
     again.axpy(-1.0, u)
     assert again.norm() <= 1e-5 * u.norm()
-    # and the follower answer differs from the reference-geometry one (the effect is real)
+    # and the follower answer differs from the reference-geometry one (the effect is real);
+    # compared through a global quantity: two meshes may be partitioned differently
     rigid = Simulation(build_model(_cube("time.mode=quasi-static", "fluid.follower=false"), COMM))
     rigid.setup_static()
     rigid.solve_static(0.0)
-    difference = compat.petsc_vec(rigid.u).copy()
-    difference.axpy(-1.0, u)
-    assert difference.norm() > 1e-3 * u.norm()
+    top, top_rigid = sim.surfaces.values()[0, 2], rigid.surfaces.values()[0, 2]
+    assert abs(top - top_rigid) > 1e-3 * abs(top)
 
 
 def test_deep_water_follower_is_stable_in_dynamics():
