@@ -18,7 +18,8 @@ extras=${BRAINSHIFT_EXTRAS:-test}
 # Debian's own builds: DOLFINx 0.5.2 on Debian 12, 0.9.0 on Debian 13.
 APT_PACKAGES=(
   python3-dolfinx-real python3-petsc4py python3-mpi4py python3-gmsh python3-meshio
-  python3-h5py python3-scipy python3-matplotlib python3-pytest python3-venv python3-pip python3-dev
+  python3-h5py python3-scipy python3-matplotlib python3-nibabel python3-skimage python3-pytest
+  python3-venv python3-pip python3-dev
   openmpi-bin make git ca-certificates
 )
 
