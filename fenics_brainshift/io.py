@@ -17,10 +17,16 @@ from . import compat, forms
 
 
 class FieldWriter:
-    """displacement.xdmf (+ .h5) with the requested fields at each output time."""
+    """displacement.xdmf (+ .h5) with the requested fields at each output time, and the
+    deformed fine surface (surface_NNNN.vtk/.stl, the last also as surface_final) when the
+    scene has one."""
 
-    def __init__(self, folder: Path, mesh, V, fields: tuple[str, ...], mu: float, lmbda: float):
+    def __init__(self, folder: Path, mesh, V, fields: tuple[str, ...], mu: float, lmbda: float,
+                 embedding=None):
         self.fields = fields
+        self.folder = folder
+        self.embedding = embedding
+        self.count = 0
         self.comm = mesh.comm
         self.path = folder / "displacement.xdmf"
         self.file = XDMFFile(mesh.comm, str(self.path), "w")
@@ -42,9 +48,15 @@ class FieldWriter:
             self._u.x.array[:] = u.x.array
             self.von_mises.interpolate(self._vm_expr)
             self.file.write_function(self.von_mises, t)
+        if self.embedding is not None:
+            self.embedding.write(self.folder, f"surface_{self.count:04d}", u)
+        self.count += 1
+        self._last_u = u
 
     def close(self) -> None:
         self.file.close()
+        if self.embedding is not None and self.count:
+            self.embedding.write(self.folder, "surface_final", self._last_u)
         if self.comm.rank == 0:
             merge_time_series(self.path)
         self.comm.barrier()

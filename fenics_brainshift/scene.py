@@ -71,7 +71,11 @@ class MeshSpec:
     structured grid of hexahedra split into five tetrahedra each (the paper's cube grids),
     ``h`` gives an unstructured gmsh mesh of that element size.
     ellipsoid: ``size`` = semi-axes, ``origin`` = centre, ``h`` = element size.
-    file: .msh (gmsh) or .xdmf (DOLFINx/meshio), coordinates in ``unit``.
+    file: .msh (gmsh) or .xdmf (DOLFINx/meshio) tetrahedral mesh, or a segmentation to be
+    voxel-meshed (the paper's embedding method): a label volume (.nii, .nii.gz) or a surface
+    (.stl, .obj, .ply, .vtk, .vtp, .gii, ...) with ``voxel`` (m), ``fill``, ``parts`` and
+    ``labels``; coordinates in ``unit``. ``surface``: a fine surface (same unit) that follows
+    the coarse model and is written deformed; a surface input is its own by default.
     """
 
     shape: str | None = None
@@ -81,6 +85,11 @@ class MeshSpec:
     cells: tuple[int, int, int] | None = None
     h: float | None = None
     unit: str = "m"
+    voxel: float | None = None
+    fill: float = 0.5
+    parts: int = 1
+    labels: tuple[int, ...] | None = None
+    surface: str | None = None
 
     def __post_init__(self):
         if (self.shape is None) == (self.file is None):
@@ -102,10 +111,29 @@ class MeshSpec:
         if self.shape == "ellipsoid" and self.h is None:
             raise SceneError("[mesh] an ellipsoid needs h = element size (m)")
         _choice("[mesh] unit", self.unit, tuple(LENGTH_UNITS))
+        if self.voxel is not None:
+            self.voxel = _positive("[mesh] voxel", self.voxel)
+        self.fill = _number("[mesh] fill", self.fill)
+        if not 0.0 <= self.fill <= 1.0:
+            raise SceneError(f"[mesh] fill must be in [0, 1] (got {self.fill:g}); 0 keeps every voxel the object touches")
+        self.parts = _integer("[mesh] parts", self.parts, 1)
+        if self.labels is not None:
+            if not isinstance(self.labels, (list, tuple)) or not all(isinstance(v, int) and not isinstance(v, bool) for v in self.labels):
+                raise SceneError(f"[mesh] labels must be a list of integers (got {self.labels!r})")
+            self.labels = tuple(self.labels)
+        if self.file is not None and self.needs_voxels and self.voxel is None:
+            raise SceneError(f"[mesh] file '{Path(self.file).name}' is a segmentation: give voxel = size in m (e.g. 0.005)")
+        if self.surface is not None and not isinstance(self.surface, str):
+            raise SceneError("[mesh] surface must be a file name")
 
     @property
     def scale(self) -> float:
         return LENGTH_UNITS[self.unit]
+
+    @property
+    def needs_voxels(self) -> bool:
+        name = str(self.file).lower()
+        return not (name.endswith(".msh") or name.endswith(".xdmf"))
 
 
 @dataclass(slots=True)
@@ -460,8 +488,11 @@ def scene_from_dict(data: dict, base: Path | None = None) -> Scene:
             raise SceneError("name must be a string")
         kwargs["name"] = data["name"]
     mesh = kwargs["mesh"]
-    if mesh.file is not None and base is not None and not Path(mesh.file).is_absolute():
-        mesh.file = str((base / mesh.file).resolve())
+    if base is not None:
+        if mesh.file is not None and not Path(mesh.file).is_absolute():
+            mesh.file = str((base / mesh.file).resolve())
+        if mesh.surface is not None and not Path(mesh.surface).is_absolute():
+            mesh.surface = str((base / mesh.surface).resolve())
     return Scene(**kwargs)
 
 
@@ -510,10 +541,15 @@ def load_scene(path: str | Path, overrides: list[str] = ()) -> Scene:
     for assignment in overrides:
         apply_override(data, assignment)
     scene = scene_from_dict(data, base=path.parent)
-    if scene.mesh.file is not None:
-        mesh_file = Path(scene.mesh.file)
-        if not mesh_file.is_file():
-            raise SceneError(f"[mesh] file '{mesh_file}' not found; give a path relative to the scene file")
-        if mesh_file.suffix not in (".msh", ".xdmf"):
-            raise SceneError(f"[mesh] file '{mesh_file.name}' must be .msh or .xdmf")
+    from .meshing.voxelize import is_voxelizable
+
+    for key in ("file", "surface"):
+        name = getattr(scene.mesh, key)
+        if name is None:
+            continue
+        if not Path(name).is_file():
+            raise SceneError(f"[mesh] {key} '{name}' not found; give a path relative to the scene file")
+        if not (name.endswith((".msh", ".xdmf")) or is_voxelizable(name)):
+            raise SceneError(f"[mesh] {key} '{Path(name).name}': use .msh, .xdmf, a label volume (.nii, .nii.gz) "
+                             f"or a surface (.stl, .obj, .ply, .vtk, .vtp, .gii)")
     return scene

@@ -20,6 +20,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from . import compat
+from .embedding import SurfaceEmbedding, load_fine_surface
 from .integrators import TimeIntegrator
 from .io import FieldWriter, write_csv, write_json
 from .logs import get_logger
@@ -266,13 +267,15 @@ def run(scene: Scene, out_dir: str | Path, comm=MPI.COMM_WORLD) -> dict:
     t_start = time.perf_counter()
     model = build_model(scene, comm)
     sim = Simulation(model)
+    surface = load_fine_surface(scene.mesh)
+    embedding = SurfaceEmbedding(model.mesh, *surface) if surface is not None else None
     dynamic = scene.time.mode == "dynamic"
     sim.setup_dynamic() if dynamic else sim.setup_static()
     out = Path(out_dir)
     if comm.rank == 0:
         out.mkdir(parents=True, exist_ok=True)
     comm.barrier()
-    writer = FieldWriter(out, model.mesh, model.V, scene.output.fields, model.mu, model.lmbda)
+    writer = FieldWriter(out, model.mesh, model.V, scene.output.fields, model.mu, model.lmbda, embedding)
     setup_s = time.perf_counter() - t_start
     sizes = model.sizes()
     log.info("%s: %d nodes, %d cells, %d dofs, P%d, %s, solver %s, %d rank(s); setup %.2f s",

@@ -18,6 +18,26 @@ def mesh_from_arrays(comm, points: np.ndarray, tets: np.ndarray):
     return compat.create_mesh(comm, tets, points)
 
 
+def voxel_model_mesh(spec: MeshSpec, comm):
+    """The embedding mesher on rank 0, then distributed: (mesh, VoxelModel on rank 0 or None)."""
+    from ..logs import get_logger
+    from .voxelize import VoxelizeError, voxelize
+
+    model, error = None, None
+    if comm.rank == 0:
+        try:
+            model = voxelize(spec.file, spec.voxel, spec.scale, spec.fill, spec.parts,
+                             list(spec.labels) if spec.labels else None)
+            get_logger("meshing").info("voxel mesh of %s: %s", Path(spec.file).name, model.report())
+        except VoxelizeError as exc:
+            error = str(exc)
+    error = comm.bcast(error, root=0)
+    if error:
+        raise SceneError(f"[mesh] {error}")
+    points, tets = (model.points, model.tets) if model is not None else (None, None)
+    return mesh_from_arrays(comm, points, tets), model
+
+
 def build_mesh(spec: MeshSpec, comm):
     if spec.shape == "box" and spec.cells is not None:
         points, tets = structured_box(spec.size, spec.cells, spec.origin) if comm.rank == 0 else (None, None)
@@ -27,6 +47,8 @@ def build_mesh(spec: MeshSpec, comm):
     path = Path(spec.file)
     if not path.is_file():
         raise SceneError(f"[mesh] file '{path}' not found")
+    if spec.needs_voxels:
+        return voxel_model_mesh(spec, comm)[0]
     try:
         if path.suffix == ".msh":
             mesh = read_msh(comm, str(path))
