@@ -106,3 +106,11 @@ def colliding_cells(mesh, points: np.ndarray) -> list[int]:
         links = cells.links(i)
         found.append(int(links[0]) if len(links) else -1)
     return found
+
+
+def write_meshtags(xdmf, tags, mesh) -> None:
+    """XDMFFile.write_meshtags: 0.9 also wants the geometry."""
+    if MODERN:
+        xdmf.write_meshtags(tags, mesh.geometry)
+    else:
+        xdmf.write_meshtags(tags)

@@ -67,3 +67,38 @@ def build_mesh(spec: MeshSpec, comm):
         raise SceneError(f"[mesh] file '{path.name}' holds a {mesh.topology.dim}-D mesh; a volume (tetrahedra) is needed")
     mesh.geometry.x[:] *= spec.scale
     return mesh
+
+
+def write_voxel_mesh(path: Path, comm, input_file: str, voxel: float, scale: float, fill: float = 0.5,
+                     parts: int = 1, labels=None):
+    """`brainshift mesh`: voxel-mesh a segmentation and write it as XDMF (metres), with the cell
+    tags "voxel" (1 + the index of the voxel each tetrahedron came from). Returns the report."""
+    import dolfinx.io
+    import dolfinx.mesh
+
+    spec = MeshSpec(file=str(input_file), voxel=voxel, fill=fill, parts=parts, labels=labels, unit="m")
+    spec_scale = scale  # the file's units to metres; MeshSpec's unit only names m/cm/mm
+    from .voxelize import VoxelizeError, voxelize
+
+    model, error = None, None
+    if comm.rank == 0:
+        try:
+            model = voxelize(spec.file, voxel, spec_scale, fill, parts, labels)
+        except VoxelizeError as exc:
+            error = str(exc)
+    error = comm.bcast(error, root=0)
+    if error:
+        raise SceneError(f"mesh: {error}")
+    mesh = mesh_from_arrays(comm, *((model.points, model.tets) if model else (None, None)))
+    tet_voxel = comm.bcast(model.tet_voxel if model else None, root=0)
+    n_owned = mesh.topology.index_map(3).size_local
+    original = np.asarray(mesh.topology.original_cell_index)[:n_owned]
+    tags = dolfinx.mesh.meshtags(mesh, 3, np.arange(n_owned, dtype=np.int32),
+                                 (tet_voxel[original] + 1).astype(np.int32))
+    tags.name = "voxel"
+    path.parent.mkdir(parents=True, exist_ok=True) if comm.rank == 0 else None
+    comm.barrier()
+    with dolfinx.io.XDMFFile(comm, str(path), "w") as xdmf:
+        xdmf.write_mesh(mesh)
+        compat.write_meshtags(xdmf, tags, mesh)
+    return comm.bcast(model.report() if model else None, root=0)
