@@ -37,6 +37,26 @@ def _parser() -> argparse.ArgumentParser:
     mesh.add_argument("--parts", type=int, default=1, help="keep this many largest face-connected parts")
     mesh.add_argument("--labels", type=int, nargs="+", help="labels of a label volume to mesh (default: all > 0)")
     mesh.add_argument("-o", "--output", default="mesh.xdmf", help="output XDMF file")
+    cmp = sub.add_parser("compare", help="the paper's error measures: PRE, INTRA (measured) and SIM surfaces",
+                         description="Landmarks A (farthest along --up) and B (farthest along --second) with "
+                                     "their 5 mm regions, d_MRI, d_MRI_bar, d_Sim and Error %% (eqs. 22-25), and "
+                                     "the surface error along --up over a rectangular ROI (section IV-D). SIM must be "
+                                     "PRE moved by the simulation (a run's surface_final.vtk).",
+                         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    cmp.add_argument("pre")
+    cmp.add_argument("intra")
+    cmp.add_argument("sim")
+    cmp.add_argument("--scales", type=float, nargs=3, default=[1e-3, 1e-3, 1.0], metavar=("PRE", "INTRA", "SIM"),
+                     help="file units to metres (medical surfaces in mm; brainshift writes metres)")
+    cmp.add_argument("--up", type=float, nargs=3, default=[0.0, 1.0, 0.0], help="node A's direction (up; supine RAS: +y)")
+    cmp.add_argument("--second", type=float, nargs=3, default=[0.0, 0.0, 1.0], help="node B's direction")
+    cmp.add_argument("--radius", type=float, default=5.0, help="region radius, mm")
+    cmp.add_argument("--depth", type=float, default=5.0, help="region depth, mm")
+    cmp.add_argument("--search", type=float, default=10.0, help="lateral search radius for the INTRA landmark, mm")
+    cmp.add_argument("--roi", type=float, nargs=4, metavar=("A0", "A1", "B0", "B1"),
+                     help="surface-error rectangle on the two axes other than --up's, mm")
+    cmp.add_argument("--spacing", type=float, default=1.0, help="surface-error grid spacing, mm")
+    cmp.add_argument("-o", "--output", default="compare.json", help="JSON result (a PNG of the surface error beside it)")
     sub.add_parser("info", help="versions of DOLFINx, PETSc, MPI and the scalar type")
     return parser
 
@@ -75,6 +95,8 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         if args.command == "mesh":
             return _mesh(args, comm)
+        if args.command == "compare":
+            return _compare(args, comm)
         from .scene import load_scene
         from .simulation import run
 
@@ -91,6 +113,65 @@ def main(argv: list[str] | None = None) -> int:
         if comm.rank == 0:
             print(f"brainshift: error: {exc}", file=sys.stderr)
         return 2
+
+
+def _compare(args, comm) -> int:
+    import json
+    from pathlib import Path
+
+    import numpy as np
+
+    from .meshing.voxelize import VoxelizeError, read_surface
+    from .metrics import compare
+    from .scene import SceneError
+
+    if comm.rank != 0:
+        return 0
+    try:
+        pre, intra, sim = (read_surface(Path(f), s)[0] for f, s in zip((args.pre, args.intra, args.sim), args.scales))
+        mm = 1e-3
+        roi = ((args.roi[0] * mm, args.roi[1] * mm), (args.roi[2] * mm, args.roi[3] * mm)) if args.roi else None
+        result = compare(pre, intra, sim, args.up, args.second, args.radius * mm, args.depth * mm,
+                         args.search * mm, roi, args.spacing * mm)
+    except (VoxelizeError, ValueError) as exc:
+        raise SceneError(f"compare: {exc}") from None
+    out = Path(args.output)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({"units": "m", **result}, indent=1) + "\n")
+    for name in ("A", "B"):
+        r = result[name]
+        e = r["error_percent_vs_d_mri"]
+        print(f"node {name}: d_MRI {np.round(np.array(r['d_mri']) * 1e3, 2)} mm, d_Sim "
+              f"{np.round(np.array(r['d_sim']) * 1e3, 2)} mm, Error % x {e[0]:.0f}, y {e[1]:.0f}, z {e[2]:.0f}, "
+              f"norm {e[3]:.0f}")
+    if "surface_error" in result:
+        se = result["surface_error"]
+        print(f"surface error along {se['height_axis']} ({se['grid_points']} grid points): max {se['max'] * 1e3:.2f}, "
+              f"min {se['min'] * 1e3:.2f}, mean {se['mean'] * 1e3:.2f}, median {se['median'] * 1e3:.2f}, "
+              f"MAE {se['mae'] * 1e3:.2f} mm")
+        _plot_surface_error(out.with_suffix(".png"), se)
+    print(f"wrote {out}")
+    return 0
+
+
+def _plot_surface_error(path, se) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    err = np.array(se["error"], dtype=float) * 1e3
+    ga, gb = np.array(se["grid_a"]) * 1e3, np.array(se["grid_b"]) * 1e3
+    fig, ax = plt.subplots(figsize=(6, 4.5))
+    im = ax.pcolormesh(ga, gb, err.T, shading="nearest", cmap="coolwarm",
+                       vmin=-np.nanmax(np.abs(err)), vmax=np.nanmax(np.abs(err)))
+    fig.colorbar(im, ax=ax, label=f"SIM - INTRA along {se['height_axis']} (mm)")
+    ax.set_aspect("equal")
+    ax.set_title(f"Surface error: MAE {se['mae'] * 1e3:.2f} mm (cf. paper Fig. 20)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
 
 
 def _mesh(args, comm) -> int:
