@@ -101,6 +101,20 @@ def test_surface_with_a_hole_and_bad_triangles(tmp_path, serial_only):
     _conforming(holed)
 
 
+def test_gifti_surface(tmp_path, serial_only):
+    import meshio
+    import nibabel as nib
+
+    stl = _surface(tmp_path / "s.stl", _sphere_mask())
+    m = meshio.read(stl)
+    gii = nib.gifti.GiftiImage(darrays=[
+        nib.gifti.GiftiDataArray(m.points.astype(np.float32), intent="NIFTI_INTENT_POINTSET"),
+        nib.gifti.GiftiDataArray(m.cells_dict["triangle"].astype(np.int32), intent="NIFTI_INTENT_TRIANGLE")])
+    nib.save(gii, str(tmp_path / "s.gii"))
+    a, b = voxelize(stl, 0.005), voxelize(tmp_path / "s.gii", 0.005)
+    assert len(a.voxels) == len(b.voxels) and a.volume_m3 == b.volume_m3
+
+
 def test_two_blobs_keep_the_largest_or_both(tmp_path, serial_only):
     mask = _sphere_mask(centres=((25, 40, 40), (62, 40, 40)), radii=(18, 10))
     path = _nifti(tmp_path / "blobs.nii.gz", mask)
@@ -113,16 +127,42 @@ def test_two_blobs_keep_the_largest_or_both(tmp_path, serial_only):
     assert kept.ravel().tolist() == [True, True, False, False, False] and dropped == 1
 
 
+def test_pinches_are_closed():
+    from fenics_brainshift.meshing.voxelize import close_pinches
+
+    corner = np.zeros((3, 3, 3), bool)
+    corner[0, 0, 0] = corner[1, 1, 1] = True  # touching at one corner only
+    assert close_pinches(corner)[:2, :2, :2].all() and close_pinches(corner).sum() == 8
+    edge = np.zeros((3, 3, 3), bool)
+    edge[0, 0, 1] = edge[1, 1, 1] = True  # along an edge only: both blocks holding that edge fill
+    closed = close_pinches(edge)
+    assert closed.sum() == 12 and closed[:2, :2, :].all()
+    assert (close_pinches(closed) == closed).all()
+    solid = np.ones((3, 3, 3), bool)
+    solid[1, 1, 1] = False  # a cavity is not a pinch
+    assert (close_pinches(solid) == solid).all()
+
+
 @pytest.mark.mpi
-def test_same_mesh_on_one_and_two_ranks(tmp_path_factory):
+@pytest.mark.parametrize("shape", ["sphere", "pinched"])
+def test_same_mesh_on_one_and_two_ranks(tmp_path_factory, shape):
+    """Voxels touching only at an edge or corner would be split apart on a rank boundary:
+    the mesher closes such pinches, so the mesh is the same for any rank count."""
     folder = tmp_path_factory.mktemp("nifti") if COMM.rank == 0 else None
     folder = COMM.bcast(str(folder) if folder else None, root=0)
-    path = f"{folder}/sphere.nii.gz"
+    path = f"{folder}/{shape}.nii.gz"
     if COMM.rank == 0:
-        _nifti(path, _sphere_mask())
+        mask = _sphere_mask()
+        if shape == "pinched":  # staircases of blocks meeting along edges and at corners
+            mask = np.zeros((60, 60, 60), bool)
+            for k in range(6):
+                mask[10 * k:10 * k + 10, 10 * k:10 * k + 10, 0:10] = True
+                mask[10 * k:10 * k + 10, 0:10, 10 * k:10 * k + 10] = True
+        _nifti(path, mask)
     COMM.barrier()
     serial = voxelize(path, 0.005)
     mesh = build_mesh(MeshSpec(file=path, voxel=0.005, unit="mm"), COMM)
+    _conforming(serial)
     assert mesh.topology.index_map(0).size_global == len(serial.points)
     assert mesh.topology.index_map(3).size_global == len(serial.tets)
     from dolfinx import fem
