@@ -77,32 +77,36 @@ class Model:
 
 
 def fixed_conditions(V, scene: Scene) -> list:
-    """Homogeneous Dirichlet conditions from the [[fixed]] predicates, per axis."""
-    comm = V.mesh.comm
+    """Homogeneous Dirichlet conditions from the [[fixed]] predicates, per axis.
+
+    The predicate is evaluated on the mesh's own vertex coordinates (and, for P2, an edge's
+    dofs are fixed when both its vertices are), not on tabulated dof coordinates: those are
+    recomputed cell by cell and round differently on different partitions, so a region whose
+    bound falls on a grid plane (y < -0.0985 on a 5 mm voxel mesh) would select different
+    nodes for different rank counts."""
+    import dolfinx.mesh
+
+    mesh, comm = V.mesh, V.mesh.comm
+    tdim = mesh.topology.dim
+    dims = [0, 1] if compat.element_degree(V) == 2 else [0]
+    for dim in dims:
+        mesh.topology.create_connectivity(dim, tdim)
     bcs = []
     for region in scene.fixed:
-        marker = region.predicate
-        if region.axes == "xyz" or len(region.components) == 3:
-            dofs = fem.locate_dofs_geometrical(V, marker)
-            count = comm.allreduce(_owned_blocks(V, dofs))
-            zero = np.zeros(3, dtype=PETSc.ScalarType)
-            new = [fem.dirichletbc(zero, dofs, V)]
-        else:
-            new, count = [], 0
-            for i in region.components:
-                Vi, _ = V.sub(i).collapse()
-                dofs = fem.locate_dofs_geometrical((V.sub(i), Vi), marker)
-                count += comm.allreduce(int(np.sum(dofs[1] < Vi.dofmap.index_map.size_local)))
-                new.append(fem.dirichletbc(PETSc.ScalarType(0.0), dofs[0], V.sub(i)))
+        entities = {dim: dolfinx.mesh.locate_entities(mesh, dim, region.predicate) for dim in dims}
+        count = comm.allreduce(int(np.sum(entities[0] < mesh.topology.index_map(0).size_local)))
         if count == 0:
             raise SceneError(f"[[fixed]] where = \"{region.where}\" selects no node of the mesh; "
                              f"check the coordinates (metres, mesh frame)")
-        bcs.extend(new)
+        if len(region.components) == 3:
+            dofs = np.unique(np.concatenate([fem.locate_dofs_topological(V, d, e) for d, e in entities.items()]))
+            bcs.append(fem.dirichletbc(np.zeros(3, dtype=PETSc.ScalarType), dofs.astype(np.int32), V))
+        else:
+            for i in region.components:
+                dofs = np.unique(np.concatenate([fem.locate_dofs_topological(V.sub(i), d, e)
+                                                 for d, e in entities.items()]))
+                bcs.append(fem.dirichletbc(PETSc.ScalarType(0.0), dofs.astype(np.int32), V.sub(i)))
     return bcs
-
-
-def _owned_blocks(V, block_dofs: np.ndarray) -> int:
-    return int(np.sum(block_dofs < V.dofmap.index_map.size_local))
 
 
 def build_model(scene: Scene, comm) -> Model:

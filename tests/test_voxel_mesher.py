@@ -241,3 +241,27 @@ def test_brain_demo_serial_and_mpi(tmp_path, serial_only):
 
     surface = meshio.read(tmp_path / "r1" / "surface_final.vtk")
     assert len(surface.points) == 14828 and "displacement" in surface.point_data
+
+
+@pytest.mark.mpi
+def test_fixed_region_on_a_grid_plane_selects_the_same_nodes_on_any_rank_count():
+    """demos/brain.toml's `y < -0.0985` falls exactly on a plane of 5 mm voxel nodes. Dof
+    coordinates tabulated cell by cell round differently per partition; the supports are
+    chosen on the mesh's own vertex coordinates, so they match the input points exactly."""
+    from fenics_brainshift.model import fixed_conditions
+    from fenics_brainshift.scene import load_scene
+
+    scene = load_scene(ROOT / "demos" / "brain.toml", ["time.mode=quasi-static"])
+    model = voxelize(scene.mesh.file, scene.mesh.voxel)
+    mesh = build_mesh(scene.mesh, COMM)
+    V = compat.vector_space(mesh, 1)
+    bcs = fixed_conditions(V, scene)
+    import dolfinx.la
+    from dolfinx.fem.petsc import set_bc
+
+    for bc, region in zip(bcs, scene.fixed):
+        ones = dolfinx.la.create_petsc_vector(V.dofmap.index_map, V.dofmap.index_map_bs)
+        ones.set(1.0)
+        set_bc(ones, [bc])  # fixed entries become 0
+        zeros = COMM.allreduce(int(np.sum(ones.array_r == 0.0)), op=MPI.SUM)
+        assert zeros == 3 * int(region.predicate(model.points.T).sum())
