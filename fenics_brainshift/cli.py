@@ -140,10 +140,9 @@ def _compare(args, comm) -> int:
     out.write_text(json.dumps({"units": "m", **result}, indent=1) + "\n")
     for name in ("A", "B"):
         r = result[name]
-        e = r["error_percent_vs_d_mri"]
+        e = ["-" if v is None else f"{v:.0f}" for v in r["error_percent_vs_d_mri"]]
         print(f"node {name}: d_MRI {np.round(np.array(r['d_mri']) * 1e3, 2)} mm, d_Sim "
-              f"{np.round(np.array(r['d_sim']) * 1e3, 2)} mm, Error % x {e[0]:.0f}, y {e[1]:.0f}, z {e[2]:.0f}, "
-              f"norm {e[3]:.0f}")
+              f"{np.round(np.array(r['d_sim']) * 1e3, 2)} mm, Error % x {e[0]}, y {e[1]}, z {e[2]}, norm {e[3]}")
     if "surface_error" in result:
         se = result["surface_error"]
         print(f"surface error along {se['height_axis']} ({se['grid_points']} grid points): max {se['max'] * 1e3:.2f}, "

@@ -59,8 +59,9 @@ class Landmark:
         """Eq. 25 per axis, and the same for the norms (|d_ref| - |d_sim|) / |d_ref|."""
         with np.errstate(divide="ignore", invalid="ignore"):
             axes = np.abs((d_ref - d_sim) / d_ref) * 100.0
-        norm = abs(np.linalg.norm(d_ref) - np.linalg.norm(d_sim)) / np.linalg.norm(d_ref) * 100.0
-        return [float(v) for v in axes] + [float(norm)]
+            norm = abs(np.linalg.norm(d_ref) - np.linalg.norm(d_sim)) / np.linalg.norm(d_ref) * 100.0
+        # no measured shift along an axis: the percentage is undefined (null in JSON)
+        return [float(v) if np.isfinite(v) else None for v in [*axes, norm]]
 
     def as_dict(self) -> dict:
         return {
