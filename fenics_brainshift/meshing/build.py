@@ -19,16 +19,21 @@ def mesh_from_arrays(comm, points: np.ndarray, tets: np.ndarray):
 
 
 def voxel_model_mesh(spec: MeshSpec, comm):
-    """The embedding mesher on rank 0, then distributed: (mesh, VoxelModel on rank 0 or None)."""
+    """The embedding mesher for a scene's [mesh]: (mesh, VoxelModel on rank 0 or None)."""
+    return voxelized_mesh(comm, spec.file, spec.voxel, spec.scale, spec.fill, spec.parts,
+                          list(spec.labels) if spec.labels else None)
+
+
+def voxelized_mesh(comm, input_file, voxel: float, scale: float, fill: float, parts: int, labels):
+    """Voxel-mesh on rank 0 (errors raised on every rank), then distribute the tetrahedra."""
     from ..logs import get_logger
     from .voxelize import VoxelizeError, voxelize
 
     model, error = None, None
     if comm.rank == 0:
         try:
-            model = voxelize(spec.file, spec.voxel, spec.scale, spec.fill, spec.parts,
-                             list(spec.labels) if spec.labels else None)
-            get_logger("meshing").info("voxel mesh of %s: %s", Path(spec.file).name, model.report())
+            model = voxelize(input_file, voxel, scale, fill, parts, labels)
+            get_logger("meshing").info("voxel mesh of %s: %s", Path(input_file).name, model.report())
         except VoxelizeError as exc:
             error = str(exc)
     error = comm.bcast(error, root=0)
@@ -76,27 +81,15 @@ def write_voxel_mesh(path: Path, comm, input_file: str, voxel: float, scale: flo
     import dolfinx.io
     import dolfinx.mesh
 
-    spec = MeshSpec(file=str(input_file), voxel=voxel, fill=fill, parts=parts, labels=labels, unit="m")
-    spec_scale = scale  # the file's units to metres; MeshSpec's unit only names m/cm/mm
-    from .voxelize import VoxelizeError, voxelize
-
-    model, error = None, None
-    if comm.rank == 0:
-        try:
-            model = voxelize(spec.file, voxel, spec_scale, fill, parts, labels)
-        except VoxelizeError as exc:
-            error = str(exc)
-    error = comm.bcast(error, root=0)
-    if error:
-        raise SceneError(f"mesh: {error}")
-    mesh = mesh_from_arrays(comm, *((model.points, model.tets) if model else (None, None)))
+    mesh, model = voxelized_mesh(comm, input_file, voxel, scale, fill, parts, labels)
     tet_voxel = comm.bcast(model.tet_voxel if model else None, root=0)
     n_owned = mesh.topology.index_map(3).size_local
     original = np.asarray(mesh.topology.original_cell_index)[:n_owned]
     tags = dolfinx.mesh.meshtags(mesh, 3, np.arange(n_owned, dtype=np.int32),
                                  (tet_voxel[original] + 1).astype(np.int32))
     tags.name = "voxel"
-    path.parent.mkdir(parents=True, exist_ok=True) if comm.rank == 0 else None
+    if comm.rank == 0:
+        path.parent.mkdir(parents=True, exist_ok=True)
     comm.barrier()
     with dolfinx.io.XDMFFile(comm, str(path), "w") as xdmf:
         xdmf.write_mesh(mesh)
