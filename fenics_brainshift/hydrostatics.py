@@ -96,12 +96,13 @@ def triangle_geometry(X: np.ndarray, X_opposite: np.ndarray):
     return n, 0.5 * norm
 
 
-def consistent_loads(depth: np.ndarray, area: np.ndarray, degree: int):
+def consistent_loads(depth: np.ndarray, area: np.ndarray, degree: int, split=None):
     """Exact integrals of depth * N over the wet part, per facet and basis function.
 
     Returns (vertex (F, 3), edge (F, 3) or None) in the *sorted* order of split_wet; edge k is
-    the edge opposite sorted vertex k. Multiply by rho_f |g| (-n) for the nodal forces."""
-    order, B, _ = split_wet(depth)
+    the edge opposite sorted vertex k. Multiply by rho_f |g| (-n) for the nodal forces.
+    ``split``: split_wet(depth), when the caller has it already."""
+    order, B, _ = split if split is not None else split_wet(depth)
     d = np.take_along_axis(depth, order, axis=1)
     sub_area = area[:, None] * np.abs(np.linalg.det(B))  # (F, 2)
     lam = np.einsum("qa,fsak->fsqk", QUAD_POINTS, B)  # parent barycentrics at the points
@@ -115,9 +116,9 @@ def consistent_loads(depth: np.ndarray, area: np.ndarray, degree: int):
     return vertex, edge
 
 
-def paper_loads(depth: np.ndarray, area: np.ndarray) -> np.ndarray:
+def paper_loads(depth: np.ndarray, area: np.ndarray, split=None) -> np.ndarray:
     """The paper's nodal shares of depth * area (eqs. 11-19), sorted vertex order (F, 3)."""
-    order, B, wet = split_wet(depth)
+    order, B, wet = split if split is not None else split_wet(depth)
     d = np.take_along_axis(depth, order, axis=1)
     sub_area = area[:, None] * np.abs(np.linalg.det(B))
     centroid_depth = np.einsum("fsak,fk->fs", B, d) / 3.0
@@ -248,14 +249,15 @@ class HydrostaticLoad:
         wet = np.flatnonzero((depth_all > 0).any(axis=1))  # dry facets cost nothing more
         X, depth = X[wet], depth_all[wet]
         n, area = triangle_geometry(X, X_opp[wet])
-        order, _, _ = split_wet(depth)
+        split = split_wet(depth)  # once per assembly, shared by the rules below
+        order = split[0]
         rho_g = self.rho_fluid * self.g_magnitude
         local = np.zeros((self.V.dofmap.index_map.size_local + self.V.dofmap.index_map.num_ghosts, 3))
         vertex_dofs = np.take_along_axis(self.facets.vertex_dofs[wet], order, axis=1)
         if self.rule == "paper":
-            vertex, edge = paper_loads(depth, area), None
+            vertex, edge = paper_loads(depth, area, split), None
         else:
-            vertex, edge = consistent_loads(depth, area, self.degree)
+            vertex, edge = consistent_loads(depth, area, self.degree, split)
         for k in range(3):
             np.add.at(local, vertex_dofs[:, k], -rho_g * vertex[:, k, None] * n)
         if edge is not None:

@@ -1,8 +1,8 @@
-"""External loads as assembled vectors: gravity (constant) and the fluid pressure (per level).
-
-The fluid load here integrates the clipped pressure with a fixed quadrature degree. The kink
-of max(level - height, 0) at the water line makes that inexact on cut facets; the total force
-converges with refinement but does not satisfy Archimedes to round-off.
+"""External loads as assembled vectors: gravity (constant) and the fluid load of a scene
+(FluidLoad: the level from a schedule or a container volume, the exact facet assembly of
+hydrostatics.py). QuadratureFluidLoad is the plain UFL form, kept as the reference the exact
+rule is measured against: the kink of max(level - height, 0) at the water line makes it
+inexact on cut facets.
 """
 from __future__ import annotations
 

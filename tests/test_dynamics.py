@@ -12,7 +12,6 @@ import pytest
 from dolfinx.fem.petsc import set_bc
 
 from conftest import COMM, column_dict, decay_per_step
-from fenics_brainshift import compat
 from fenics_brainshift.integrators import newmark_discrete_frequency
 from fenics_brainshift.model import build_model
 from fenics_brainshift.scene import SolverConfig, scene_from_dict

@@ -12,7 +12,7 @@ from conftest import COMM
 from fenics_brainshift import compat
 from fenics_brainshift.hydrostatics import HydrostaticLoad, consistent_loads, paper_loads, split_wet
 from fenics_brainshift.meshing import build_mesh, mesh_from_arrays
-from fenics_brainshift.meshing.hexgrid import structured_box, voxel_mesh
+from fenics_brainshift.meshing.hexgrid import voxel_mesh
 from fenics_brainshift.scene import MeshSpec
 
 RHO, G = 1000.0, 9.81
