@@ -109,10 +109,14 @@ def main(argv: list[str] | None = None) -> int:
                   + (f"; {probes}" if probes else "")
                   + f"; wrote {args.out or scene.output.folder}/summary.json")
         return 0
-    except (SceneError, SolverError) as exc:
+    except SceneError as exc:  # bad input: nothing was written
         if comm.rank == 0:
             print(f"brainshift: error: {exc}", file=sys.stderr)
         return 2
+    except SolverError as exc:  # the run stopped: the last good state was written
+        if comm.rank == 0:
+            print(f"brainshift: stopped: {exc}", file=sys.stderr)
+        return 3
 
 
 def _compare(args, comm) -> int:

@@ -136,7 +136,8 @@ def paper_loads(depth: np.ndarray, area: np.ndarray, split=None) -> np.ndarray:
 # ----------------------------------------------------------------- the surface of a mesh
 @dataclass
 class SurfaceFacets:
-    """The exterior facets this rank owns, with what the assembly needs of each."""
+    """The surface facets of the cells present, each held by the rank owning its cell, with what
+    the assembly needs of each."""
 
     vertex_dofs: np.ndarray  # (F, 3) block dofs of V at the facet's vertices
     opposite_dofs: np.ndarray  # (F,) block dof at the cell's vertex opposite the facet
@@ -145,17 +146,35 @@ class SurfaceFacets:
     x_opposite: np.ndarray  # (F, 3)
 
 
-def surface_facets(V) -> SurfaceFacets:
+def surface_facets(V, present: np.ndarray | None = None) -> SurfaceFacets:
+    """The surface of the cells present (all cells by default): facets with exactly one
+    present cell next to them, each taken by the rank that owns that cell.
+
+    Counting goes through the facet index map (owned cells add 1 to each of their facets,
+    ghost counts are summed onto the owners and sent back), so it needs no ghost cells and
+    gives the same surface on any number of ranks; after a resection the cut faces join it."""
     mesh = V.mesh
     topo = mesh.topology
     tdim = topo.dim
-    topo.create_connectivity(tdim - 1, tdim)
+    topo.create_entities(tdim - 1)
     topo.create_connectivity(tdim, tdim - 1)
-    facets = dolfinx.mesh.exterior_facet_indices(topo)
-    facets = facets[facets < topo.index_map(tdim - 1).size_local]
-    f2c, c2f = topo.connectivity(tdim - 1, tdim), topo.connectivity(tdim, tdim - 1)
-    cells = f2c.array[f2c.offsets[facets]]
-    local = np.argmax(c2f.array.reshape(-1, 4)[cells] == facets[:, None], axis=1)
+    facet_map = topo.index_map(tdim - 1)
+    n_owned_cells = topo.index_map(tdim).size_local
+    owned = np.ones(n_owned_cells, dtype=bool) if present is None else np.asarray(present[:n_owned_cells], dtype=bool)
+    cells_present = np.flatnonzero(owned)
+    c2f = topo.connectivity(tdim, tdim - 1).array.reshape(-1, 4)
+    counts = dolfinx.la.create_petsc_vector(facet_map, 1)
+    with counts.localForm() as lf:
+        local = np.zeros(lf.getLocalSize())
+        np.add.at(local, c2f[cells_present].ravel(), 1.0)
+        lf.array[:] = local
+    counts.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+    counts.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+    with counts.localForm() as lf:
+        once = lf.array_r[c2f[cells_present]] == 1.0  # (n, 4): facet k of the cell is on the surface
+    counts.destroy()
+    cells = np.repeat(cells_present, 4)[once.ravel()]
+    local = np.tile(np.arange(4), len(cells_present))[once.ravel()]  # facet k is opposite vertex k
     others = np.array([[v for v in range(4) if v != lf] for lf in range(4)])  # facet lf's vertices
     fv = others[local]  # (F, 3) local vertex numbers
 
@@ -164,7 +183,7 @@ def surface_facets(V) -> SurfaceFacets:
     dofs = compat.dofmap_array(V)[cells]
     x = mesh.geometry.x
     geo = compat.geometry_dofmap(mesh)[cells]
-    rows = np.arange(len(facets))[:, None]
+    rows = np.arange(len(cells))[:, None]  # one row per surface facet
     edge_dofs = None
     if compat.element_degree(V) == 2:
         edges = basix.topology(basix.CellType.tetrahedron)[1]
@@ -174,10 +193,10 @@ def surface_facets(V) -> SurfaceFacets:
         edge_dofs = dofs[rows, table[local]]
     return SurfaceFacets(
         vertex_dofs=dofs[rows, vertex_local[fv]],
-        opposite_dofs=dofs[np.arange(len(facets)), vertex_local[local]],
+        opposite_dofs=dofs[rows[:, 0], vertex_local[local]],
         edge_dofs=edge_dofs,
         x_vertices=x[geo[rows, fv]],
-        x_opposite=x[geo[np.arange(len(facets)), local]],
+        x_opposite=x[geo[rows[:, 0], local]],
     )
 
 
@@ -209,6 +228,13 @@ class HydrostaticLoad:
         self.force = np.zeros(3)
         self.submerged_volume = 0.0
         self.wet_facets = 0
+
+    def set_present(self, present: np.ndarray) -> None:
+        """After a resection: the load acts on the surface of the cells still present."""
+        self.facets = surface_facets(self.V, present)
+        if self._quadrature is not None:
+            raise ValueError("the quadrature rule acts on the original surface only; use rule = \"consistent\" "
+                             "with [[remove]]")
 
     def geometry(self, u=None):
         """Facet vertices and opposite vertices, moved by u (a Function on V) if given."""

@@ -22,8 +22,9 @@ class FieldWriter:
     scene has one."""
 
     def __init__(self, folder: Path, mesh, V, fields: tuple[str, ...], mu: float, lmbda: float,
-                 embedding=None):
+                 embedding=None, tissue=None):
         self.fields = fields
+        self.tissue = tissue  # DG0 1/0 after a resection: threshold on it in ParaView
         self.folder = folder
         self.embedding = embedding
         self.count = 0
@@ -48,6 +49,8 @@ class FieldWriter:
             self._u.x.array[:] = u.x.array
             self.von_mises.interpolate(self._vm_expr)
             self.file.write_function(self.von_mises, t)
+        if self.tissue is not None:
+            self.file.write_function(self.tissue, t)
         if self.embedding is not None:
             self.embedding.write(self.folder, f"surface_{self.count:04d}", u)
         self.count += 1

@@ -32,12 +32,19 @@ def total_force(b: PETSc.Vec, comm) -> np.ndarray:
 
 
 class GravityLoad:
-    def __init__(self, V, density: float, gravity: Gravity):
+    """rho g over the volume; ``density`` may carry the tissue indicator (then call refresh()
+    after a resection)."""
+
+    def __init__(self, V, density, gravity: Gravity):
         mesh = V.mesh
         v = ufl.TestFunction(V)
         g = fem.Constant(mesh, np.array(gravity.vector, dtype=PETSc.ScalarType))
-        self.form = fem.form(forms.body_force(v, PETSc.ScalarType(density), g))
+        rho = PETSc.ScalarType(density) if isinstance(density, (int, float)) else density
+        self.form = fem.form(forms.body_force(v, rho, g))
         self.vector = assemble_into(create_vector(self.form), self.form)
+
+    def refresh(self) -> None:
+        assemble_into(self.vector, self.form)
 
 
 class QuadratureFluidLoad:
@@ -84,6 +91,11 @@ class FluidLoad:
             if self.hydro.volume_below(fluid.floor) > 1e-9 * body:
                 raise SceneError(f"[fluid] floor = {fluid.floor:g} m cuts through the body; "
                                  f"it must be at or below the body's lowest point")
+
+    def set_present(self, present) -> None:
+        """After a resection: act on the surface of the cells still present."""
+        self.hydro.set_present(present)
+        self._assembled_key = None
 
     def level_at(self, t: float, u=None) -> float:
         fluid = self.fluid

@@ -15,6 +15,7 @@ from petsc4py import PETSc
 from . import compat, forms
 from .loads import FluidLoad, GravityLoad
 from .meshing import build_mesh
+from .resection import Tissue, fill_empty_diagonal
 from .scene import Scene, SceneError
 
 
@@ -28,6 +29,7 @@ class Model:
     lmbda: float
     gravity: GravityLoad
     fluid: FluidLoad | None
+    tissue: Tissue | None = None  # only for scenes with [[remove]]
 
     @property
     def comm(self):
@@ -41,18 +43,27 @@ class Model:
     def lumped(self) -> bool:
         return self.scene.element.mass == "lumped"
 
+    def _present(self, coefficient: float):
+        """A material coefficient, times the tissue indicator when cells can be removed."""
+        c = PETSc.ScalarType(coefficient)
+        return c * self.tissue.indicator if self.tissue is not None else c
+
     def mass_form(self):
         u, v = self._trial_test()
-        return forms.mass(u, v, PETSc.ScalarType(self.scene.material.density), self.lumped)
+        return forms.mass(u, v, self._present(self.scene.material.density), self.lumped)
 
     def stiffness_form(self):
         u, v = self._trial_test()
-        return forms.stiffness(u, v, PETSc.ScalarType(self.mu), PETSc.ScalarType(self.lmbda))
+        return forms.stiffness(u, v, self._present(self.mu), self._present(self.lmbda))
 
     def assemble(self, ufl_form, with_bcs: bool) -> PETSc.Mat:
-        """A matrix; with_bcs: rows and columns of fixed dofs replaced by the identity."""
+        """A matrix; with_bcs: rows and columns of fixed dofs replaced by the identity, and
+        (after a resection) a unit diagonal on rows with no tissue left, so the matrix that
+        is solved stays regular."""
         A = assemble_matrix(fem.form(ufl_form), bcs=self.bcs if with_bcs else [])
         A.assemble()
+        if with_bcs and self.tissue is not None:
+            fill_empty_diagonal(A)
         return A
 
     def combined(self, c_mass: float, c_stiff: float):
@@ -114,6 +125,8 @@ def build_model(scene: Scene, comm) -> Model:
     V = compat.vector_space(mesh, scene.element.degree)
     bcs = fixed_conditions(V, scene)
     mat = scene.material
-    gravity = GravityLoad(V, mat.density, scene.gravity)
+    tissue = Tissue(mesh, scene) if scene.remove else None
+    density = PETSc.ScalarType(mat.density) * (tissue.indicator if tissue is not None else 1.0)
+    gravity = GravityLoad(V, density, scene.gravity)
     fluid = FluidLoad(V, scene.fluid, scene.gravity) if scene.fluid is not None else None
-    return Model(scene, mesh, V, bcs, mat.mu, mat.lmbda, gravity, fluid)
+    return Model(scene, mesh, V, bcs, mat.mu, mat.lmbda, gravity, fluid, tissue)

@@ -296,6 +296,34 @@ class FixedRegion:
         return sorted("xyz".index(a) for a in self.axes)
 
 
+@dataclass
+class Removal:
+    """Resection: at time ``at`` (s) the cells whose centroid satisfies ``where``, or whose
+    centroid lies in image voxels of ``label`` in the scene's label volume, are removed."""
+
+    at: float = 0.0
+    where: str | None = None
+    label: int | None = None
+    predicate: Predicate | None = field(default=None, repr=False)
+
+    def __post_init__(self):
+        self.at = _non_negative("[[remove]] at", self.at)
+        if (self.where is None) == (self.label is None):
+            raise SceneError("[[remove]] give exactly one of where = \"(x-a)**2 + ... < r**2\" or label = N")
+        if self.where is not None:
+            if not isinstance(self.where, str):
+                raise SceneError(f"[[remove]] where must be a condition on x, y, z in quotes (got {self.where!r})")
+            try:
+                self.predicate = parse_predicate(self.where)
+            except PredicateError as exc:
+                raise SceneError(f"[[remove]] where: {exc}") from None
+        else:
+            self.label = _integer("[[remove]] label", self.label, 1)
+
+    def describe(self) -> str:
+        return f"where = \"{self.where}\"" if self.where is not None else f"label = {self.label}"
+
+
 SCHEMES = ("newmark", "generalized-alpha")
 MODES = ("dynamic", "quasi-static")
 
@@ -413,6 +441,7 @@ class Scene:
     gravity: Gravity = field(default_factory=Gravity)
     fluid: Fluid | None = None
     fixed: tuple[FixedRegion, ...] = ()
+    remove: tuple[Removal, ...] = ()
     time: TimeScheme = field(default_factory=TimeScheme)
     damping: Damping = field(default_factory=Damping)
     solver: SolverConfig = field(default_factory=SolverConfig)
@@ -429,6 +458,16 @@ class Scene:
             raise SceneError("[fluid] rule = \"paper\" shares forces among triangle vertices: degree 1 only; use \"consistent\"")
         if self.time.mode == "quasi-static" and not self.fixed:
             raise SceneError("[[fixed]] a quasi-static scene needs at least one fixed region (K alone is singular)")
+        for r in self.remove:
+            if self.time.mode != "dynamic":
+                raise SceneError("[[remove]] needs [time] mode = \"dynamic\": a freed piece makes K singular, "
+                                 "the mass matrix keeps the dynamic system solvable")
+            if r.at >= self.time.end:
+                raise SceneError(f"[[remove]] at = {r.at:g} s is not before [time] end = {self.time.end:g} s")
+            if r.label is not None and not str(self.mesh.file or "").lower().endswith((".nii", ".nii.gz")):
+                raise SceneError("[[remove]] label needs [mesh] file to be a label volume (.nii, .nii.gz); "
+                                 "use where = \"...\" otherwise")
+        self.remove = tuple(sorted(self.remove, key=lambda r: r.at))
         self.probes = {str(k): _vector3(f"[probes] {k}", v) for k, v in self.probes.items()}
         surfaces = {}
         for k, v in self.surfaces.items():
@@ -462,7 +501,7 @@ def _build(cls, table: Any, where: str):
 
 def scene_from_dict(data: dict, base: Path | None = None) -> Scene:
     """Build a Scene from parsed TOML; relative mesh files resolve against ``base``."""
-    known = list(_SECTIONS) + ["fixed", "probes", "surfaces", "name"]
+    known = list(_SECTIONS) + ["fixed", "remove", "probes", "surfaces", "name"]
     for key in data:
         if key not in known:
             raise SceneError(f"unknown section [{key}]; known sections: {', '.join(known)}")
@@ -475,6 +514,10 @@ def scene_from_dict(data: dict, base: Path | None = None) -> Scene:
     if not isinstance(fixed, list):
         raise SceneError("[[fixed]] must be an array of tables: [[fixed]] where = \"z < 0.001\"")
     kwargs["fixed"] = tuple(_build(FixedRegion, f, "[[fixed]]") for f in fixed)
+    remove = data.get("remove", [])
+    if not isinstance(remove, list):
+        raise SceneError("[[remove]] must be an array of tables: [[remove]] at = 10.0, where = \"...\"")
+    kwargs["remove"] = tuple(_build(Removal, r, "[[remove]]") for r in remove)
     probes = data.get("probes", {})
     if not isinstance(probes, dict):
         raise SceneError("[probes] must be a table of name = [x, y, z]")

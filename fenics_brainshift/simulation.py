@@ -21,6 +21,7 @@ from petsc4py import PETSc
 
 from . import compat
 from .embedding import SurfaceEmbedding, load_fine_surface
+from .guards import EnergyBalance
 from .integrators import TimeIntegrator
 from .io import FieldWriter, write_csv, write_json
 from .logs import get_logger
@@ -85,6 +86,11 @@ class Simulation:
         self.follower_tol = 1e-6  # relative to |u|: nanometres on millimetres
         self.max_follower_iterations = 100
         self.relaxation = AitkenRelaxation(self._F)
+        self.tissue = model.tissue
+        self.energy = EnergyBalance()
+        self.check_energy = True
+        self.removals: list[dict] = []  # what each resection took, for the summary
+        self.last_good = None
 
     # -- loads -----------------------------------------------------------------------------
     @property
@@ -113,8 +119,17 @@ class Simulation:
 
     # -- dynamic -----------------------------------------------------------------------------
     def setup_dynamic(self) -> None:
+        self.integrator = integrator_for(self.scene)
+        newmark = self.integrator.alpha_m == 0.0 and self.integrator.alpha_f == 0.0
+        self.energy = EnergyBalance(tolerance=1e-2 if newmark else 1.0)
+        self._remove_due_cells()
+        self._build_dynamic_operators()
+        self._energy_check()
+
+    def _build_dynamic_operators(self) -> None:
+        """M, K, the effective matrix and its solver, F_n and a consistent a_n. Once, and
+        again after a resection (the matrices change; the state u, v carries over)."""
         m, sc = self.model, self.scene
-        self.integrator = integrator_for(sc)
         cm, ck = self.integrator.effective_coefficients(sc.damping.a, sc.damping.b)
         self.M = m.assemble(m.mass_form(), with_bcs=False)
         self.K = m.assemble(m.stiffness_form(), with_bcs=False)
@@ -122,6 +137,41 @@ class Simulation:
         self.solver = LinearSolver(self.A, sc.solver, "", self._nullspace)
         self._F_old = self.load(self.t, self._F.duplicate(), self.u)
         self._initial_acceleration()
+
+    # -- resection ---------------------------------------------------------------------------
+    def _remove_due_cells(self) -> bool:
+        """Apply the [[remove]]s due at the current time; True if any was."""
+        if self.tissue is None:
+            return False
+        due = self.tissue.due(self.t, 1e-9 * self.integrator.dt)
+        if not due:
+            return False
+        for index in due:
+            removal = self.scene.remove[index]
+            count = self.tissue.apply(index)
+            self.removals.append({"at": removal.at, "t": self.t, "region": removal.describe(), "cells": count})
+            log.info("  t=%.3f s: removed %d cells (%s); %.1f %% of the body removed so far", self.t, count,
+                     removal.describe(), 100.0 * self.tissue.removed_fraction)
+        self.model.gravity.refresh()
+        if self.model.fluid is not None:
+            self.model.fluid.set_present(self.tissue.present)
+        return True
+
+    def _resect(self) -> None:
+        """Between steps: remove due cells, rebuild the operators on what is left, and stop
+        the nodes left without tissue (their rows become identity rows with zero load)."""
+        if not self._remove_due_cells():
+            return
+        for mat in (self.M, self.K, self.A):
+            mat.destroy()
+        self.solver.destroy()
+        self._build_dynamic_operators()
+        empty = self.M.getDiagonal()
+        orphans = np.flatnonzero(empty.array_r == 0.0)
+        empty.destroy()
+        for f in (self.v, self.a):
+            f.x.array[orphans] = 0.0
+            f.x.scatter_forward()
 
     def _initial_acceleration(self) -> None:
         """M a0 = F(0) - C v0 - K u0, so the scheme starts in equilibrium (and generalized-alpha
@@ -152,6 +202,9 @@ class Simulation:
         """Advance one time step; returns the Krylov iteration count. With follower loading
         the fluid load at t_{n+1} is evaluated on x + u_{n+1}, iterated within the step
         (Aitken-relaxed); without it, one solve."""
+        self._resect()
+        # the state to go back to if a guard stops the run during this step
+        self.last_good = (self.t, self.u.x.array.copy(), self.v.x.array.copy(), self.a.x.array.copy())
         ti, sc = self.integrator, self.scene
         n = self.n_owned
         t_new = (self.steps_taken + 1) * ti.dt  # not a running sum: no drift in t
@@ -180,10 +233,33 @@ class Simulation:
         ti.update(u, v, a, self.du.x.array[:n])
         for f in (self.u, self.v, self.a):
             f.x.scatter_forward()
+        du = compat.petsc_vec(self.du)
+        self.energy.add_work(0.5 * (du.dot(self._F) + du.dot(self._F_old)))
         self._F.copy(self._F_old)  # F_{n+1} becomes F_n
         self.t = t_new
         self.steps_taken += 1
+        self._energy_check()
         return its
+
+    def energies(self) -> tuple[float, float]:
+        """(kinetic, strain) energy of the current state, J."""
+        u, v = compat.petsc_vec(self.u), compat.petsc_vec(self.v)
+        self.M.mult(v, self._tmp)
+        kinetic = 0.5 * v.dot(self._tmp)
+        self.K.mult(u, self._tmp)
+        return kinetic, 0.5 * u.dot(self._tmp)
+
+    def _energy_check(self) -> None:
+        if self.check_energy:
+            self.energy.check(self.t, *self.energies())
+
+    def restore_last_good(self) -> None:
+        """Back to the state before the step that failed a guard."""
+        if self.last_good is None:
+            return
+        self.t, u, v, a = self.last_good
+        for f, values in zip((self.u, self.v, self.a), (u, v, a)):
+            f.x.array[:] = values
 
     # -- quasi-static ------------------------------------------------------------------------
     def setup_static(self) -> None:
@@ -265,17 +341,19 @@ def run(scene: Scene, out_dir: str | Path, comm=MPI.COMM_WORLD) -> dict:
     Every input check happens while building the model, before the folder is created, so
     bad input leaves no output behind."""
     t_start = time.perf_counter()
+    out = Path(out_dir)
+    check_writable(out, comm)
     model = build_model(scene, comm)
     sim = Simulation(model)
     surface = load_fine_surface(scene.mesh)
     embedding = SurfaceEmbedding(model.mesh, *surface) if surface is not None else None
     dynamic = scene.time.mode == "dynamic"
     sim.setup_dynamic() if dynamic else sim.setup_static()
-    out = Path(out_dir)
     if comm.rank == 0:
         out.mkdir(parents=True, exist_ok=True)
     comm.barrier()
-    writer = FieldWriter(out, model.mesh, model.V, scene.output.fields, model.mu, model.lmbda, embedding)
+    writer = FieldWriter(out, model.mesh, model.V, scene.output.fields, model.mu, model.lmbda, embedding,
+                         model.tissue.indicator if model.tissue is not None else None)
     setup_s = time.perf_counter() - t_start
     sizes = model.sizes()
     log.info("%s: %d nodes, %d cells, %d dofs, P%d, %s, solver %s, %d rank(s); setup %.2f s",
@@ -284,6 +362,7 @@ def run(scene: Scene, out_dir: str | Path, comm=MPI.COMM_WORLD) -> dict:
              scene.solver.kind, comm.size, setup_s)
 
     h = sim.history
+    stopped = None
     if dynamic:
         steps = scene.time.steps
         interval = scene.output.interval
@@ -291,27 +370,42 @@ def run(scene: Scene, out_dir: str | Path, comm=MPI.COMM_WORLD) -> dict:
         sim.record()
         writer.write(sim.t, sim.u, sim.v)
         next_write += interval
-        for n in range(1, steps + 1):
-            t0 = time.perf_counter()
-            its = sim.step()
-            h.step_seconds.append(time.perf_counter() - t0)
-            sim.record()
-            if sim.t >= next_write - 1e-9 * scene.time.dt or n == steps:
-                writer.write(sim.t, sim.u, sim.v)
-                next_write += max(interval, scene.time.dt) if interval > 0 else 0.0
-            if n % max(1, steps // 10) == 0 or n == steps:
-                log.info("  step %d/%d  t=%.3f s  level=%s  its=%d  |u|max=%.3e m", n, steps,
-                         sim.t, _fmt(sim.level), its, sim.max_displacement())
+        try:
+            for n in range(1, steps + 1):
+                t0 = time.perf_counter()
+                its = sim.step()
+                h.step_seconds.append(time.perf_counter() - t0)
+                sim.record()
+                if sim.t >= next_write - 1e-9 * scene.time.dt or n == steps:
+                    writer.write(sim.t, sim.u, sim.v)
+                    next_write += max(interval, scene.time.dt) if interval > 0 else 0.0
+                if n % max(1, steps // 10) == 0 or n == steps:
+                    log.info("  step %d/%d  t=%.3f s  level=%s  its=%d  |u|max=%.3e m", n, steps,
+                             sim.t, _fmt(sim.level), its, sim.max_displacement())
+        except SolverError as exc:  # a guard fired: keep the last good state, then say why
+            stopped = exc
+            sim.restore_last_good()
+            if not h.times or h.times[-1] != sim.t:
+                sim.record()
+            writer.write(sim.t, sim.u, sim.v)
     else:
         times = static_times(scene)
-        for t in times:
-            t0 = time.perf_counter()
-            its = sim.solve_static(t)
-            h.step_seconds.append(time.perf_counter() - t0)
-            sim.record()
-            writer.write(sim.t, sim.u, sim.v)
-            log.info("  t=%g s  level=%s  its=%d  follower iterations=%d  |u|max=%.3e m", t,
-                     _fmt(sim.level), its, sim.follower_iterations, sim.max_displacement())
+        try:
+            for t in times:
+                t0 = time.perf_counter()
+                good = sim.u.x.array.copy()
+                its = sim.solve_static(t)
+                h.step_seconds.append(time.perf_counter() - t0)
+                sim.record()
+                writer.write(sim.t, sim.u, sim.v)
+                log.info("  t=%g s  level=%s  its=%d  follower iterations=%d  |u|max=%.3e m", t,
+                         _fmt(sim.level), its, sim.follower_iterations, sim.max_displacement())
+        except SolverError as exc:
+            stopped = exc
+            sim.u.x.array[:] = good
+            if not h.times:
+                sim.record()
+                writer.write(sim.t, sim.u, sim.v)
     writer.close()
 
     probe_header = (["t", "level"] + [f"{n}_{c}" for n in sim.probes.names for c in "xyz"]
@@ -321,7 +415,7 @@ def run(scene: Scene, out_dir: str | Path, comm=MPI.COMM_WORLD) -> dict:
     its = sim.solver.iterations
     summary = {
         "scene": scene.name,
-        "status": "ok",
+        "status": "ok" if stopped is None else f"stopped: {stopped}",
         "dolfinx_version": compat.DOLFINX_VERSION,
         "ranks": comm.size,
         **sizes,
@@ -331,7 +425,7 @@ def run(scene: Scene, out_dir: str | Path, comm=MPI.COMM_WORLD) -> dict:
         "solver": scene.solver.kind,
         "steps": len(h.step_seconds),
         "setup_s": setup_s,
-        "step_s_median": statistics.median(h.step_seconds),
+        "step_s_median": statistics.median(h.step_seconds) if h.step_seconds else 0.0,
         "solve_s_total": h.solve_seconds,
         "linear_solves": h.solves,
         "iterations_mean": float(np.mean(its)) if its else 0.0,
@@ -339,12 +433,43 @@ def run(scene: Scene, out_dir: str | Path, comm=MPI.COMM_WORLD) -> dict:
         "final_time": sim.t,
         "max_displacement_m": sim.max_displacement(),
         "probes": sim.probes.as_dict(h.probes[-1]),
+        **(_energy_summary(sim) if dynamic else {}),
+        **({"removals": sim.removals, "removed_fraction": sim.tissue.removed_fraction} if sim.tissue else {}),
         "surfaces": sim.surfaces.as_dict(h.surfaces[-1]),
         **sim.forces(),
     }
     write_json(out / "summary.json", summary, comm)
     sim.solver.destroy()
+    if stopped is not None:
+        raise SolverError(f"{stopped} (stopped; the last good state, t = {sim.t:g} s, is in {out})")
     return summary
+
+
+def _energy_summary(sim: Simulation) -> dict:
+    e = sim.energy
+    t, kinetic, strain, work = e.history[-1] if e.history else (sim.t, 0.0, 0.0, 0.0)
+    return {"energy_J": {"kinetic": kinetic, "strain": strain, "external_work": work,
+                         "balance": kinetic + strain - work}}
+
+
+def check_writable(out: Path, comm) -> None:
+    """The output folder must be creatable and writable; checked before any work or output."""
+    import os
+
+    problem = None
+    if comm.rank == 0:
+        existing = out
+        while not existing.exists() and existing != existing.parent:
+            existing = existing.parent
+        if out.exists() and not out.is_dir():
+            problem = f"output folder '{out}' is an existing file; choose another --out"
+        elif not existing.is_dir() or not os.access(existing, os.W_OK | os.X_OK):
+            problem = f"output folder '{out}' cannot be written ('{existing}' is not writable); choose another --out"
+    problem = comm.bcast(problem, root=0)
+    if problem:
+        from .scene import SceneError
+
+        raise SceneError(problem)
 
 
 def _fmt(level) -> str:

@@ -72,3 +72,9 @@ def subprocess_env() -> dict:
 def serial_only():
     if COMM.size > 1:
         pytest.skip("runs its own subprocesses; only meaningful in the serial pass")
+
+
+@pytest.fixture
+def shared_tmp(tmp_path) -> Path:
+    """tmp_path of rank 0, the same folder on every rank (each rank's own tmp_path differs)."""
+    return Path(COMM.bcast(str(tmp_path), root=0))

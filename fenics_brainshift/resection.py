@@ -1,0 +1,114 @@
+"""Resection: which cells a [[remove]] takes away, and the tissue indicator the forms use.
+
+Removal does not change the mesh. A cell-wise indicator ``tissue`` (DG0: 1 present, 0
+removed) multiplies the mass, stiffness and gravity forms, and the fluid acts on the surface
+of the cells that remain (hydrostatics.surface_facets). Nodes left with no tissue around
+them ("orphans") get a unit diagonal and a zero right-hand side, so they stay where they
+were. A piece cut free keeps a positive-definite effective matrix through its mass, which is
+why the paper solves the dynamic problem: K alone would be singular.
+
+Cells are chosen by their centroid, so a region selects the same cells on any number of
+ranks (centroids are computed from the mesh geometry, ghosts included).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from dolfinx import fem
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from . import compat
+from .scene import Removal, Scene, SceneError
+
+
+def cell_centroids(mesh) -> np.ndarray:
+    """(num_local_cells incl. ghosts, 3) centroids of the tetrahedra."""
+    geo = compat.geometry_dofmap(mesh)
+    return mesh.geometry.x[geo].mean(axis=1)
+
+
+def image_labels(path: str, points_m: np.ndarray, scale: float) -> np.ndarray:
+    """The label of a NIfTI label volume at each point (m); 0 outside the image."""
+    import nibabel as nib
+
+    try:
+        image = nib.load(str(path))
+        data = np.asanyarray(image.dataobj)
+    except Exception as exc:
+        raise SceneError(f"[[remove]] label: '{Path(path).name}' could not be read as NIfTI: {exc}") from None
+    inverse = np.linalg.inv(image.affine)
+    ijk = np.rint((points_m / scale) @ inverse[:3, :3].T + inverse[:3, 3]).astype(np.int64)
+    inside = np.all((ijk >= 0) & (ijk < np.array(data.shape[:3])), axis=1)
+    labels = np.zeros(len(points_m), dtype=np.int64)
+    labels[inside] = data[tuple(ijk[inside].T)]
+    return labels
+
+
+def removal_mask(mesh, removal: Removal, scene: Scene) -> np.ndarray:
+    """Boolean mask over the local cells (ghosts included) that ``removal`` takes away."""
+    centroids = cell_centroids(mesh)
+    if removal.predicate is not None:
+        return np.asarray(removal.predicate(centroids.T), dtype=bool)
+    return image_labels(scene.mesh.file, centroids, scene.mesh.scale) == removal.label
+
+
+class Tissue:
+    """The cells still present, as a DG0 indicator, and the removals still to come."""
+
+    def __init__(self, mesh, scene: Scene):
+        self.mesh = mesh
+        self.comm = mesh.comm
+        self.n_owned = mesh.topology.index_map(3).size_local
+        self.indicator = fem.Function(compat.scalar_space(mesh, "DG", 0), name="tissue")
+        self.indicator.x.array[:] = 1.0
+        self.present = np.ones(len(self.indicator.x.array), dtype=bool)
+        self.total = self._count(self.present)
+        self.pending = list(scene.remove)
+        self.masks = [removal_mask(mesh, r, scene) for r in scene.remove]
+        self._check(scene)
+
+    def _count(self, mask: np.ndarray) -> int:
+        return self.comm.allreduce(int(np.count_nonzero(mask[: self.n_owned])), op=MPI.SUM)
+
+    def _check(self, scene: Scene) -> None:
+        """Before anything runs: each removal takes something, and not everything is taken."""
+        left = self.present.copy()
+        for removal, mask in zip(scene.remove, self.masks):
+            taken = self._count(mask & left)
+            if taken == 0:
+                raise SceneError(f"[[remove]] {removal.describe()} (at {removal.at:g} s) selects no cell that is "
+                                 f"still present; check the region (metres, mesh frame, cell centroids)")
+            left &= ~mask
+            if self._count(left) == 0:
+                raise SceneError(f"[[remove]] {removal.describe()} (at {removal.at:g} s) would remove every "
+                                 f"remaining cell; nothing would be left to simulate")
+
+    @property
+    def removed_fraction(self) -> float:
+        return 1.0 - self._count(self.present) / self.total
+
+    def due(self, t: float, tol: float) -> list[int]:
+        """Indices (into scene.remove) of the pending removals with at <= t (+tol)."""
+        return [i for i, r in enumerate(self.pending) if r is not None and r.at <= t + tol]
+
+    def apply(self, index: int) -> int:
+        """Remove the cells of pending removal ``index``; returns the number removed (global)."""
+        mask = self.masks[index] & self.present
+        removed = self._count(mask)
+        self.present &= ~mask
+        self.indicator.x.array[:] = self.present.astype(PETSc.ScalarType)
+        self.pending[index] = None
+        return removed
+
+
+def fill_empty_diagonal(A: PETSc.Mat) -> int:
+    """Put 1 on each exactly-zero diagonal entry (rows with no tissue around them); returns
+    how many owned rows that was. Collective."""
+    diag = A.getDiagonal()
+    empty = diag.array_r == 0.0
+    diag.array[empty] = 1.0
+    A.setDiagonal(diag, addv=PETSc.InsertMode.INSERT_VALUES)
+    diag.destroy()
+    return int(np.count_nonzero(empty))

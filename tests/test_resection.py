@@ -1,0 +1,148 @@
+"""Resection: cells removed during a dynamic run, pieces cut free, and what must stay exact.
+
+A block 20 x 20 x 60 mm on a clamped floor loses the layer 20 mm < z < 30 mm at t = 0. The
+piece above is then free: its mass-weighted mean acceleration must be g dry and
+(1 - rho_f / rho_s) g submerged (Archimedes on its new closed surface, the cut face included),
+exactly in Newmark's arithmetic. The piece below must move as a 20 mm block that never had
+anything above it.
+"""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+from conftest import COMM
+from fenics_brainshift.model import build_model
+from fenics_brainshift.scene import SceneError, scene_from_dict
+from fenics_brainshift.simulation import Simulation, run
+
+pytestmark = pytest.mark.mpi
+W, RHO_S, G = 0.02, 1000.0, 9.81
+DT, STEPS = 0.01, 12
+
+
+def block(height: float, layers: int, fluid=None, remove=(), **sections) -> dict:
+    data = {
+        "name": "block",
+        "mesh": {"shape": "box", "size": [W, W, height], "cells": [2, 2, layers]},
+        "material": {"E": 3000.0, "nu": 0.45, "density": RHO_S},
+        "gravity": {"vector": [0.0, 0.0, -G]},
+        "fixed": [{"where": "z < 1e-9"}],
+        "time": {"mode": "dynamic", "dt": DT, "end": DT * STEPS},
+        "solver": {"kind": "cholesky"},
+        "remove": list(remove),
+    }
+    if fluid is not None:
+        data["fluid"] = fluid
+    data.update(sections)
+    return data
+
+
+CUT = {"at": 0.0, "where": "0.02 < z < 0.03"}
+
+
+def _upper_mean(sim, z_min: float) -> np.ndarray:
+    """Mass-weighted mean displacement of the nodes above z_min (global)."""
+    n_blocks = sim.n_owned // 3
+    z = sim.model.V.tabulate_dof_coordinates()[:n_blocks, 2]
+    mass = sim.M.getDiagonal().array_r.reshape(-1, 3)[:, 0]
+    sel = z > z_min
+    u = sim.u.x.array[: sim.n_owned].reshape(-1, 3)
+    local = np.concatenate([(mass[sel, None] * u[sel]).sum(axis=0), [mass[sel].sum()]])
+    total = COMM.allreduce(local, op=MPI.SUM)
+    return total[:3] / total[3]
+
+
+def _run(data: dict):
+    sim = Simulation(build_model(scene_from_dict(data), COMM))
+    sim.setup_dynamic()
+    history = []
+    for _ in range(STEPS):
+        sim.step()
+        history.append(sim.t)
+    return sim
+
+
+def test_free_piece_falls_with_g_when_dry_and_stays_unstrained():
+    corners = {f"p{i}": [x, y, z] for i, (x, y, z) in enumerate(
+        [(0, 0, 0.03), (W, 0, 0.03), (0, W, 0.06), (W, W, 0.06), (W / 2, W / 2, 0.045), (0, W / 2, 0.05)])}
+    sim = _run(block(0.06, 6, remove=[CUT], probes=corners))
+    t = sim.t
+    values = sim.probes.values(sim.u)
+    exact = -0.5 * G * t**2
+    # Newmark integrates a constant acceleration exactly; every point moves alike: no strain
+    np.testing.assert_allclose(values[:, 2], exact, rtol=1e-10)
+    np.testing.assert_allclose(values[:, :2], 0.0, atol=1e-12 * abs(exact))
+    np.testing.assert_allclose(_upper_mean(sim, 0.0295)[2], exact, rtol=1e-10)
+
+
+def test_free_piece_sinks_with_reduced_gravity_under_water():
+    rho_f = 400.0
+    fluid = {"density": rho_f, "level": 1.0, "follower": False}
+    sim = _run(block(0.06, 6, fluid=fluid, remove=[CUT]))
+    expected = -0.5 * (1.0 - rho_f / RHO_S) * G * sim.t**2
+    np.testing.assert_allclose(_upper_mean(sim, 0.0295)[2], expected, rtol=1e-9)
+    assert abs(_upper_mean(sim, 0.0295)[0]) < 1e-9 * abs(expected)
+
+
+@pytest.mark.parametrize("fluid", [None, {"density": 1030.0, "level": 0.015, "follower": False}])
+def test_piece_below_is_the_block_that_never_had_a_top(fluid):
+    probes = {"a": [W, W, 0.02], "b": [0.0, W / 2, 0.01], "c": [W / 2, W / 2, 0.02]}
+    cut = _run(block(0.06, 6, fluid=fluid, remove=[CUT], probes=probes))
+    short = _run(block(0.02, 2, fluid=fluid, probes=probes))
+    u_cut, u_short = cut.probes.values(cut.u), short.probes.values(short.u)
+    assert np.abs(u_short).max() > 1e-5
+    np.testing.assert_allclose(u_cut, u_short, atol=1e-10 * np.abs(u_short).max())
+
+
+def test_thirty_percent_removed_in_three_cuts_runs_to_the_end(shared_tmp):
+    cuts = [{"at": 0.03, "where": "(x - 0.01)**2 + (y - 0.01)**2 + (z - 0.06)**2 < 0.008**2"},
+            {"at": 0.05, "where": "x > 0.014 and z > 0.03"},
+            {"at": 0.08, "where": "y < 0.006 and z < 0.045"}]
+    data = block(0.06, 6, fluid={"density": 1030.0, "level": [[0.0, 0.07], [0.1, 0.02]]},
+                 remove=cuts, time={"mode": "dynamic", "dt": 0.005, "end": 0.15},
+                 mesh={"shape": "box", "size": [W, W, 0.06], "cells": [4, 4, 12]},
+                 damping={"a": 5.0}, solver={"kind": "cg-gamg", "rtol": 1e-10})
+    summary = run(scene_from_dict(data), shared_tmp / "out", COMM)
+    assert summary["status"] == "ok"
+    assert summary["removed_fraction"] >= 0.30
+    assert [r["cells"] > 0 for r in summary["removals"]] == [True, True, True]
+    assert np.isfinite(summary["max_displacement_m"])
+    if COMM.rank == 0:
+        text = (shared_tmp / "out" / "displacement.xdmf").read_text()
+        assert 'Name="tissue"' in text
+        saved = json.loads((shared_tmp / "out" / "summary.json").read_text())
+        assert saved["removed_fraction"] == summary["removed_fraction"]
+
+
+def test_removal_by_label_of_the_label_volume(shared_tmp):
+    import nibabel as nib
+
+    if COMM.rank == 0:
+        labels = np.zeros((12, 12, 12), dtype=np.uint8)
+        labels[1:11, 1:11, 1:11] = 1
+        # a "lesion" at the top: image voxel i spans (2i - 1, 2i + 1) mm, the 4 mm voxels of the mesh
+        # start at 1 mm, so this is exactly 2 x 2 x 1 of them
+        labels[5:9, 5:9, 9:11] = 2
+        nib.save(nib.Nifti1Image(labels, np.diag([2.0, 2.0, 2.0, 1.0])), str(shared_tmp / "seg.nii.gz"))
+    COMM.barrier()
+    data = block(0.02, 2, remove=[{"at": 0.0, "label": 2}], mesh={"file": str(shared_tmp / "seg.nii.gz"),
+                                                                 "voxel": 0.004, "unit": "mm"})
+    data["fixed"] = [{"where": "z < 0.0041"}]
+    sim = Simulation(build_model(scene_from_dict(data), COMM))
+    sim.setup_dynamic()
+    removed = sim.removals[0]["cells"]
+    assert removed == 5 * 4  # 4 voxels of 5 tetrahedra
+    sim.step()
+
+
+@pytest.mark.parametrize("region, message", [
+    ("z > 1.0", "selects no cell"),
+    ("z > -1.0", "would remove every remaining cell"),
+])
+def test_removal_that_selects_nothing_or_everything_is_refused(region, message):
+    with pytest.raises(SceneError, match=message):
+        build_model(scene_from_dict(block(0.02, 2, remove=[{"at": 0.0, "where": region}])), COMM)
