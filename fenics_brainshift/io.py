@@ -28,6 +28,7 @@ class FieldWriter:
         self.folder = folder
         self.embedding = embedding
         self.count = 0
+        self.last_time: float | None = None
         self.comm = mesh.comm
         self.path = folder / "displacement.xdmf"
         self.file = XDMFFile(mesh.comm, str(self.path), "w")
@@ -54,6 +55,7 @@ class FieldWriter:
         if self.embedding is not None:
             self.embedding.write(self.folder, f"surface_{self.count:04d}", u)
         self.count += 1
+        self.last_time = t
         self._last_u = u
 
     def close(self) -> None:

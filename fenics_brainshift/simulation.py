@@ -385,9 +385,10 @@ def run(scene: Scene, out_dir: str | Path, comm=MPI.COMM_WORLD) -> dict:
         except SolverError as exc:  # a guard fired: keep the last good state, then say why
             stopped = exc
             sim.restore_last_good()
-            if not h.times or h.times[-1] != sim.t:
+            if h.times[-1] != sim.t:
                 sim.record()
-            writer.write(sim.t, sim.u, sim.v)
+            if writer.last_time != sim.t:
+                writer.write(sim.t, sim.u, sim.v)
     else:
         times = static_times(scene)
         try:

@@ -261,3 +261,24 @@ def test_hydrostatic_load_function_api():
     assert total[2] == pytest.approx(RHO * G * 0.03 * 0.02 * 0.004, rel=1e-12)
     with pytest.raises(ValueError, match="rule must be one of"):
         hydrostatic_load(V, 0.004, RHO, (0.0, 0.0, -G), rule="exact")
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("thickness", [1e-4, 1e-6])
+def test_archimedes_on_sliver_facets(thickness):
+    """A plate 30 x 20 mm and 0.1 or 0.001 mm thick: its side triangles have aspect ratios of
+    1e-2 and 1e-4 and the water line crosses them at grazing angles. The resultant stays exact
+    up to the round-off of the large, nearly cancelling top and bottom forces."""
+    mesh = build_mesh(MeshSpec(shape="box", size=(0.03, 0.02, thickness), cells=(3, 2, 1)), COMM)
+    V = compat.vector_space(mesh, 1)
+    vol = total_volume(mesh)
+    for k, direction in enumerate(_directions(seed=3, count=3)):
+        up = -direction
+        for rule in ("consistent", "paper"):
+            load = HydrostaticLoad(V, RHO, G * direction, rule)
+            for level in _levels(mesh, up, seed=k):
+                load.assemble(level)
+                expected = RHO * G * submerged_volume(mesh, up, level) * up
+                # the scale of the cancelling face forces: rho g (depth range) (face area)
+                scale = RHO * G * 0.04 * 0.03 * 0.02
+                assert np.abs(load.force - expected).max() <= 1e-13 * scale + 1e-9 * RHO * G * vol

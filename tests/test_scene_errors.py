@@ -53,6 +53,7 @@ def _with(section: str, **changes) -> dict:
     return data
 
 
+DYNAMIC = {"mode": "dynamic", "dt": 0.01, "end": 0.05}
 BAD = [
     ("unknown key", _with("material", Ee=1.0), "[material] unknown key 'Ee'"),
     ("negative E", _with("material", E=-5.0), "[material] E must be > 0"),
@@ -78,6 +79,18 @@ BAD = [
     ("fixed eval attempt", {**column_dict(4), "fixed": [{"where": "__import__('os').system('true')"}]}, "[[fixed]] where"),
     ("fixed bad axes", {**column_dict(4), "fixed": [{"where": "z < 0.001", "axes": "w"}]}, "[[fixed]] axes"),
     ("probe outside", {**column_dict(4), "probes": {"far": [1.0, 1.0, 1.0]}}, "[probes] far"),
+    ("remove selects nothing", {**column_dict(4), "time": DYNAMIC, "remove": [{"at": 0.0, "where": "z > 1.0"}]},
+     "[[remove]] where = \"z > 1.0\" (at 0 s) selects no cell"),
+    ("remove takes everything", {**column_dict(4), "time": DYNAMIC, "remove": [{"at": 0.0, "where": "z > -1.0"}]},
+     "would remove every remaining cell"),
+    ("remove when quasi-static", {**column_dict(4), "remove": [{"at": 0.0, "where": "z > 0.05"}]},
+     "[[remove]] needs [time] mode = \"dynamic\""),
+    ("remove after the end", {**column_dict(4), "time": DYNAMIC, "remove": [{"at": 9.0, "where": "z > 0.05"}]},
+     "[[remove]] at = 9 s is not before [time] end"),
+    ("remove with both", {**column_dict(4), "time": DYNAMIC, "remove": [{"where": "z > 0.05", "label": 2}]},
+     "[[remove]] give exactly one of"),
+    ("remove label of a box", {**column_dict(4), "time": DYNAMIC, "remove": [{"label": 2}]},
+     "[[remove]] label needs [mesh] file to be a label volume"),
 ]
 
 
@@ -91,6 +104,28 @@ def test_bad_scene_gives_one_line_error_and_no_output(tmp_path, capsys, label, d
     assert expected in err, err
     assert len(err.splitlines()) == 1 and "Traceback" not in err
     assert not out.exists()
+
+
+@pytest.mark.parametrize("content", [b"garbage, not a mesh\n", b"$MeshFormat\n4.1 0 8\n$EndMeshFormat\n$Nodes\n1 2"])
+def test_corrupt_mesh_file_is_named(tmp_path, capsys, serial_only, content):
+    (tmp_path / "broken.msh").write_bytes(content)
+    scene = write_scene(tmp_path / "scene.toml", {**column_dict(4), "mesh": {"file": "broken.msh"}})
+    out = tmp_path / "out"
+    assert main(["run", str(scene), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "[mesh] file 'broken.msh' could not be read" in err and len(err.splitlines()) == 1, err
+    assert not out.exists()
+
+
+def test_output_folder_that_cannot_be_written(tmp_path, capsys, serial_only):
+    scene = write_scene(tmp_path / "scene.toml", column_dict(4))
+    (tmp_path / "taken").write_text("a file, not a folder")
+    for out, expected in ((tmp_path / "taken", "is an existing file"),
+                          (tmp_path / "taken" / "out", "cannot be written")):
+        assert main(["run", str(scene), "--out", str(out)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert expected in err and len(err.splitlines()) == 1, err
+    assert (tmp_path / "taken").read_text() == "a file, not a folder"
 
 
 def test_not_toml_and_missing_scene(tmp_path, capsys):
