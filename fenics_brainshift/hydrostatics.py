@@ -30,6 +30,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from . import compat
+from .meshing.facets import present_facet_counts
 
 RULES = ("consistent", "paper", "quadrature")
 
@@ -150,29 +151,11 @@ def surface_facets(V, present: np.ndarray | None = None) -> SurfaceFacets:
     """The surface of the cells present (all cells by default): facets with exactly one
     present cell next to them, each taken by the rank that owns that cell.
 
-    Counting goes through the facet index map (owned cells add 1 to each of their facets,
-    ghost counts are summed onto the owners and sent back), so it needs no ghost cells and
-    gives the same surface on any number of ranks; after a resection the cut faces join it."""
+    The count is global (meshing.facets), so the surface is the same on any number of ranks;
+    after a resection the cut faces join it."""
     mesh = V.mesh
-    topo = mesh.topology
-    tdim = topo.dim
-    topo.create_entities(tdim - 1)
-    topo.create_connectivity(tdim, tdim - 1)
-    facet_map = topo.index_map(tdim - 1)
-    n_owned_cells = topo.index_map(tdim).size_local
-    owned = np.ones(n_owned_cells, dtype=bool) if present is None else np.asarray(present[:n_owned_cells], dtype=bool)
-    cells_present = np.flatnonzero(owned)
-    c2f = topo.connectivity(tdim, tdim - 1).array.reshape(-1, 4)
-    counts = dolfinx.la.create_petsc_vector(facet_map, 1)
-    with counts.localForm() as lf:
-        local = np.zeros(lf.getLocalSize())
-        np.add.at(local, c2f[cells_present].ravel(), 1.0)
-        lf.array[:] = local
-    counts.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-    counts.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
-    with counts.localForm() as lf:
-        once = lf.array_r[c2f[cells_present]] == 1.0  # (n, 4): facet k of the cell is on the surface
-    counts.destroy()
+    cells_present, counts = present_facet_counts(mesh, present)
+    once = counts == 1  # (n, 4): facet k of the cell is on the surface
     cells = np.repeat(cells_present, 4)[once.ravel()]
     local = np.tile(np.arange(4), len(cells_present))[once.ravel()]  # facet k is opposite vertex k
     others = np.array([[v for v in range(4) if v != lf] for lf in range(4)])  # facet lf's vertices

@@ -20,6 +20,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from . import compat
+from .meshing.facets import present_facet_counts
 from .scene import Removal, Scene, SceneError
 
 
@@ -93,14 +94,24 @@ class Tissue:
         """Indices (into scene.remove) of the pending removals with at <= t (+tol)."""
         return [i for i, r in enumerate(self.pending) if r is not None and r.at <= t + tol]
 
-    def apply(self, index: int) -> int:
-        """Remove the cells of pending removal ``index``; returns the number removed (global)."""
+    def apply(self, index: int) -> tuple[int, int]:
+        """Remove the cells of pending removal ``index``, then any cell left with no face
+        shared with a present cell (a tetrahedron hanging by an edge or a vertex: a cut
+        through a voxel's five tetrahedra leaves such slivers of the region's boundary, and
+        each one is a mechanism that falls freely). Returns (cells in the region, isolated
+        cells removed with them), global counts. Collective."""
         mask = self.masks[index] & self.present
         removed = self._count(mask)
         self.present &= ~mask
-        self.indicator.x.array[:] = self.present.astype(PETSc.ScalarType)
+        cells, counts = present_facet_counts(self.mesh, self.present)
+        isolated = cells[np.all(counts == 1, axis=1)]
+        values = self.indicator.x.array
+        values[:] = self.present.astype(PETSc.ScalarType)
+        values[isolated] = 0.0
+        self.indicator.x.scatter_forward()  # ghosts learn what their owners removed
+        self.present = values > 0.5
         self.pending[index] = None
-        return removed
+        return removed, self.comm.allreduce(len(isolated), op=MPI.SUM)
 
 
 def fill_empty_diagonal(A: PETSc.Mat) -> int:

@@ -148,10 +148,12 @@ class Simulation:
             return False
         for index in due:
             removal = self.scene.remove[index]
-            count = self.tissue.apply(index)
-            self.removals.append({"at": removal.at, "t": self.t, "region": removal.describe(), "cells": count})
-            log.info("  t=%.3f s: removed %d cells (%s); %.1f %% of the body removed so far", self.t, count,
-                     removal.describe(), 100.0 * self.tissue.removed_fraction)
+            count, isolated = self.tissue.apply(index)
+            self.removals.append({"at": removal.at, "t": self.t, "region": removal.describe(), "cells": count,
+                                  "isolated_cells": isolated})
+            log.info("  t=%.3f s: removed %d cells (%s) and %d left hanging by an edge or vertex; %.1f %% of "
+                     "the body removed so far", self.t, count, removal.describe(), isolated,
+                     100.0 * self.tissue.removed_fraction)
         self.model.gravity.refresh()
         if self.model.fluid is not None:
             self.model.fluid.set_present(self.tissue.present)

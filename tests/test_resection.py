@@ -146,3 +146,18 @@ def test_removal_by_label_of_the_label_volume(shared_tmp):
 def test_removal_that_selects_nothing_or_everything_is_refused(region, message):
     with pytest.raises(SceneError, match=message):
         build_model(scene_from_dict(block(0.02, 2, remove=[{"at": 0.0, "where": region}])), COMM)
+
+
+def test_cells_left_hanging_by_an_edge_go_with_the_cut():
+    """Removing the central tetrahedron of the top voxel of a two-voxel column leaves its two
+    upper corner tetrahedra touching the rest by edges only: they are removed with it; the
+    lower two keep a face on the voxel below and stay."""
+    h = 0.01
+    data = block(2 * h, 2, remove=[{"at": 0.0, "where": f"sqrt((x - {h / 2})**2 + (y - {h / 2})**2 + (z - {1.5 * h})**2) < {h / 10}"}],
+                 mesh={"shape": "box", "size": [h, h, 2 * h], "cells": [1, 1, 2]})
+    sim = Simulation(build_model(scene_from_dict(data), COMM))
+    sim.setup_dynamic()
+    assert sim.removals[0]["cells"] == 1 and sim.removals[0]["isolated_cells"] == 2
+    assert sim.tissue.removed_fraction == pytest.approx(0.3)
+    sim.step()
+    assert np.all(np.isfinite(sim.u.x.array))
