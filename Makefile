@@ -35,6 +35,7 @@ docker:
 
 bench: install
 	$(PY) benchmarks/cube_sizes.py
+	$(PY) benchmarks/stability.py
 
 clean:
 	rm -rf out_* .pytest_cache
