@@ -21,6 +21,9 @@ APT_PACKAGES=(
   python3-h5py python3-scipy python3-matplotlib python3-nibabel python3-skimage python3-pytest
   python3-venv python3-pip python3-dev
   openmpi-bin make git ca-certificates
+  # Optimised BLAS for MUMPS's dense fronts: with Debian's reference BLAS the Cholesky factor
+  # of the 5 mm brain took 10.3 s, with this 1.9 s (serial build: no threads to fight MPI ranks).
+  libopenblas0-serial
 )
 
 say() { printf '[install] %s\n' "$*"; }
