@@ -61,29 +61,31 @@ class Result:
 
 
 # ------------------------------------------------------------------ the scenes
-def cube_bench(quick: bool) -> tuple[Path, list[str], np.ndarray, Config, list[Config]]:
+def cube_bench(level: str) -> tuple[Path, list[str], np.ndarray, Config, list[Config]]:
     """The gelatin cube at its last oil volume (10 ml): follower loading, the block mostly dry."""
     scene = ROOT / "demos" / "cube.toml"
-    base = ["fluid.volume=10e-6", "time.mode=quasi-static", "output.fields=[\"displacement\"]"]
+    base = ["fluid.volume=10e-6", "time.mode=quasi-static", "output.fields=[\"displacement\"]",
+            "output.pictures=false"]
     axes = [np.linspace(0, 0.05, 11), np.linspace(0, 0.05, 11), np.linspace(0, 0.025, 6)]
     samples = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-    grids = ["[16, 16, 9]", "[20, 20, 10]", "[25, 25, 12]", "[30, 30, 15]"]
-    if quick:
-        grids = grids[:2]
-    ref_grid = "[20, 20, 10]" if quick else "[25, 25, 12]"
+    grids = {"smoke": ["[6, 6, 3]"], "quick": ["[16, 16, 9]", "[20, 20, 10]"],
+             "full": ["[16, 16, 9]", "[20, 20, 10]", "[25, 25, 12]", "[30, 30, 15]"]}[level]
+    ref_grid = {"smoke": "[8, 8, 4]", "quick": "[20, 20, 10]", "full": "[25, 25, 12]"}[level]
     reference = Config("reference P2", [f"mesh.cells={ref_grid}", "element.degree=2"], "reference")
-    base_grid = grids[1] if quick else grids[2]
+    base_grid = grids[min(len(grids) - 1, 2 if level == "full" else 1)]
     configs = [Config(f"P1 {g}", [f"mesh.cells={g}"], "element size") for g in grids]
     configs += [Config(f"P2 {g}", [f"mesh.cells={g}", "element.degree=2"], "degree")
-                for g in grids[: 1 if quick else 2]]
+                for g in grids[: 2 if level == "full" else 1]]
     at = [f"mesh.cells={base_grid}"]
-    configs += [Config(f"P1 {base_grid} {k} rtol={r:g}", at + [f"solver.kind={k}", f"solver.rtol={r}"], "solver")
-                for k, r in (("cg-gamg", 1e-6), ("cg-gamg", 1e-10), ("cg-jacobi", 1e-6), ("cg-jacobi", 1e-10))]
-    configs += [Config(f"P1 {base_grid} rule {r}", at + [f"fluid.rule={r}"], "load rule")
-                for r in ("paper", "quadrature")]
-    dynamic = ["time.mode=dynamic", "time.end=3.0", "output.interval=100.0"]
-    configs += [Config(f"P1 {base_grid} dynamic dt={dt}", at + dynamic + [f"time.dt={dt}"], "time step")
-                for dt in ((0.1,) if quick else (0.05, 0.1, 0.2))]
+    end = "0.5" if level == "smoke" else "3.0"
+    dynamic = ["time.mode=dynamic", f"time.end={end}", "output.interval=100.0"]
+    if level != "smoke":
+        configs += [Config(f"P1 {base_grid} {k} rtol={r:g}", at + [f"solver.kind={k}", f"solver.rtol={r}"], "solver")
+                    for k, r in (("cg-gamg", 1e-6), ("cg-gamg", 1e-10), ("cg-jacobi", 1e-6), ("cg-jacobi", 1e-10))]
+        configs += [Config(f"P1 {base_grid} rule {r}", at + [f"fluid.rule={r}"], "load rule")
+                    for r in ("paper", "quadrature")]
+        configs += [Config(f"P1 {base_grid} dynamic dt={dt}", at + dynamic + [f"time.dt={dt}"], "time step")
+                    for dt in ((0.1,) if level == "quick" else (0.05, 0.1, 0.2))]
     paper = at + dynamic + ["time.dt=0.05", "solver.kind=cg-jacobi", "solver.rtol=1e-6", "fluid.rule=paper"]
     configs.append(Config("paper-equivalent", paper, "baseline"))
     configs.append(Config("naive loop", at + dynamic + ["time.dt=0.05", "fluid.rule=quadrature",
@@ -91,25 +93,28 @@ def cube_bench(quick: bool) -> tuple[Path, list[str], np.ndarray, Config, list[C
     return scene, base, samples, reference, configs
 
 
-def brain_bench(quick: bool) -> tuple[Path, list[str], np.ndarray, Config, list[Config]]:
+def brain_bench(level: str) -> tuple[Path, list[str], np.ndarray, Config, list[Config]]:
     """The bundled brain, supine, after the CSF has drained (the demo's final state)."""
     from .embedding import load_fine_surface
 
     scene = ROOT / "demos" / "brain.toml"
-    base = ["time.mode=quasi-static", "fluid.level=0.03", "output.fields=[\"displacement\"]"]
+    base = ["time.mode=quasi-static", "fluid.level=0.03", "output.fields=[\"displacement\"]", "output.pictures=false"]
     samples = load_fine_surface(load_scene(scene).mesh)[0]
-    voxels = ["0.008", "0.007"] if quick else ["0.008", "0.007", "0.006", "0.005"]
-    reference = Config("reference P2", ["mesh.voxel=0.005" if not quick else "mesh.voxel=0.007",
-                                        "element.degree=2"], "reference")
+    voxels = {"smoke": ["0.012"], "quick": ["0.008", "0.007"], "full": ["0.008", "0.007", "0.006", "0.005"]}[level]
+    ref_voxel = {"smoke": "0.01", "quick": "0.007", "full": "0.005"}[level]
+    reference = Config("reference P2", [f"mesh.voxel={ref_voxel}", "element.degree=2"], "reference")
     configs = [Config(f"P1 {float(v) * 1e3:g} mm", [f"mesh.voxel={v}"], "element size") for v in voxels]
     configs += [Config(f"P2 {float(v) * 1e3:g} mm", [f"mesh.voxel={v}", "element.degree=2"], "degree")
-                for v in voxels[:1 if quick else 2]]
-    at = ["mesh.voxel=0.005"] if not quick else ["mesh.voxel=0.008"]
-    configs += [Config(f"P1 {k} rtol=1e-6", at + [f"solver.kind={k}", "solver.rtol=1e-6"], "solver")
-                for k in ("cg-gamg", "cg-jacobi")]
-    configs += [Config("P1 rule paper", at + ["fluid.rule=paper"], "load rule")]
-    dynamic = ["time.mode=dynamic", "fluid.level=[[0.0, 0.085], [10.0, 0.03], [16.0, 0.03]]",
-               "time.end=16.0", "output.interval=100.0"]
+                for v in voxels[:2 if level == "full" else 1]]
+    # the paper's mesh is 5 mm voxels; quick and smoke runs stand in with coarser ones
+    at = [f"mesh.voxel={ {'smoke': '0.012', 'quick': '0.008', 'full': '0.005'}[level] }"]
+    if level != "smoke":
+        configs += [Config(f"P1 {k} rtol=1e-6", at + [f"solver.kind={k}", "solver.rtol=1e-6"], "solver")
+                    for k in ("cg-gamg", "cg-jacobi")]
+        configs += [Config("P1 rule paper", at + ["fluid.rule=paper"], "load rule")]
+    schedule = "[[0.0, 0.085], [10.0, 0.03], [16.0, 0.03]]" if level != "smoke" else "[[0.0, 0.085], [1.0, 0.03]]"
+    dynamic = ["time.mode=dynamic", f"fluid.level={schedule}", f"time.end={16.0 if level != 'smoke' else 1.0}",
+               "output.interval=100.0"]
     paper = at + dynamic + ["time.dt=0.2", "solver.kind=cg-jacobi", "solver.rtol=1e-6", "fluid.rule=paper"]
     configs.append(Config("paper-equivalent", paper, "baseline"))
     configs.append(Config("naive loop", at + dynamic + ["time.dt=0.2", "fluid.rule=quadrature",
@@ -164,8 +169,12 @@ def run_config(scene_file: Path, base: list[str], config: Config, samples: np.nd
 
 
 # ------------------------------------------------------------------ the sweep
-def sweep(bench: str, quick: bool, out: Path, progress=None) -> list[dict]:
-    scene_file, base, samples, reference, configs = BENCHES[bench](quick)
+LEVELS = ("smoke", "quick", "full")
+
+
+def sweep(bench: str, level: str, out: Path, progress=None) -> list[dict]:
+    """level: "smoke" (seconds: that it all runs), "quick" (coarse meshes), "full"."""
+    scene_file, base, samples, reference, configs = BENCHES[bench](level)
     # warm the form compiler's cache on a tiny mesh, so no row pays for compiling its forms
     tiny = {"cube": ["mesh.cells=[2, 2, 1]"], "brain": ["mesh.voxel=0.03"]}[bench]
     for cfg in (reference, *configs):
@@ -189,7 +198,7 @@ def sweep(bench: str, quick: bool, out: Path, progress=None) -> list[dict]:
         })
         log.info("  %-32s %7.2f s  max error %.3f mm  rms %.3f mm", cfg.name, r.total_s,
                  rows[-1]["max_error_mm"], rows[-1]["rms_error_mm"])
-    write(rows, ref, bench, quick, out)
+    write(rows, ref, bench, level, out)
     return rows
 
 
@@ -205,7 +214,7 @@ def pareto_front(rows: list[dict]) -> list[int]:
     return sorted(front, key=lambda i: rows[i]["total_s"])
 
 
-def write(rows: list[dict], ref: Result, bench: str, quick: bool, out: Path) -> None:
+def write(rows: list[dict], ref: Result, bench: str, level: str, out: Path) -> None:
     out.mkdir(parents=True, exist_ok=True)
     stem = out / f"time_vs_error_{bench}"
     with open(stem.with_suffix(".csv"), "w", newline="") as f:
@@ -215,16 +224,16 @@ def write(rows: list[dict], ref: Result, bench: str, quick: bool, out: Path) -> 
     front = set(pareto_front(rows))
     by_name = {r["config"]: r for r in rows}
     paper, naive = by_name.get("paper-equivalent"), by_name.get("naive loop")
-    command = f"brainshift bench --scene {bench}" + (" --quick" if quick else "")
+    command = f"brainshift bench --scene {bench}" + ("" if level == "full" else f" --{level}")
     lines = [f"# Run time against error: {bench}\n",
              f"{machine_line()}, DOLFINx {compat.DOLFINX_VERSION}; `{command}`. Serial. Error against {ref.config.name} "
              f"({ref.nodes} nodes, {ref.dofs} dofs) at fixed sample points; time from scene to answer "
              f"(mesh, forms, factor or preconditioner, solves; the form cache warm). * = on the Pareto front.\n",
              "| configuration | varies | nodes | dofs | steps | solves | setup (s) | solve (s) | total (s) | "
-             "max error (mm) | RMS error (mm) | probe error (mm) | vs paper-equivalent |",
+             "max error (mm) | RMS error (mm) | probe error (mm) | speed-up on the paper-equivalent |",
              "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for i, r in enumerate(rows):
-        speed = f"{paper['total_s'] / r['total_s']:.1f}x faster" if paper else ""
+        speed = f"{paper['total_s'] / r['total_s']:.1f}" if paper else ""
         lines.append(f"| {r['config']}{' *' if i in front else ''} | {r['family']} | {r['nodes']} | {r['dofs']} | "
                      f"{r['steps']} | {r['solves']} | {r['setup_s']:.2f} | {r['solve_s']:.2f} | {r['total_s']:.2f} | "
                      f"{r['max_error_mm']:.3f} | {r['rms_error_mm']:.3f} | {r['probe_error_mm']:.3f} | {speed} |")
@@ -237,7 +246,7 @@ def write(rows: list[dict], ref: Result, bench: str, quick: bool, out: Path) -> 
 
 
 def _best_line(rows: list[dict], paper: dict) -> str:
-    ok = [r for r in rows if r["max_error_mm"] <= paper["max_error_mm"]]
+    ok = [r for r in rows if r["max_error_mm"] <= 1.01 * paper["max_error_mm"]]
     best = min(ok, key=lambda r: r["total_s"])
     return (f"{best['config']}, {best['total_s']:.2f} s ({paper['total_s'] / best['total_s']:.0f}x faster, "
             f"max error {best['max_error_mm']:.3f} mm against {paper['max_error_mm']:.3f} mm).")

@@ -16,6 +16,8 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"],
                         help="how much to say (rank 0 only)")
     parser.add_argument("--log-all-ranks", action="store_true", help="let every MPI rank log")
+    parser.add_argument("--no-progress", action="store_true",
+                        help="no progress bar (it shows on rank 0 only when stderr is a terminal)")
     sub = parser.add_subparsers(dest="command", required=True)
     run = sub.add_parser("run", help="run a scene file (also under mpirun -n N)",
                          formatter_class=argparse.ArgumentDefaultsHelpFormatter)
@@ -24,6 +26,8 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
                      help="override a scene value, e.g. --set time.end=2 --set solver.kind=cholesky "
                           "(repeatable; arrays by index: fixed.0.where='z < 0.01')")
+    run.add_argument("--pictures", action="store_true",
+                     help="also write deformed.png and probes.png (same as --set output.pictures=true)")
     mesh = sub.add_parser("mesh", help="voxel-mesh a segmentation (label volume or surface) to XDMF",
                           description="The paper's embedding mesher: voxels of SIZE over the object's bounding "
                                       "box, those the object fills kept, floating parts dropped, five "
@@ -57,7 +61,19 @@ def _parser() -> argparse.ArgumentParser:
                      help="surface-error rectangle on the two axes other than --up's, mm")
     cmp.add_argument("--spacing", type=float, default=1.0, help="surface-error grid spacing, mm")
     cmp.add_argument("-o", "--output", default="compare.json", help="JSON result (a PNG of the surface error beside it)")
-    sub.add_parser("info", help="versions of DOLFINx, PETSc, MPI and the scalar type")
+    bench = sub.add_parser("bench", help="run time against error: a sweep of configurations, Pareto front",
+                           description="Every configuration computes the final shift of the scene; its run time "
+                                       "(scene to answer) and its error against a fine P2 reference at fixed "
+                                       "sample points go to DIR/time_vs_error_SCENE.csv, .md and .png, with the "
+                                       "paper-equivalent configuration and a naive loop as baselines in the same run.",
+                           formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    bench.add_argument("--scene", choices=["cube", "brain"], default="cube",
+                       help="the gelatin cube at 10 ml, or the bundled brain after the CSF has drained")
+    size = bench.add_mutually_exclusive_group()
+    size.add_argument("--quick", action="store_true", help="coarser meshes and fewer configurations (cube: about a minute; brain: about 11 min, mostly the paper-equivalent CG)")
+    size.add_argument("--smoke", action="store_true", help="tiny meshes: a few seconds, to check that the sweep runs")
+    bench.add_argument("--out", default="bench_results", help="output folder")
+    sub.add_parser("info", help="versions of DOLFINx, PETSc, MPI, the scalar type and optional extras")
     return parser
 
 
@@ -74,7 +90,28 @@ def _info() -> dict:
         "mpi": MPI.Get_library_version().splitlines()[0].strip(),
         "ranks": MPI.COMM_WORLD.size,
         "mumps": bool(PETSc.Sys.hasExternalPackage("mumps")),
+        "blas": _blas(),
+        **{f"extra {name}": _version_of(name) for name in ("pyvista", "tqdm", "nibabel", "matplotlib", "gmsh", "meshio")},
     }
+
+
+def _version_of(module: str) -> str:
+    import importlib
+
+    try:
+        return str(getattr(importlib.import_module(module), "__version__", "present"))
+    except ImportError:
+        return "absent"
+
+
+def _blas() -> str:
+    """Which BLAS the dynamic linker gives MUMPS (Debian's alternatives)."""
+    import os
+
+    try:
+        return os.path.realpath("/usr/lib/x86_64-linux-gnu/libblas.so.3").split("/")[-2]
+    except OSError:
+        return "unknown"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -86,6 +123,10 @@ def main(argv: list[str] | None = None) -> int:
     from .solver import SolverError
 
     logs.configure(args.log_level, args.log_all_ranks)
+    if args.no_progress:
+        from . import progress
+
+        progress.ENABLED = False
     comm = MPI.COMM_WORLD
     try:
         if args.command == "info":
@@ -97,10 +138,12 @@ def main(argv: list[str] | None = None) -> int:
             return _mesh(args, comm)
         if args.command == "compare":
             return _compare(args, comm)
+        if args.command == "bench":
+            return _bench(args, comm)
         from .scene import load_scene
         from .simulation import run
 
-        scene = load_scene(args.scene, args.set)
+        scene = load_scene(args.scene, args.set + (["output.pictures=true"] if args.pictures else []))
         summary = run(scene, args.out or scene.output.folder, comm)
         if comm.rank == 0:
             probes = ", ".join(f"{k}=[{', '.join(f'{c * 1e3:.3f}' for c in v)}] mm"
@@ -117,6 +160,25 @@ def main(argv: list[str] | None = None) -> int:
         if comm.rank == 0:
             print(f"brainshift: stopped: {exc}", file=sys.stderr)
         return 3
+
+
+def _bench(args, comm) -> int:
+    from pathlib import Path
+
+    from .bench import sweep
+    from .progress import progress
+    from .scene import SceneError
+
+    if comm.size > 1:
+        raise SceneError("bench: run it on one rank (it compares configurations; "
+                         "benchmarks/cube_sizes.py measures ranks)")
+    level = "smoke" if args.smoke else "quick" if args.quick else "full"
+    rows = sweep(args.scene, level, Path(args.out), progress)
+    best = min(rows, key=lambda r: r["max_error_mm"])
+    print(f"bench {args.scene}: {len(rows)} configurations; most accurate {best['config']} "
+          f"({best['max_error_mm']:.3f} mm, {best['total_s']:.2f} s); wrote {args.out}/time_vs_error_{args.scene}.md, "
+          f".csv and .png")
+    return 0
 
 
 def _compare(args, comm) -> int:

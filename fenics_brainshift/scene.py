@@ -417,11 +417,13 @@ OUTPUT_FIELDS = ("displacement", "velocity", "von_mises")
 
 @dataclass(slots=True)
 class Output:
-    """folder (``--out`` overrides), XDMF fields, and interval in simulated seconds (0: every step)."""
+    """folder (``--out`` overrides), XDMF fields, interval in simulated seconds (0: every step),
+    and pictures (deformed.png, probes.png) at the end."""
 
     folder: str = "out"
     fields: tuple[str, ...] = ("displacement",)
     interval: float = 0.0
+    pictures: bool = False
 
     def __post_init__(self):
         if not isinstance(self.folder, str) or not self.folder:
@@ -432,6 +434,8 @@ class Output:
             _choice("[output] fields", f, OUTPUT_FIELDS)
         self.fields = tuple(self.fields)
         self.interval = _non_negative("[output] interval", self.interval)
+        if not isinstance(self.pictures, bool):
+            raise SceneError(f"[output] pictures must be true or false (got {self.pictures!r})")
 
 
 @dataclass(slots=True)

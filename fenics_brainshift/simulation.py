@@ -27,6 +27,7 @@ from .io import FieldWriter, write_csv, write_json
 from .logs import get_logger
 from .model import Model, build_model
 from .probes import Probes, SurfaceAverages
+from .progress import progress
 from .relaxation import AitkenRelaxation
 from .scene import Scene, SolverConfig
 from .solver import LinearSolver, SolverError, rigid_body_modes
@@ -372,11 +373,14 @@ def run(scene: Scene, out_dir: str | Path, comm=MPI.COMM_WORLD) -> dict:
         sim.record()
         writer.write(sim.t, sim.u, sim.v)
         next_write += interval
+        bar = progress(range(1, steps + 1), scene.name, total=steps)
         try:
-            for n in range(1, steps + 1):
+            for n in bar:
                 t0 = time.perf_counter()
                 its = sim.step()
                 h.step_seconds.append(time.perf_counter() - t0)
+                bar.set_postfix_str(f"t={sim.t:.2f} s level={_fmt(sim.level)} {h.step_seconds[-1] * 1e3:.0f} ms/step",
+                                    refresh=False)
                 sim.record()
                 if sim.t >= next_write - 1e-9 * scene.time.dt or n == steps:
                     writer.write(sim.t, sim.u, sim.v)
@@ -384,8 +388,10 @@ def run(scene: Scene, out_dir: str | Path, comm=MPI.COMM_WORLD) -> dict:
                 if n % max(1, steps // 10) == 0 or n == steps:
                     log.info("  step %d/%d  t=%.3f s  level=%s  its=%d  |u|max=%.3e m", n, steps,
                              sim.t, _fmt(sim.level), its, sim.max_displacement())
+            bar.close()
         except SolverError as exc:  # a guard fired: keep the last good state, then say why
             stopped = exc
+            bar.close()
             sim.restore_last_good()
             if h.times[-1] != sim.t:
                 sim.record()
@@ -434,6 +440,7 @@ def run(scene: Scene, out_dir: str | Path, comm=MPI.COMM_WORLD) -> dict:
         "iterations_mean": float(np.mean(its)) if its else 0.0,
         "iterations_max": int(max(its)) if its else 0,
         "final_time": sim.t,
+        "gravity_vector": list(scene.gravity.vector),
         "max_displacement_m": sim.max_displacement(),
         "probes": sim.probes.as_dict(h.probes[-1]),
         **(_energy_summary(sim) if dynamic else {}),
@@ -443,6 +450,12 @@ def run(scene: Scene, out_dir: str | Path, comm=MPI.COMM_WORLD) -> dict:
     }
     write_json(out / "summary.json", summary, comm)
     sim.solver.destroy()
+    if scene.output.pictures and stopped is None and comm.rank == 0:
+        from .viz import render_in_subprocess
+
+        for path in render_in_subprocess(out):
+            log.info("  wrote %s", path)
+    comm.barrier()
     if stopped is not None:
         raise SolverError(f"{stopped} (stopped; the last good state, t = {sim.t:g} s, is in {out})")
     return summary

@@ -1,0 +1,27 @@
+"""Run time against error on the cube and the brain, results in benchmarks/results/.
+
+    .venv/bin/python benchmarks/time_vs_error.py            # both scenes, full sweeps
+    .venv/bin/python benchmarks/time_vs_error.py --quick    # coarse, about a minute each
+
+The same sweep as `brainshift bench --scene cube|brain` (fenics_brainshift/bench.py).
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from fenics_brainshift import logs
+from fenics_brainshift.bench import sweep
+
+ROOT = Path(__file__).resolve().parent.parent
+
+if __name__ == "__main__":
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--quick", action="store_true")
+    p.add_argument("--scenes", nargs="+", default=["cube", "brain"], choices=["cube", "brain"])
+    args = p.parse_args()
+    logs.configure("INFO")
+    for scene in args.scenes:
+        sweep(scene, "quick" if args.quick else "full", ROOT / "benchmarks" / "results")
+    sys.exit(0)
