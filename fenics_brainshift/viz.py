@@ -1,7 +1,7 @@
 """Pictures and plots of a finished run, made from its output files on rank 0.
 
 - deformed.png: the body at the last output time, warped by its displacement and coloured
-  by |u| (mm), the undeformed surface as a wire outline, the fluid level as a translucent
+  by |u| (mm), the undeformed body as a translucent grey ghost, the fluid level as a translucent
   plane (the paper's Figs. 14 and 18); removed cells (tissue = 0) are left out.
 - probes.png: each probe's displacement along gravity against time, the fluid level on a
   second axis (Fig. 16).
@@ -60,7 +60,7 @@ def deformed_picture(out: Path, gravity, level: float | None, path: Path | None 
     plotter.set_background("white")
     plotter.add_mesh(moved.extract_surface(algorithm="dataset_surface"), scalars="displacement (mm)", cmap="viridis", smooth_shading=True,
                      scalar_bar_args={"title": "displacement magnitude (mm)", "color": "black"})
-    plotter.add_mesh(surface.extract_feature_edges(45.0), color="black", line_width=1.5, opacity=0.6)
+    plotter.add_mesh(surface, color="lightgray", opacity=0.3)  # the undeformed body, as a ghost
     if level is not None and np.isfinite(level):
         lo, hi = points.min(axis=0), points.max(axis=0)
         centre = 0.5 * (lo + hi)
@@ -68,13 +68,15 @@ def deformed_picture(out: Path, gravity, level: float | None, path: Path | None 
         size = 1.4 * float(np.linalg.norm(hi - lo))
         plane = pv.Plane(center=centre, direction=up, i_size=size, j_size=size)
         plotter.add_mesh(plane, color="#3a7bd5", opacity=0.25)
-    # look horizontally, perpendicular to gravity, from a slightly raised viewpoint
-    side = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
+    # look horizontally along the first axis across gravity (x: from the side for a supine
+    # head in RAS and for the cube), from a slightly raised viewpoint
+    axis = next(a for a in np.eye(3) if abs(a @ up) < 0.9)
+    side = axis - (axis @ up) * up
     side /= np.linalg.norm(side)
     focus = points.mean(axis=0)
     distance = 2.5 * float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
     plotter.camera_position = [tuple(focus + distance * (0.85 * side + 0.35 * up)), tuple(focus), tuple(up)]
-    plotter.add_text("deformed body coloured by displacement, undeformed outline (lines), fluid level (plane)", font_size=9,
+    plotter.add_text("deformed body coloured by displacement; undeformed body in grey; fluid level (blue plane)", font_size=9,
                      color="black")
     path = path or out / "deformed.png"
     plotter.screenshot(str(path))

@@ -13,7 +13,7 @@ set -euo pipefail
 
 here=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 venv=${BRAINSHIFT_VENV:-$here/.venv}
-extras=${BRAINSHIFT_EXTRAS:-test}
+extras=${BRAINSHIFT_EXTRAS:-test,viz}
 
 # Debian's own builds: DOLFINx 0.5.2 on Debian 12, 0.9.0 on Debian 13.
 APT_PACKAGES=(
@@ -24,6 +24,9 @@ APT_PACKAGES=(
   # Optimised BLAS for MUMPS's dense fronts: with Debian's reference BLAS the Cholesky factor
   # of the 5 mm brain took 10.3 s, with this 1.9 s (serial build: no threads to fight MPI ranks).
   libopenblas0-serial
+  # Progress bars, and off-screen pictures: VTK (pyvista, from PyPI) opens OpenGL at run time
+  # through EGL with Mesa's software renderer, or OSMesa, no display needed.
+  python3-tqdm libgl1 libegl1 libegl-mesa0 libgl1-mesa-dri libosmesa6 libx11-6 libxrender1 libxcursor1
 )
 
 say() { printf '[install] %s\n' "$*"; }
