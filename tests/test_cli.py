@@ -94,3 +94,19 @@ def test_unknown_subcommand_and_bad_flag_exit_with_usage(capsys):
             main(argv)
         assert exit_info.value.code == 2
         assert "usage:" in capsys.readouterr().err
+
+
+def test_progress_bar_only_on_a_terminal_or_when_asked(monkeypatch):
+    from fenics_brainshift import progress as prog
+
+    monkeypatch.setattr(prog, "ENABLED", None)
+    monkeypatch.setattr("sys.stderr.isatty", lambda: False, raising=False)
+    quiet = prog.progress(range(3), "x")
+    assert list(quiet) == [0, 1, 2] and type(quiet).__name__ == "_Silent"
+    monkeypatch.setattr(prog, "ENABLED", True)
+    bar = prog.progress(range(3), "x")
+    assert type(bar).__name__ == "tqdm" and list(bar) == [0, 1, 2]
+    bar.set_postfix_str("t=1 s")
+    bar.close()
+    monkeypatch.setattr(prog, "ENABLED", False)
+    assert type(prog.progress(range(3), "x")).__name__ == "_Silent"
