@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import ufl
+from mpi4py import MPI
 from dolfinx import fem
 from dolfinx.fem.petsc import assemble_vector, create_vector
 from petsc4py import PETSc
@@ -83,7 +84,11 @@ class FluidLoad:
         self.hydro = HydrostaticLoad(V, fluid.density, gravity.vector, fluid.rule, fluid.quadrature_degree)
         self.level = float("nan")
         self._assembled_key = None
+        self._surface_dofs = None
+        self._assembled_surface = None
         self.assemblies = 0
+        self.reuses = 0
+        self.reused_last = False
         self._last_level = float("nan")
         self._last_slope = fluid.container_area or 1.0
         if fluid.volume is not None:
@@ -96,6 +101,8 @@ class FluidLoad:
         """After a resection: act on the surface of the cells still present."""
         self.hydro.set_present(present)
         self._assembled_key = None
+        self._surface_dofs = None
+        self._assembled_surface = None
 
     def level_at(self, t: float, u=None) -> float:
         fluid = self.fluid
@@ -140,13 +147,36 @@ class FluidLoad:
 
     def assemble(self, t: float, u=None) -> PETSc.Vec:
         """The load at time t on the geometry x + u (u ignored unless follower loading is on).
-        Without follower loading it is reassembled only when the level changes."""
+        Reassembled only when the level changes or, with follower loading, when the surface
+        has moved by more than reuse_tol of its largest displacement since the last assembly
+        (below that the load differs by less than the follower iteration's own tolerance)."""
         u = u if self.fluid.follower else None
         level = self.level_at(t, u)
-        key = level if u is None else None
-        if key is None or key != self._assembled_key:
+        self.reused_last = not (level != self._assembled_key or (u is not None and self._surface_moved(u)))
+        if not self.reused_last:
             self.hydro.assemble(level, u)
             self.assemblies += 1
-        self._assembled_key = key
+            if u is not None:
+                self._assembled_surface = self._surface_values(u).copy()
+        else:
+            self.reuses += 1
+        self._assembled_key = level
         self.level = level
         return self.hydro.vector
+
+    def _surface_values(self, u) -> np.ndarray:
+        if self._surface_dofs is None:
+            f = self.hydro.facets
+            dofs = [f.vertex_dofs.ravel()] + ([f.edge_dofs.ravel()] if f.edge_dofs is not None else [])
+            self._surface_dofs = np.unique(np.concatenate(dofs))
+        return u.x.array.reshape(-1, 3)[self._surface_dofs]
+
+    def _surface_moved(self, u) -> bool:
+        """Has the surface moved by more than reuse_tol x its largest displacement (global)?"""
+        if self._assembled_surface is None or self.fluid.reuse_tol == 0.0:
+            return True
+        now = self._surface_values(u)
+        comm = self.hydro.comm
+        moved = comm.allreduce(float(np.abs(now - self._assembled_surface).max(initial=0.0)), op=MPI.MAX)
+        size = comm.allreduce(float(np.abs(now).max(initial=0.0)), op=MPI.MAX)
+        return moved > self.fluid.reuse_tol * size

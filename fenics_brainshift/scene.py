@@ -138,12 +138,15 @@ class MeshSpec:
 
 @dataclass(slots=True)
 class Material:
-    """Linear elastic: E and nu, or G (shear modulus) and nu; density in kg/m3."""
+    """Linear elastic: E and nu, or G (shear modulus) and nu; density in kg/m3. ``E_sd`` or
+    ``G_sd``: the modulus's standard deviation, for the stiffness band in summary.json."""
 
     nu: float = 0.45
     density: float = 1000.0
     E: float | None = None
     G: float | None = None
+    E_sd: float | None = None
+    G_sd: float | None = None
 
     def __post_init__(self):
         if (self.E is None) == (self.G is None):
@@ -158,6 +161,23 @@ class Material:
         else:
             self.E = _positive("[material] E", self.E)
             self.G = self.E / (2.0 * (1.0 + self.nu))
+        if self.E_sd is not None and self.G_sd is not None:
+            raise SceneError("[material] give at most one of E_sd or G_sd")
+        for key, modulus in (("E_sd", self.E), ("G_sd", self.G)):
+            sd = getattr(self, key)
+            if sd is not None:
+                sd = _positive(f"[material] {key}", sd)
+                if sd >= modulus:
+                    raise SceneError(f"[material] {key} = {sd:g} must be below the modulus ({modulus:g}): "
+                                     f"the band's soft end would have no stiffness")
+                setattr(self, key, sd)
+
+    @property
+    def relative_sd(self) -> float | None:
+        """The modulus's relative standard deviation (the same for E and G at fixed nu)."""
+        if self.E_sd is not None:
+            return self.E_sd / self.E
+        return self.G_sd / self.G if self.G_sd is not None else None
 
     @property
     def mu(self) -> float:
@@ -220,6 +240,10 @@ class Schedule:
     def times(self) -> list[float]:
         return [t for t, _ in self.points]
 
+    @property
+    def values(self) -> list[float]:
+        return [v for _, v in self.points]
+
 
 FLUID_RULES = ("consistent", "paper", "quadrature")
 
@@ -246,6 +270,7 @@ class Fluid:
     rule: str = "consistent"
     follower: bool = True
     quadrature_degree: int = 4
+    reuse_tol: float = 1e-8
 
     def __post_init__(self):
         self.density = _positive("[fluid] density", self.density)
@@ -269,6 +294,7 @@ class Fluid:
         if self.rule == "quadrature" and self.follower:
             self.follower = False  # the UFL reference integrates on the reference geometry
         self.quadrature_degree = _integer("[fluid] quadrature_degree", self.quadrature_degree, 1)
+        self.reuse_tol = _non_negative("[fluid] reuse_tol", self.reuse_tol)
 
     @property
     def schedule(self) -> Schedule:
@@ -325,15 +351,16 @@ class Removal:
 
 
 SCHEMES = ("newmark", "generalized-alpha")
-MODES = ("dynamic", "quasi-static")
+MODES = ("auto", "dynamic", "quasi-static")
 
 
 @dataclass(slots=True)
 class TimeScheme:
     """dynamic: Newmark average acceleration (the paper) or generalized-alpha (rho_inf).
-    quasi-static: K u = F solved at each breakpoint of the fluid level schedule."""
+    quasi-static: K u = F solved at each breakpoint of the fluid level schedule.
+    auto: the planner picks one of the two (planner.py)."""
 
-    mode: str = "dynamic"
+    mode: str = "auto"
     scheme: str = "newmark"
     rho_inf: float = 1.0
     dt: float = 0.05
@@ -347,7 +374,7 @@ class TimeScheme:
             raise SceneError(f"[time] rho_inf must be in [0, 1] (got {self.rho_inf:g})")
         self.dt = _positive("[time] dt", self.dt)
         self.end = _positive("[time] end", self.end)
-        if self.mode == "dynamic" and self.end < self.dt:
+        if self.mode != "quasi-static" and self.end < self.dt:
             raise SceneError(f"[time] end ({self.end:g} s) must be at least one step dt ({self.dt:g} s)")
 
     @property
@@ -463,9 +490,9 @@ class Scene:
         if self.time.mode == "quasi-static" and not self.fixed:
             raise SceneError("[[fixed]] a quasi-static scene needs at least one fixed region (K alone is singular)")
         for r in self.remove:
-            if self.time.mode != "dynamic":
-                raise SceneError("[[remove]] needs [time] mode = \"dynamic\": a freed piece makes K singular, "
-                                 "the mass matrix keeps the dynamic system solvable")
+            if self.time.mode == "quasi-static":
+                raise SceneError("[[remove]] needs [time] mode = \"dynamic\" (or \"auto\"): a freed piece makes K "
+                                 "singular, the mass matrix keeps the dynamic system solvable")
             if r.at >= self.time.end:
                 raise SceneError(f"[[remove]] at = {r.at:g} s is not before [time] end = {self.time.end:g} s")
             if r.label is not None and not str(self.mesh.file or "").lower().endswith((".nii", ".nii.gz")):

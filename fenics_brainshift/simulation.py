@@ -27,6 +27,7 @@ from .io import FieldWriter, write_csv, write_json
 from .logs import get_logger
 from .model import Model, build_model
 from .probes import Probes, SurfaceAverages
+from .planner import make_plan, stiffness_band
 from .progress import progress
 from .relaxation import AitkenRelaxation
 from .scene import Scene, SolverConfig
@@ -281,12 +282,18 @@ class Simulation:
     def _settle(self, x, rhs_for_current_x, scale: float, keep_omega: bool) -> int:
         """Solve A x = rhs(x) for the Function x, where the rhs depends on x only through the
         follower load: one solve without follower loading, else Aitken-relaxed fixed-point
-        iteration until the update is below follower_tol of max(scale, |x|). Returns the
-        Krylov iterations of the last solve."""
+        iteration until the update is below follower_tol of max(scale, |x|), or until the
+        fluid load was reused because the surface has not moved (then the map's value is the
+        last solve's answer, exactly). Returns the Krylov iterations of the last solve."""
         x_vec, trial = compat.petsc_vec(x), self._trial
         self.relaxation.reset(keep_omega=keep_omega)
+        its = 0
         for k in range(1, self.max_follower_iterations + 1):
             rhs = rhs_for_current_x()
+            if self.follower and k > 1 and self.model.fluid.reused_last:
+                trial.copy(x_vec)  # same load as the last solve: its answer is the fixed point
+                x.x.scatter_forward()
+                break
             set_bc(rhs, self.model.bcs)
             x_vec.copy(trial)  # warm start from the current iterate
             its = self._solve(rhs, trial)
@@ -347,10 +354,11 @@ def run(scene: Scene, out_dir: str | Path, comm=MPI.COMM_WORLD) -> dict:
     out = Path(out_dir)
     check_writable(out, comm)
     model = build_model(scene, comm)
+    plan = make_plan(scene, model.mesh)
     sim = Simulation(model)
     surface = load_fine_surface(scene.mesh)
     embedding = SurfaceEmbedding(model.mesh, *surface) if surface is not None else None
-    dynamic = scene.time.mode == "dynamic"
+    dynamic = plan.mode == "dynamic"
     sim.setup_dynamic() if dynamic else sim.setup_static()
     if comm.rank == 0:
         out.mkdir(parents=True, exist_ok=True)
@@ -359,6 +367,8 @@ def run(scene: Scene, out_dir: str | Path, comm=MPI.COMM_WORLD) -> dict:
                          model.tissue.indicator if model.tissue is not None else None)
     setup_s = time.perf_counter() - t_start
     sizes = model.sizes()
+    for line in plan.log_lines():
+        log.info(line)
     log.info("%s: %d nodes, %d cells, %d dofs, P%d, %s, solver %s, %d rank(s); setup %.2f s",
              scene.name, sizes["nodes"], sizes["cells"], sizes["dofs"], scene.element.degree,
              f"{scene.time.scheme} dt={scene.time.dt:g} s" if dynamic else "quasi-static",
@@ -429,7 +439,8 @@ def run(scene: Scene, out_dir: str | Path, comm=MPI.COMM_WORLD) -> dict:
         "ranks": comm.size,
         **sizes,
         "degree": scene.element.degree,
-        "mode": scene.time.mode,
+        "mode": plan.mode,
+        "plan": plan.as_dict(),
         "scheme": scene.time.scheme if dynamic else "static",
         "solver": scene.solver.kind,
         "steps": len(h.step_seconds),
@@ -444,6 +455,9 @@ def run(scene: Scene, out_dir: str | Path, comm=MPI.COMM_WORLD) -> dict:
         "max_displacement_m": sim.max_displacement(),
         "probes": sim.probes.as_dict(h.probes[-1]),
         **(_energy_summary(sim) if dynamic else {}),
+        **({"stiffness_band": stiffness_band(scene, plan, sim.max_displacement(), sim.probes.as_dict(h.probes[-1]))}
+           if scene.material.relative_sd is not None else {}),
+        **({"fluid_assemblies": model.fluid.assemblies, "fluid_reuses": model.fluid.reuses} if model.fluid else {}),
         **({"removals": sim.removals, "removed_fraction": sim.tissue.removed_fraction} if sim.tissue else {}),
         "surfaces": sim.surfaces.as_dict(h.surfaces[-1]),
         **sim.forces(),
