@@ -136,6 +136,7 @@ class Simulation:
         self.M = m.assemble(m.mass_form(), with_bcs=False)
         self.K = m.assemble(m.stiffness_form(), with_bcs=False)
         self.A = m.assemble(m.combined(cm, ck), with_bcs=True)
+        self._mass_diagonal = self.M.getDiagonal() if m.lumped else None  # lumped M is diagonal
         self.solver = LinearSolver(self.A, sc.solver, "", self._nullspace)
         self._F_old = self.load(self.t, self._F.duplicate(), self.u)
         self._initial_acceleration()
@@ -248,8 +249,12 @@ class Simulation:
     def energies(self) -> tuple[float, float]:
         """(kinetic, strain) energy of the current state, J."""
         u, v = compat.petsc_vec(self.u), compat.petsc_vec(self.v)
-        self.M.mult(v, self._tmp)
-        kinetic = 0.5 * v.dot(self._tmp)
+        if self._mass_diagonal is not None:  # no matrix product for a diagonal mass
+            self._tmp.pointwiseMult(v, v)
+            kinetic = 0.5 * self._tmp.dot(self._mass_diagonal)
+        else:
+            self.M.mult(v, self._tmp)
+            kinetic = 0.5 * v.dot(self._tmp)
         self.K.mult(u, self._tmp)
         return kinetic, 0.5 * u.dot(self._tmp)
 
