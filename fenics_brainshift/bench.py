@@ -87,6 +87,9 @@ def cube_bench(level: str) -> tuple[Path, list[str], np.ndarray, Config, list[Co
                     for r in ("paper", "quadrature")]
         configs += [Config(f"P1 {base_grid} dynamic dt={dt}", at + dynamic + [f"time.dt={dt}"], "time step")
                     for dt in ((0.1,) if level == "quick" else (0.05, 0.1, 0.2))]
+        # the planner's fluid-load reuse, switched off: what it saves, and that the answer stays
+        configs.append(Config(f"P1 {base_grid} dynamic dt=0.05 no load reuse",
+                              at + dynamic + ["time.dt=0.05", "fluid.reuse_tol=0"], "skips"))
     paper = at + dynamic + ["time.dt=0.05", "solver.kind=cg-jacobi", "solver.rtol=1e-6", "fluid.rule=paper"]
     configs.append(Config("paper-equivalent", paper, "baseline"))
     configs.append(Config("naive loop", at + dynamic + ["time.dt=0.05", "fluid.rule=quadrature",
