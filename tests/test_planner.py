@@ -57,8 +57,16 @@ def test_an_explicit_mode_wins():
 def test_plan_is_logged_and_kept_in_the_summary(shared_tmp, caplog):
     import logging
 
-    caplog.set_level(logging.INFO, logger="fenics_brainshift")
-    summary = run(cube([[0.0, 0.03], [2.0, 0.0]]), shared_tmp / "out", COMM)
+    # the package logger does not propagate once the CLI configured it: listen on it directly
+    logger = logging.getLogger("fenics_brainshift")
+    level = logger.level
+    logger.addHandler(caplog.handler)
+    logger.setLevel(logging.INFO)
+    try:
+        summary = run(cube([[0.0, 0.03], [2.0, 0.0]]), shared_tmp / "out", COMM)
+    finally:
+        logger.removeHandler(caplog.handler)
+        logger.setLevel(level)
     assert summary["mode"] == "quasi-static" and summary["plan"]["mode"] == "quasi-static"
     assert summary["steps"] == 2  # the two breakpoints, no time stepping
     if COMM.rank == 0:
