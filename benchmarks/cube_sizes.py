@@ -14,7 +14,6 @@ import argparse
 import csv
 import json
 import os
-import platform
 import shutil
 import subprocess
 import sys
@@ -31,15 +30,9 @@ GRIDS = {  # hexahedra per side -> the paper's node / element counts
 
 
 def machine() -> str:
-    cpu = "unknown CPU"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return f"{cpu}, {os.cpu_count()} cores, {platform.system()} {platform.release()}"
+    from fenics_brainshift.bench import machine_line
+
+    return machine_line()
 
 
 def run_case(cells, solver: str, ranks: int, steps: int, workdir: Path, follower: bool) -> dict:
