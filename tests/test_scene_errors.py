@@ -94,15 +94,23 @@ BAD = [
 ]
 
 
+@pytest.mark.mpi
 @pytest.mark.parametrize("label, data, expected", BAD, ids=[b[0] for b in BAD])
-def test_bad_scene_gives_one_line_error_and_no_output(tmp_path, capsys, label, data, expected):
-    scene = write_scene(tmp_path / "scene.toml", data)
-    out = tmp_path / "out"
+def test_bad_scene_gives_one_line_error_and_no_output(shared_tmp, capsys, label, data, expected):
+    from conftest import COMM
+
+    scene = shared_tmp / f"scene_r{COMM.rank}.toml"  # every rank reads its own copy
+    write_scene(scene, data)
+    out = shared_tmp / "out"
     code = main(["run", str(scene), "--out", str(out)])
     err = capsys.readouterr().err.strip()
-    assert code == 2
-    assert expected in err, err
-    assert len(err.splitlines()) == 1 and "Traceback" not in err
+    assert code == 2  # on every rank: the error is raised collectively
+    if COMM.rank == 0:  # only rank 0 speaks
+        assert expected in err, err
+        assert len(err.splitlines()) == 1 and "Traceback" not in err
+    else:
+        assert err == ""
+    COMM.barrier()
     assert not out.exists()
 
 
