@@ -111,7 +111,8 @@ def test_reusing_the_fluid_load_keeps_the_answer():
         for _ in range(20):
             sim.step()
         counts[tol] = (model.fluid.assemblies - before[0], sim.history.solves - before[1])
-        finals[tol] = sim.u.x.array.copy()
+        # compared at a probe: two builds of one scene may be partitioned differently (0.9, MPI)
+        finals[tol] = sim.probes.values(sim.u)
     assert counts[0.0] == (20, 20)  # one assembly and one solve per step
     assert counts[1e-8] == (0, 20)  # the load of the static answer serves every step
     scale = np.abs(finals[0.0]).max()
