@@ -84,6 +84,9 @@ def deformed_picture(out: Path, gravity, level: float | None, path: Path | None 
     return path
 
 
+PICTURES = ("probes.png", "deformed.png")
+
+
 def probe_plot(out: Path, gravity, path: Path | None = None) -> Path | None:
     """probes.png: probe displacement along gravity against time, the level on a second axis."""
     import matplotlib
@@ -142,9 +145,11 @@ def render_in_subprocess(out: Path) -> list[Path]:
     import sys
 
     env = {k: v for k, v in os.environ.items() if not k.startswith(("OMPI_", "PMIX_", "PMI_"))}
+    for name in PICTURES:  # so that what exists afterwards was made now
+        (out / name).unlink(missing_ok=True)
     proc = subprocess.run([sys.executable, "-m", "fenics_brainshift.viz", str(out)], capture_output=True, text=True,
                           env=env, timeout=600)
-    made = [Path(line[len("wrote "):]) for line in proc.stdout.splitlines() if line.startswith("wrote ")]
+    made = [out / name for name in PICTURES if (out / name).is_file()]
     if proc.returncode != 0:
         log.warning("pictures of %s failed (exit %d): %s", out, proc.returncode,
                     (proc.stderr.strip().splitlines() or ["no message"])[-1])
@@ -158,10 +163,8 @@ def main(argv: list[str] | None = None) -> int:
     warnings.filterwarnings("ignore", module="pyvista")
     args = sys.argv[1:] if argv is None else argv
     if len(args) != 1:
-        print("usage: python -m fenics_brainshift.viz RUN_FOLDER", file=sys.stderr)
-        return 2
-    for path in pictures(Path(args[0])):
-        print(f"wrote {path}")
+        raise SystemExit("usage: python -m fenics_brainshift.viz RUN_FOLDER")
+    pictures(Path(args[0]))
     return 0
 
 
