@@ -140,6 +140,44 @@ def paper_loads(depth: np.ndarray, area: np.ndarray, split=None) -> np.ndarray:
     return np.einsum("fs,fsk->fk", force, shares)
 
 
+def wet_integrals(depth: np.ndarray, area: np.ndarray, degree: int, rule: str = "consistent"):
+    """The rule's nodal integrals of depth * N for facets with at least one wet vertex.
+
+    Facets entirely under water (most of them) take closed forms; only those the water line
+    cuts are split (split_wet), which is where the time went. The integrals of products of
+    barycentrics, int l1^a l2^b l3^c = 2 A a! b! c! / (a + b + c + 2)!, give with D = sum d:
+      P1:            vertex_k = A (d_k + D) / 12
+      P2:            vertex_k = A (3 d_k - D) / 60,   edge_k (opposite vertex k) = A (2 D - d_k) / 15
+      paper, case 1: vertex_k = A d_k / 3              (eq. 13: A D/3 shared as d_k / D)
+    Returns (order, vertex, edge or None): row f of vertex/edge belongs to the facet's
+    vertices in the order order[f] (the identity for whole facets, deepest first for cut ones)."""
+    F = depth.shape[0]
+    order = np.tile(np.arange(3), (F, 1))
+    vertex = np.empty((F, 3))
+    edge = np.empty((F, 3)) if degree == 2 and rule == "consistent" else None
+    whole = (depth > 0).all(axis=1)
+    d, A = depth[whole], area[whole, None]
+    D = d.sum(axis=1, keepdims=True)
+    if rule == "paper":
+        vertex[whole] = A * d / 3.0
+    elif degree == 1:
+        vertex[whole] = A * (d + D) / 12.0
+    else:
+        vertex[whole] = A * (3.0 * d - D) / 60.0
+        edge[whole] = A * (2.0 * D - d) / 15.0
+    cut = ~whole
+    if cut.any():
+        split = split_wet(depth[cut])
+        order[cut] = split[0]
+        if rule == "paper":
+            vertex[cut] = paper_loads(depth[cut], area[cut], split)
+        else:
+            vertex[cut], edge_cut = consistent_loads(depth[cut], area[cut], degree, split)
+            if edge is not None:
+                edge[cut] = edge_cut
+    return order, vertex, edge
+
+
 def _scatter_add(local: np.ndarray, dofs: np.ndarray, forces: np.ndarray) -> None:
     """local[dofs] += forces, summing repeats (np.add.at, but by bincount: several times faster)."""
     flat = dofs.ravel()
@@ -216,6 +254,7 @@ class HydrostaticLoad:
         self.comm = V.mesh.comm
         self.vector = dolfinx.la.create_petsc_vector(V.dofmap.index_map, V.dofmap.index_map_bs)
         self.facets = surface_facets(V)
+        self._reference = None  # normals, areas, heights of the reference surface, once needed
         self._quadrature = None
         if rule == "quadrature":
             from .loads import QuadratureFluidLoad
@@ -228,6 +267,7 @@ class HydrostaticLoad:
     def set_present(self, present: np.ndarray) -> None:
         """After a resection: the load acts on the surface of the cells still present."""
         self.facets = surface_facets(self.V, present)
+        self._reference = None
         if self._quadrature is not None:
             raise ValueError("the quadrature rule acts on the original surface only; use rule = \"consistent\" "
                              "with [[remove]]")
@@ -240,6 +280,22 @@ class HydrostaticLoad:
         values = u.x.array.reshape(-1, 3)
         return f.x_vertices + values[f.vertex_dofs], f.x_opposite + values[f.opposite_dofs]
 
+    def _wet_triangles(self, level: float, u=None):
+        """(indices, unit outward normals, areas, vertex depths) of the facets with a wet
+        vertex; dry facets cost nothing more. On the reference geometry (u None) normals,
+        areas and heights are computed once."""
+        if u is None:
+            if self._reference is None:
+                X, X_opp = self.geometry()
+                self._reference = (*triangle_geometry(X, X_opp), X @ self.up)
+            n, area, height = self._reference
+            wet = np.flatnonzero((height < level).any(axis=1))
+            return wet, n[wet], area[wet], level - height[wet]
+        X, X_opp = self.geometry(u)
+        depth = level - X @ self.up
+        wet = np.flatnonzero((depth > 0).any(axis=1))
+        return (wet, *triangle_geometry(X[wet], X_opp[wet]), depth[wet])
+
     def highest(self, u=None) -> float:
         """The greatest height (x.up) of the surface, global."""
         X, _ = self.geometry(u)
@@ -249,11 +305,9 @@ class HydrostaticLoad:
     def volume_below(self, level: float, u=None) -> float:
         """Volume of the body below the level (global), from the surface alone:
         V = sum over wet sub-triangles of area * depth(centroid) * (-n.up) (divergence theorem)."""
-        X, X_opp = self.geometry(u)
-        depth = level - X @ self.up
-        wet = np.flatnonzero((depth > 0).any(axis=1))
-        n, area = triangle_geometry(X[wet], X_opp[wet])
-        local = float(np.sum(paper_loads(depth[wet], area).sum(axis=1) * -(n @ self.up)))
+        _, n, area, depth = self._wet_triangles(level, u)
+        _, vertex, _ = wet_integrals(depth, area, 1, "paper")
+        local = float(np.sum(vertex.sum(axis=1) * -(n @ self.up)))
         return self.comm.allreduce(local, op=MPI.SUM)
 
     def assemble(self, level: float, u=None) -> PETSc.Vec:
@@ -266,24 +320,14 @@ class HydrostaticLoad:
             vec.copy(self.vector)
             self._totals_from_vector(level)
             return self.vector
-        X, X_opp = self.geometry(u)
-        depth_all = level - X @ self.up
-        wet = np.flatnonzero((depth_all > 0).any(axis=1))  # dry facets cost nothing more
-        X, depth = X[wet], depth_all[wet]
-        n, area = triangle_geometry(X, X_opp[wet])
-        split = split_wet(depth)  # once per assembly, shared by the rules below
-        order = split[0]
+        wet, n, area, depth = self._wet_triangles(level, u)
+        order, vertex, edge = wet_integrals(depth, area, self.degree, self.rule)
         rho_g = self.rho_fluid * self.g_magnitude
         local = np.zeros((self.V.dofmap.index_map.size_local + self.V.dofmap.index_map.num_ghosts, 3))
         vertex_dofs = np.take_along_axis(self.facets.vertex_dofs[wet], order, axis=1)
-        if self.rule == "paper":
-            vertex, edge = paper_loads(depth, area, split), None
-        else:
-            vertex, edge = consistent_loads(depth, area, self.degree, split)
-        forces = -rho_g * vertex[:, :, None] * n[:, None, :]  # (F, 3 vertices, 3 components)
-        _scatter_add(local, vertex_dofs, forces)
+        _scatter_add(local, vertex_dofs, -rho_g * vertex[:, :, None] * n[:, None, :])  # (F, 3 nodes, 3 components)
         if edge is not None:
-            # the edge opposite sorted vertex k is the edge opposite original vertex order[k]
+            # the edge opposite ordered vertex k is the edge opposite original vertex order[k]
             edge_dofs = np.take_along_axis(self.facets.edge_dofs[wet], order, axis=1)
             _scatter_add(local, edge_dofs, -rho_g * edge[:, :, None] * n[:, None, :])
         with self.vector.localForm() as lf:

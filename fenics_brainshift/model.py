@@ -66,6 +66,17 @@ class Model:
             fill_empty_diagonal(A)
         return A
 
+    def mass_matrix(self) -> PETSc.Mat:
+        """M without supports, for products: a lumped mass keeps only its diagonal (the
+        assembled matrix carries the full stiffness pattern, full of zeros: a product with
+        it cost as much as one with K, 0.65 ms on the 15k-dof brain, against 0.014 ms)."""
+        if not self.lumped:
+            return self.assemble(self.mass_form(), with_bcs=False)
+        full = self.assemble(self.mass_form(), with_bcs=False)
+        diagonal = full.getDiagonal()
+        full.destroy()
+        return diagonal_matrix(diagonal)
+
     def combined(self, c_mass: float, c_stiff: float):
         """c_mass M + c_stiff K as one form (the effective matrix of a time scheme)."""
         return c_mass * self.mass_form() + c_stiff * self.stiffness_form()
@@ -85,6 +96,15 @@ class Model:
         fluid part is None without a [fluid]."""
         fluid = self.fluid.assemble(t, u) if self.fluid is not None else None
         return self.gravity.vector, fluid
+
+
+def diagonal_matrix(diagonal: PETSc.Vec) -> PETSc.Mat:
+    """A matrix holding only the given diagonal (same parallel layout)."""
+    sizes = diagonal.getSizes()
+    D = PETSc.Mat().createAIJ((sizes, sizes), nnz=(1, 0), comm=diagonal.getComm())
+    D.setDiagonal(diagonal)
+    D.assemble()
+    return D
 
 
 def fixed_conditions(V, scene: Scene) -> list:

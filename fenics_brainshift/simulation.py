@@ -135,7 +135,7 @@ class Simulation:
         again after a resection (the matrices change; the state u, v carries over)."""
         m, sc = self.model, self.scene
         cm, ck = self.integrator.effective_coefficients(sc.damping.a, sc.damping.b)
-        self.M = m.assemble(m.mass_form(), with_bcs=False)
+        self.M = m.mass_matrix()  # M and K only ever multiply vectors
         self.K = m.assemble(m.stiffness_form(), with_bcs=False)
         self.A = m.assemble(m.combined(cm, ck), with_bcs=True)
         self._mass_diagonal = self.M.getDiagonal() if m.lumped else None  # lumped M is diagonal

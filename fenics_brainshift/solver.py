@@ -60,7 +60,7 @@ class LinearSolver:
         # so one scene's choices never leak into the next solver made in the same process.
         opts = PETSc.Options()
         inserted = {}
-        for key, value in _defaults(config.kind).items():
+        for key, value in _defaults(config.kind, A.getComm().getSize() == 1).items():
             if not opts.hasName(prefix + key):  # PETSC_OPTIONS from the environment wins
                 inserted[prefix + key] = value
         for key, value in config.options.items():
@@ -73,6 +73,11 @@ class LinearSolver:
         try:
             self.ksp.setFromOptions()
             self.ksp.setUp()  # the factor and the multigrid levels read their options here
+        except PETSc.Error as exc:  # CHOLMOD stops here on a matrix that is not positive definite
+            raise SolverError(
+                f"{name or 'step'} matrix could not be set up for solver '{config.kind}' (PETSc error "
+                f"{exc.ierr}: {'not positive definite' if exc.ierr == 81 else 'see the PETSc message above'}); "
+                f"a body needs [[fixed]] supports unless [time] mode = \"dynamic\"") from None
         finally:
             for key in inserted:
                 opts.delValue(key)
@@ -96,7 +101,7 @@ class LinearSolver:
         self.ksp.destroy()
 
 
-def _defaults(kind: str) -> dict[str, str]:
+def _defaults(kind: str, serial: bool) -> dict[str, str]:
     if kind == "cg-gamg":
         # Unsmoothed aggregation with a 0.01 drop threshold: more CG iterations at nu -> 0.5, but
         # sparse coarse operators; measured on the 2:2:1 block, 2 ranks (benchmarks/scaling.py):
@@ -107,11 +112,22 @@ def _defaults(kind: str) -> dict[str, str]:
                 "mg_levels_pc_type": "jacobi", "mg_levels_esteig_ksp_type": "cg"}
     if kind == "cg-jacobi":
         return {"ksp_type": "cg", "pc_type": "jacobi", "ksp_initial_guess_nonzero": "true"}
-    # MUMPS, with room to spare: its workspace estimate (ICNTL(14), default +20 %) was seen
-    # to fall short once in parallel (INFOG(1) = -9 style failure in PCSetUp).
-    factor = ({"pc_factor_mat_solver_type": "mumps", "mat_mumps_icntl_14": "100"}
-              if PETSc.Sys.hasExternalPackage("mumps") else {})
-    return {"ksp_type": "preonly", "pc_type": kind, **factor}
+    return {"ksp_type": "preonly", "pc_type": kind, **_factor_package(kind, serial)}
+
+
+def _factor_package(kind: str, serial: bool) -> dict[str, str]:
+    """Which library factors the matrix.
+
+    One rank, Cholesky: CHOLMOD (SuiteSparse). Its supernodal factor of the 15k-dof brain has
+    2.4 M entries against MUMPS's 3.1 M, and a pair of triangular solves takes 1.9 ms against
+    3.7 ms (benchmarks/solvers.py) -- the solve is most of a dynamic step. Otherwise MUMPS, with
+    room to spare: its workspace estimate (ICNTL(14), default +20 %) was seen to fall short
+    once in parallel (INFOG(1) = -9 style failure in PCSetUp)."""
+    if kind == "cholesky" and serial and PETSc.Sys.hasExternalPackage("suitesparse"):  # CHOLMOD
+        return {"pc_factor_mat_solver_type": "cholmod"}
+    if PETSc.Sys.hasExternalPackage("mumps"):
+        return {"pc_factor_mat_solver_type": "mumps", "mat_mumps_icntl_14": "100"}
+    return {}
 
 
 def _factor_detail(ksp) -> str:

@@ -10,7 +10,7 @@ from scipy.spatial import ConvexHull, QhullError
 
 from conftest import COMM
 from fenics_brainshift import compat
-from fenics_brainshift.hydrostatics import HydrostaticLoad, consistent_loads, paper_loads, split_wet
+from fenics_brainshift.hydrostatics import HydrostaticLoad, consistent_loads, paper_loads, split_wet, wet_integrals
 from fenics_brainshift.meshing import build_mesh, mesh_from_arrays
 from fenics_brainshift.meshing.hexgrid import voxel_mesh
 from fenics_brainshift.scene import MeshSpec
@@ -208,6 +208,33 @@ def test_p2_consistent_against_independent_integrals():
         i, j = [m for m in range(3) if m != k]
         ref = wet_integral(lambda y, z: 4 * lam[i](y, z) * lam[j](y, z))
         assert edge[0, k] == pytest.approx(ref, abs=1e-12)
+
+
+@pytest.mark.parametrize("degree, rule", [(1, "consistent"), (2, "consistent"), (1, "paper")])
+def test_closed_forms_for_whole_facets_equal_the_split_rule(degree, rule):
+    """wet_integrals takes closed forms for facets wholly under water and splits only the cut
+    ones; on random facets (whole, cut in both ways) it must equal the split rule for all."""
+    rng = np.random.default_rng(7)
+    depth = rng.uniform(-1.0, 2.0, (400, 3))
+    depth[:100] = rng.uniform(0.1, 2.0, (100, 3))  # a quarter wholly wet
+    depth = depth[(depth > 0).any(axis=1)]
+    area = rng.uniform(0.1, 1.0, len(depth))
+    order, vertex, edge = wet_integrals(depth, area, degree, rule)
+    split = split_wet(depth)
+    if rule == "paper":
+        ref_vertex, ref_edge = paper_loads(depth, area, split), None
+    else:
+        ref_vertex, ref_edge = consistent_loads(depth, area, degree, split)
+    for got, ref in ((vertex, ref_vertex), (edge, ref_edge)):
+        if ref is None:
+            assert got is None
+            continue
+        back, back_ref = np.empty_like(got), np.empty_like(ref)  # into the facets' own vertex order
+        np.put_along_axis(back, order, got, axis=1)
+        np.put_along_axis(back_ref, split[0], ref, axis=1)
+        np.testing.assert_allclose(back, back_ref, rtol=1e-12, atol=1e-14)
+    whole = (depth > 0).all(axis=1)
+    assert whole.sum() >= 100 and (order[whole] == [0, 1, 2]).all()
 
 
 # ------------------------------------------------------------ parallel and follower geometry

@@ -1,0 +1,165 @@
+"""Where a dynamic step of the 5k-node brain spends its time, and what each choice saved.
+
+Builds the bundled brain at 8 mm voxels (5,087 nodes, 15,261 dofs, P1, Newmark dt = 0.2 s,
+the demo's draining CSF, no follower loading), then times, interleaved in one process so
+that the ratios are fair on a noisy machine (median of N repetitions):
+
+- the pair of triangular solves with the Cholesky factor kept: MUMPS against CHOLMOD;
+- the product with the lumped mass: the assembled matrix (full stiffness pattern of zeros)
+  against the diagonal-only matrix the model now keeps;
+- the exact facet load at a level that cuts the brain: every wet facet split (the old path)
+  against closed forms for whole facets (hydrostatics.wet_integrals);
+- whole steps (Simulation.step) with the level falling and held.
+
+    .venv/bin/python benchmarks/step_parts.py [--repeat 200] [--out benchmarks/results]
+
+writes step_parts.csv and step_parts.md.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from mpi4py import MPI
+from petsc4py import PETSc
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from fenics_brainshift.bench import machine_line  # noqa: E402
+from fenics_brainshift.hydrostatics import _scatter_add, consistent_loads, split_wet  # noqa: E402
+from fenics_brainshift.model import build_model  # noqa: E402
+from fenics_brainshift.scene import load_scene  # noqa: E402
+from fenics_brainshift.simulation import Simulation  # noqa: E402
+
+OVERRIDES = ["mesh.voxel=0.008", "fluid.follower=false", "output.pictures=false"]
+
+
+def median_ms(samples: list[float]) -> float:
+    return statistics.median(samples) * 1e3
+
+
+def factor_solver(A: PETSc.Mat, package: str) -> PETSc.KSP:
+    ksp = PETSc.KSP().create(MPI.COMM_SELF)
+    ksp.setOperators(A)
+    ksp.setType("preonly")
+    ksp.getPC().setType("cholesky")
+    ksp.getPC().setFactorSolverType(package)
+    ksp.setUp()
+    return ksp
+
+
+def all_split_load(hydro, level: float) -> np.ndarray:
+    """The facet load as it was before the closed forms: every wet facet split and sorted."""
+    wet, n, area, depth = hydro._wet_triangles(level)
+    split = split_wet(depth)
+    vertex, _ = consistent_loads(depth, area, 1, split)
+    local = np.zeros((hydro.V.dofmap.index_map.size_local + hydro.V.dofmap.index_map.num_ghosts, 3))
+    dofs = np.take_along_axis(hydro.facets.vertex_dofs[wet], split[0], axis=1)
+    _scatter_add(local, dofs, -hydro.rho_fluid * hydro.g_magnitude * vertex[:, :, None] * n[:, None, :])
+    return local.ravel()
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeat", type=int, default=200)
+    parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results")
+    args = parser.parse_args(argv)
+
+    scene = load_scene(ROOT / "demos" / "brain.toml", OVERRIDES)
+    model = build_model(scene, MPI.COMM_SELF)
+    sim = Simulation(model)
+    sim.setup_dynamic()
+    sizes = model.sizes()
+    rows = []
+
+    def record(part, variant, samples, note=""):
+        rows.append({"part": part, "variant": variant, "median_ms": round(median_ms(samples), 3), "note": note})
+
+    # triangular solves, interleaved
+    rhs = sim.A.createVecLeft()
+    rhs.setRandom()
+    x = rhs.duplicate()
+    solvers = {p: factor_solver(sim.A, p) for p in ("mumps", "cholmod")}
+    entries = {p: int(k.getPC().getFactorMatrix().getInfo()["nz_used"]) for p, k in solvers.items()}
+    times = {p: [] for p in solvers}
+    for _ in range(args.repeat):
+        for p, ksp in solvers.items():
+            t0 = time.perf_counter()
+            ksp.solve(rhs, x)
+            times[p].append(time.perf_counter() - t0)
+    for p in solvers:
+        record("Cholesky solve", p, times[p], f"factor entries {entries[p]:,}")
+
+    # lumped mass product: assembled pattern against the diagonal
+    full = model.assemble(model.mass_form(), with_bcs=False)
+    diag = sim.M
+    times = {"assembled (stiffness pattern)": [], "diagonal only": []}
+    for _ in range(args.repeat):
+        for name, mat in (("assembled (stiffness pattern)", full), ("diagonal only", diag)):
+            solvers["cholmod"].solve(rhs, x)  # a step's solve evicts the matrix from cache
+            t0 = time.perf_counter()
+            mat.mult(rhs, x)
+            times[name].append(time.perf_counter() - t0)
+    for name, samples in times.items():
+        record("lumped-mass product", name, samples)
+    K_times = []
+    for _ in range(args.repeat):
+        solvers["cholmod"].solve(rhs, x)
+        t0 = time.perf_counter()
+        sim.K.mult(rhs, x)
+        K_times.append(time.perf_counter() - t0)
+    record("stiffness product", "AIJ", K_times, "two per step: right-hand side and energy guard")
+
+    # facet load at a level cutting the brain (the demo's final level)
+    hydro = model.fluid.hydro
+    level = 0.03
+    new = hydro.assemble(level).getArray(readonly=True).copy()
+    old = all_split_load(hydro, level)
+    difference = float(np.abs(new - old).max() / np.abs(old).max())
+    times = {"split every wet facet": [], "closed forms for whole facets": []}
+    for _ in range(args.repeat):
+        t0 = time.perf_counter()
+        all_split_load(hydro, level)
+        times["split every wet facet"].append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        hydro.assemble(level)
+        times["closed forms for whole facets"].append(time.perf_counter() - t0)
+    for name, samples in times.items():
+        record("facet load", name, samples, f"{hydro.wet_facets} wet facets; max relative difference {difference:.1e}")
+    for ksp in solvers.values():
+        ksp.destroy()
+
+    # whole steps on a fresh state: level falling (steps 1-50), then held
+    sim = Simulation(build_model(scene, MPI.COMM_SELF))
+    sim.setup_dynamic()
+    steps = []
+    for _ in range(scene.time.steps):
+        t0 = time.perf_counter()
+        sim.step()
+        steps.append(time.perf_counter() - t0)
+    record("dynamic step", f"level falling ({sim.solver.ksp.getPC().getFactorSolverType()})", steps[:50])
+    record("dynamic step", "level held", steps[50:])
+
+    args.out.mkdir(parents=True, exist_ok=True)
+    with open(args.out / "step_parts.csv", "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    lines = [f"# Parts of a dynamic brain step ({sizes['nodes']:,} nodes, {sizes['dofs']:,} dofs, P1, one rank)", "",
+             f"Machine: {machine_line()}  ",
+             "Command: `.venv/bin/python benchmarks/step_parts.py` "
+             f"(median of {args.repeat} interleaved repetitions; steps: median over the run)", "",
+             "| part | variant | median (ms) | note |", "|---|---|---:|---|"]
+    lines += [f"| {r['part']} | {r['variant']} | {r['median_ms']:.3f} | {r['note']} |" for r in rows]
+    (args.out / "step_parts.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()
