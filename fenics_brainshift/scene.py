@@ -259,8 +259,8 @@ class Fluid:
     deforms. ``rule``: "consistent" (exact integral of p N_i over the wet part), "paper"
     (the paper's depth-weighted nodal shares, P1), "quadrature" (plain UFL quadrature of
     degree ``quadrature_degree``, a reference). ``follower``: evaluate the load on the current
-    geometry x + u (the paper does), lagged by one step in dynamics and iterated to
-    convergence in quasi-static solves."""
+    geometry x + u (the paper does), iterated to convergence within each time step and each
+    quasi-static solve (one step late would be unstable: README, Follower geometry)."""
 
     density: float = 1000.0
     level: Schedule | Any = None

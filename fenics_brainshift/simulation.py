@@ -27,6 +27,7 @@ from .io import FieldWriter, write_csv, write_json
 from .logs import get_logger
 from .model import Model, build_model
 from .probes import Probes, SurfaceAverages
+from .products import PairProduct
 from .planner import make_plan, stiffness_band
 from .progress import progress
 from .relaxation import AndersonAcceleration
@@ -83,6 +84,9 @@ class Simulation:
         self._wk = self._F.duplicate()
         self._base = self._F.duplicate()
         self._trial = self._F.duplicate()
+        self._K_u = self._F.duplicate()
+        self._K_wk = self._F.duplicate()
+        self._K_wk_of_step = -1
         self._geometry = fem.Function(V)
         self.follower = model.fluid is not None and self.scene.fluid.follower
         self.follower_tol = 1e-6  # relative to |u|: nanometres on millimetres
@@ -139,6 +143,8 @@ class Simulation:
         self.K = m.assemble(m.stiffness_form(), with_bcs=False)
         self.A = m.assemble(m.combined(cm, ck), with_bcs=True)
         self._mass_diagonal = self.M.getDiagonal() if m.lumped else None  # lumped M is diagonal
+        self._pair = PairProduct(self.K)
+        self._K_wk_of_step = -1  # K w_k is cached for the state after this many steps
         self.solver = LinearSolver(self.A, sc.solver, "", self._nullspace)
         self._F_old = self.load(self.t, self._F.duplicate(), self.u)
         self._initial_acceleration()
@@ -171,6 +177,7 @@ class Simulation:
             return
         for mat in (self.M, self.K, self.A):
             mat.destroy()
+        self._pair.destroy()
         self.solver.destroy()
         self._build_dynamic_operators()
         empty = self.M.getDiagonal()
@@ -221,11 +228,12 @@ class Simulation:
         base = self._base  # everything but w_new F_{n+1}
         base.array[:] = w_old * self._F_old.array_r
         self._wm.array[:] = wm
-        self._wk.array[:] = wk
         self.M.mult(self._wm, self._tmp)
         base.axpy(-1.0, self._tmp)
-        self.K.mult(self._wk, self._tmp)
-        base.axpy(-1.0, self._tmp)
+        if self._K_wk_of_step != self.steps_taken:  # not left by the last step's energy check
+            self._wk.array[:] = wk
+            self.K.mult(self._wk, self._K_wk)
+        base.axpy(-1.0, self._K_wk)
 
         def rhs_for_current_du() -> PETSc.Vec:
             if self.follower:  # the geometry of this iterate: x + u_n + du
@@ -248,8 +256,8 @@ class Simulation:
         self._energy_check()
         return its
 
-    def energies(self) -> tuple[float, float]:
-        """(kinetic, strain) energy of the current state, J."""
+    def energies(self, K_u: PETSc.Vec | None = None) -> tuple[float, float]:
+        """(kinetic, strain) energy of the current state, J (K_u: K u, when known)."""
         u, v = compat.petsc_vec(self.u), compat.petsc_vec(self.v)
         if self._mass_diagonal is not None:  # no matrix product for a diagonal mass
             self._tmp.pointwiseMult(v, v)
@@ -257,18 +265,29 @@ class Simulation:
         else:
             self.M.mult(v, self._tmp)
             kinetic = 0.5 * v.dot(self._tmp)
-        self.K.mult(u, self._tmp)
-        return kinetic, 0.5 * u.dot(self._tmp)
+        if K_u is None:
+            K_u = self._tmp
+            self.K.mult(u, K_u)
+        return kinetic, 0.5 * u.dot(K_u)
 
     def _energy_check(self) -> None:
-        if self.check_energy:
-            self.energy.check(self.t, *self.energies())
+        """The energy guard on the current state. K u comes with K w_k, the next step's
+        right-hand-side product, in one pass over K (products.py)."""
+        if not self.check_energy:
+            return
+        n, ti, sc = self.n_owned, self.integrator, self.scene
+        _, wk = ti.rhs_vectors(self.u.x.array[:n], self.v.x.array[:n], self.a.x.array[:n], sc.damping.a, sc.damping.b)
+        self._wk.array[:] = wk
+        self._pair.multiply(compat.petsc_vec(self.u), self._wk, self._K_u, self._K_wk)
+        self._K_wk_of_step = self.steps_taken
+        self.energy.check(self.t, *self.energies(self._K_u))
 
     def restore_last_good(self) -> None:
         """Back to the state before the step that failed a guard."""
         if self.last_good is None:
             return
         self.t, u, v, a = self.last_good
+        self._K_wk_of_step = -1
         for f, values in zip((self.u, self.v, self.a), (u, v, a)):
             f.x.array[:] = values
 
