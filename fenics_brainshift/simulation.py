@@ -244,7 +244,7 @@ class Simulation:
             return self._rhs
 
         # changes are measured against |u|, not |du|; a step's coupling is like the last one's
-        its = self._settle(self.du, rhs_for_current_du, scale=compat.petsc_vec(self.u).norm(), keep_omega=True)
+        its = self._settle(self.du, rhs_for_current_du, scale=self._norm(self.u), keep_omega=True)
         ti.update(u, v, a, self.du.x.array[:n])
         for f in (self.u, self.v, self.a):
             f.x.scatter_forward()
@@ -335,6 +335,14 @@ class Simulation:
             self._not_settled(change)
         self.follower_iterations = k
         return its
+
+    def _norm(self, f: fem.Function) -> float:
+        """The global 2-norm of a Function's owned values. Not PETSc's Vec.norm(): PETSc caches
+        norms until a PETSc operation changes the vector, and u, v, a are updated through their
+        numpy arrays, so norm() kept returning the value of t = 0 (zero), and the follower
+        tolerance was taken relative to the step's increment instead of |u|."""
+        owned = f.x.array[: self.n_owned]
+        return float(np.sqrt(self.model.comm.allreduce(float(owned @ owned), op=MPI.SUM)))
 
     def _solve(self, rhs: PETSc.Vec, x: PETSc.Vec) -> int:
         t0 = time.perf_counter()

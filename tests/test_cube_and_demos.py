@@ -35,14 +35,17 @@ def test_cube_scene_same_probe_on_one_and_two_ranks(tmp_path):
     two = _run_scene(tmp_path / "two", 2, *overrides)
     assert (one["ranks"], two["ranks"]) == (1, 2)
     assert one["nodes"] == two["nodes"] == 11 * 11 * 6
+    # the follower iteration stops at 1e-6 of |u| each step; one and two ranks (CHOLMOD and
+    # MUMPS, other sums) stop at different iterates within that
+    tol = 1e-6
     for key in ("top_centre",):
         a, b = np.array(one["probes"][key]), np.array(two["probes"][key])
         assert a[2] < -1e-4  # it sags
-        assert np.abs(a - b).max() <= 1e-9 * np.abs(a).max()
+        assert np.abs(a - b).max() <= tol * np.abs(a).max()
     a, b = np.array(one["surfaces"]["top"]), np.array(two["surfaces"]["top"])
-    assert np.abs(a - b).max() <= 1e-9 * np.abs(a).max()
-    assert two["max_displacement_m"] == pytest.approx(one["max_displacement_m"], rel=1e-9)
-    assert two["final_level_m"] == pytest.approx(one["final_level_m"], rel=1e-12)
+    assert np.abs(a - b).max() <= tol * np.abs(a).max()
+    assert two["max_displacement_m"] == pytest.approx(one["max_displacement_m"], rel=tol)
+    assert two["final_level_m"] == pytest.approx(one["final_level_m"], rel=1e-9)
     for key in ("dolfinx_version", "ranks", "nodes", "cells", "dofs", "steps", "setup_s", "step_s_median",
                 "solve_s_total", "final_time", "max_displacement_m", "probes", "fluid_force_N", "gravity_force_N",
                 "submerged_volume_m3", "final_level_m"):
