@@ -280,21 +280,40 @@ class HydrostaticLoad:
         values = u.x.array.reshape(-1, 3)
         return f.x_vertices + values[f.vertex_dofs], f.x_opposite + values[f.opposite_dofs]
 
+    def _reference_surface(self):
+        """Normals, areas, vertex heights, each facet's lowest height, outward orientation
+        (+1/-1 on the vertex order's cross product) and the vertex dofs of the reference
+        surface, computed once."""
+        if self._reference is None:
+            X, X_opp = self.geometry()
+            n, area = triangle_geometry(X, X_opp)
+            cross = np.cross(X[:, 1] - X[:, 0], X[:, 2] - X[:, 0])
+            orientation = np.where(np.einsum("ij,ij->i", cross, n) < 0.0, -1.0, 1.0)
+            height = X @ self.up
+            self._reference = (n, area, height, height.min(axis=1), orientation, np.unique(self.facets.vertex_dofs))
+        return self._reference
+
     def _wet_triangles(self, level: float, u=None):
         """(indices, unit outward normals, areas, vertex depths) of the facets with a wet
-        vertex; dry facets cost nothing more. On the reference geometry (u None) normals,
-        areas and heights are computed once."""
+        vertex; dry facets cost nothing more. On the reference geometry (u None) all of it
+        comes from _reference_surface. On x + u only facets that can be wet are moved: those
+        whose lowest reference vertex is below the level plus the surface's greatest fall;
+        their outward side is the reference one (a facet does not turn inside out)."""
+        n, area, height, lowest, orientation, surface_dofs = self._reference_surface()
         if u is None:
-            if self._reference is None:
-                X, X_opp = self.geometry()
-                self._reference = (*triangle_geometry(X, X_opp), X @ self.up)
-            n, area, height = self._reference
             wet = np.flatnonzero((height < level).any(axis=1))
             return wet, n[wet], area[wet], level - height[wet]
-        X, X_opp = self.geometry(u)
+        values = u.x.array.reshape(-1, 3)
+        sink = float(-(values[surface_dofs] @ self.up).min(initial=0.0))  # the surface's greatest fall
+        near = np.flatnonzero(lowest < level + sink)
+        X = self.facets.x_vertices[near] + values[self.facets.vertex_dofs[near]]
         depth = level - X @ self.up
         wet = np.flatnonzero((depth > 0).any(axis=1))
-        return (wet, *triangle_geometry(X[wet], X_opp[wet]), depth[wet])
+        X = X[wet]
+        cross = np.cross(X[:, 1] - X[:, 0], X[:, 2] - X[:, 0])
+        twice_area = np.linalg.norm(cross, axis=1)
+        normals = cross * (orientation[near[wet]] / np.where(twice_area > 0, twice_area, 1.0))[:, None]
+        return near[wet], normals, 0.5 * twice_area, depth[wet]
 
     def highest(self, u=None) -> float:
         """The greatest height (x.up) of the surface, global."""

@@ -13,6 +13,7 @@ geometrically nonlinear model would balance it with the prestress's initial-stre
 """
 from __future__ import annotations
 
+import numpy as np
 from petsc4py import PETSc
 
 
@@ -65,6 +66,9 @@ class AndersonAcceleration:
         self.last_map = template.duplicate()
         self.dF = collections.deque(maxlen=depth)  # residual differences
         self.dG = collections.deque(maxlen=depth)  # map-value differences
+        # dF_i . dF_j, kept up to date: m new dot products per iteration instead of the m^2
+        # (each a reduction in parallel) of rebuilding it
+        self.gram = np.zeros((0, 0))
         self._spare: list[PETSc.Vec] = []
         self.template = template
         self.iteration = 0
@@ -76,6 +80,7 @@ class AndersonAcceleration:
         if not keep_omega:
             while self.dF:
                 self._spare += [self.dF.pop(), self.dG.pop()]
+            self.gram = np.zeros((0, 0))
         self.iteration = 0
 
     def _vector(self) -> PETSc.Vec:
@@ -83,8 +88,6 @@ class AndersonAcceleration:
 
     def update(self, x: PETSc.Vec, gx: PETSc.Vec) -> float:
         """x <- the Anderson combination of the map values; returns |G(x) - x|."""
-        import numpy as np
-
         r = self.residual
         gx.copy(r)
         r.axpy(-1.0, x)
@@ -92,6 +95,7 @@ class AndersonAcceleration:
         if self.iteration > 0:
             if len(self.dF) == self.depth:  # recycle the oldest pair
                 self._spare += [self.dF.popleft(), self.dG.popleft()]
+                self.gram = self.gram[1:, 1:]
             df, dg = self._vector(), self._vector()
             r.copy(df)
             df.axpy(-1.0, self.last_residual)
@@ -99,16 +103,20 @@ class AndersonAcceleration:
             dg.axpy(-1.0, self.last_map)
             self.dF.append(df)
             self.dG.append(dg)
+            row = np.array([df.dot(v) for v in self.dF])
+            m = len(self.dF)
+            gram = np.empty((m, m))
+            gram[:-1, :-1] = self.gram
+            gram[-1, :] = gram[:, -1] = row
+            self.gram = gram
         r.copy(self.last_residual)
         gx.copy(self.last_map)
         gx.copy(x)  # plain iteration, then the correction below
         if self.dF:
             m = len(self.dF)
-            normal = np.array([[self.dF[i].dot(self.dF[j]) for j in range(m)] for i in range(m)])
-            rhs = np.array([self.dF[i].dot(r) for i in range(m)])
-            normal += self.regularisation * np.trace(normal) * np.eye(m)
+            rhs = np.array([v.dot(r) for v in self.dF])
+            normal = self.gram + self.regularisation * np.trace(self.gram) * np.eye(m)
             gamma = np.linalg.solve(normal, rhs)
-            for g, dg in zip(gamma, self.dG):
-                x.axpy(-g, dg)
+            x.maxpy(-gamma, list(self.dG))
         self.iteration += 1
         return norm
