@@ -78,3 +78,36 @@ def test_paper_rule_needs_degree_one():
             "fluid": {"level": 0.01, "rule": "paper"}, "element": {"degree": 2}}
     with pytest.raises(SceneError, match="degree 1 only"):
         scene_from_dict(data)
+
+
+def test_follower_step_stops_at_the_tolerance_of_u():
+    """Each dynamic step iterates the follower load until an update is below follower_tol of
+    |u| -- not of the step's increment. (u is updated through numpy, and PETSc's cached
+    Vec.norm() of u stayed at its t = 0 value, zero: the criterion silently became relative
+    to |du|, two to three solves per step more.)"""
+    scene = _cube("time.end=0.3", "time.dt=0.05")
+    sim = Simulation(build_model(scene, COMM))
+    sim.setup_dynamic()
+    changes = []
+    update = sim.relaxation.update
+
+    def recording(x, gx):
+        change = update(x, gx)
+        changes[-1].append(change)
+        return change
+
+    sim.relaxation.update = recording
+    for _ in range(scene.time.steps):
+        changes.append([])
+        sim.step()
+        owned = sim.u.x.array[: sim.n_owned]
+        size = np.sqrt(COMM.allreduce(float(owned @ owned)))
+        assert sim._norm(sim.u) == pytest.approx(size, rel=1e-12)
+        assert size > 0
+        if sim.model.fluid.reused_last:
+            continue  # ended by a reused load: its fixed point is the last solve's answer
+        # the relaxation reports |G(x) - x|: below the tolerance of |u| at the last iterate
+        # (|u| of the state before the step, within a step's change of the one after)
+        assert changes[-1][-1] <= 1.5 * sim.follower_tol * size
+        if len(changes[-1]) > 1:
+            assert changes[-1][-2] > 0.5 * sim.follower_tol * size
