@@ -73,11 +73,11 @@ class LinearSolver:
         try:
             self.ksp.setFromOptions()
             self.ksp.setUp()  # the factor and the multigrid levels read their options here
-        except PETSc.Error as exc:  # CHOLMOD stops here on a matrix that is not positive definite
-            raise SolverError(
-                f"{name or 'step'} matrix could not be set up for solver '{config.kind}' (PETSc error "
-                f"{exc.ierr}: {'not positive definite' if exc.ierr == 81 else 'see the PETSc message above'}); "
-                f"a body needs [[fixed]] supports unless [time] mode = \"dynamic\"") from None
+        except PETSc.Error as exc:  # a bad option, or a factor that fails (CHOLMOD: not positive definite)
+            hint = ("the matrix is not positive definite: a body needs [[fixed]] supports unless [time] mode = "
+                    "\"dynamic\"" if exc.ierr == 81 else "check [solver] options (PETSc's message is above)")
+            raise SolverError(f"{name or 'step'} solver '{config.kind}' could not be set up (PETSc error "
+                              f"{exc.ierr}): {hint}") from None
         finally:
             for key in inserted:
                 opts.delValue(key)

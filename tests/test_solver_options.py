@@ -52,3 +52,10 @@ def test_a_failed_solve_names_the_reason():
     sim = _static({"kind": "cg-jacobi", "max_it": 2, "rtol": 1e-14})
     with pytest.raises(SolverError, match=r"step solve diverged: DIVERGED_MAX_IT \(-3\) after 2 iterations"):
         sim.solve_static(0.0)
+
+
+def test_a_solver_that_cannot_be_set_up_is_named():
+    with pytest.raises(SolverError, match=r"step solver 'cholesky' could not be set up \(PETSc error \d+\): check "
+                                          r"\[solver\] options"):
+        _static({"kind": "cholesky", "options": {"pc_factor_mat_solver_type": "no-such-package"}})
+
