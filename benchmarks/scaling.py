@@ -1,4 +1,4 @@
-"""Per-step time against problem size with CG + GAMG under MPI, and peak memory.
+"""Per-step time against problem size with CG + GAMG (or BoomerAMG) under MPI, and peak memory.
 
 A 2:2:1 block (the cube scene's material, gravity, fixed floor; dry, so every step is one
 solve) on structured grids from about 10^4 to 10^6 dofs, a few Newmark steps each, in its own
@@ -6,6 +6,7 @@ solve) on structured grids from about 10^4 to 10^6 dofs, a few Newmark steps eac
 
     .venv/bin/python benchmarks/scaling.py                 # 2 ranks, up to ~1e6 dofs
     .venv/bin/python benchmarks/scaling.py --max-n 54      # stop at ~3e5 dofs
+    .venv/bin/python benchmarks/scaling.py --kind cg-hypre # the same with hypre's BoomerAMG
 """
 from __future__ import annotations
 
@@ -28,14 +29,14 @@ from fenics_brainshift.model import build_model
 from fenics_brainshift.scene import scene_from_dict
 from fenics_brainshift.simulation import Simulation
 logs.configure("WARNING")
-n, steps = int(sys.argv[1]), int(sys.argv[2])
+n, steps, kind = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3]
 scene = scene_from_dict({
     "mesh": {"shape": "box", "size": [0.05, 0.05, 0.025], "cells": [n, n, max(1, n // 2)]},
     "material": {"E": 729.1, "nu": 0.48, "density": 1048.0},
     "fixed": [{"where": "z < 1e-9"}],
     "time": {"mode": "dynamic", "dt": 0.05, "end": 0.05 * steps},
     "damping": {"a": 0.02, "b": 0.02},
-    "solver": {"kind": "cg-gamg", "rtol": 1e-8},
+    "solver": {"kind": kind, "rtol": 1e-8},
 })
 comm = MPI.COMM_WORLD
 t0 = time.perf_counter()
@@ -59,8 +60,11 @@ def main(argv=None) -> int:
     p.add_argument("--ranks", type=int, default=2)
     p.add_argument("--steps", type=int, default=3)
     p.add_argument("--max-n", type=int, default=86)
-    p.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "scaling"))
+    p.add_argument("--kind", default="cg-gamg", choices=["cg-gamg", "cg-hypre"])
+    p.add_argument("--out", default=None, help="file stem (default benchmarks/results/scaling, _hypre for cg-hypre)")
     args = p.parse_args(argv)
+    if args.out is None:
+        args.out = str(ROOT / "benchmarks" / "results" / ("scaling" if args.kind == "cg-gamg" else "scaling_hypre"))
     sys.path.insert(0, str(ROOT / "benchmarks"))
     from cube_sizes import machine
 
@@ -72,7 +76,7 @@ def main(argv=None) -> int:
         for n in (16, 24, 36, 54, 86):
             if n > args.max_n:
                 break
-            cmd = [shutil.which("mpirun"), "-n", str(args.ranks), sys.executable, str(script), str(n), str(args.steps)]
+            cmd = [shutil.which("mpirun"), "-n", str(args.ranks), sys.executable, str(script), str(n), str(args.steps), args.kind]
             proc = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=ROOT)
             if proc.returncode != 0:
                 print(f"n={n}: failed\n{proc.stderr[-2000:]}", file=sys.stderr)
@@ -86,8 +90,9 @@ def main(argv=None) -> int:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
-    lines = ["# Per-step time against size, CG + GAMG\n",
-             f"{machine()}; `python benchmarks/scaling.py --ranks {args.ranks}`; median of {args.steps} Newmark steps, "
+    title = {"cg-gamg": "CG + GAMG", "cg-hypre": "CG + BoomerAMG (hypre)"}[args.kind]
+    lines = [f"# Per-step time against size, {title}\n",
+             f"{machine()}; `python benchmarks/scaling.py --ranks {args.ranks} --kind {args.kind}`; median of {args.steps} Newmark steps, "
              f"rtol 1e-8, nu = 0.48; peak memory summed over ranks.\n",
              "| grid n | dofs | ranks | setup (s) | step (s) | us per dof per step | CG iterations | peak memory (MB) |",
              "|---:|---:|---:|---:|---:|---:|---:|---:|"]
@@ -107,7 +112,7 @@ def main(argv=None) -> int:
     ax.set_ylabel("time per Newmark step (s)")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
-    ax.set_title("CG + GAMG: per-step cost against size")
+    ax.set_title(f"{title}: per-step cost against size")
     fig.tight_layout()
     fig.savefig(stem.with_suffix(".png"), dpi=120)
     print(f"wrote {stem}.md, .csv, .png")

@@ -59,3 +59,12 @@ def test_a_solver_that_cannot_be_set_up_is_named():
                                           r"\[solver\] options"):
         _static({"kind": "cholesky", "options": {"pc_factor_mat_solver_type": "no-such-package"}})
 
+
+
+def test_cg_hypre_gives_the_direct_answer():
+    direct, amg = _static({"kind": "cholesky"}), _static({"kind": "cg-hypre", "rtol": 1e-12})
+    for sim in (direct, amg):
+        sim.solve_static(0.0)
+    assert amg.solver.ksp.getPC().getType() == "hypre"
+    assert 0 < amg.solver.iterations[-1] < 50
+    assert amg.max_displacement() == pytest.approx(direct.max_displacement(), rel=1e-9)
