@@ -274,7 +274,8 @@ def ranks() -> None:
             summary = json.loads((out / "summary.json").read_text())
             probes[n] = np.array(summary["probes"]["top_centre"])
     diff = max(np.abs(probes[n] - probes[1]).max() for n in (2, 4)) / np.abs(probes[1]).max()
-    record("ranks", "cube 12x12x6, 1 / 2 / 4 ranks", "ok" if diff < 1e-8 else "FAIL",
+    # each step's follower iteration stops within 1e-6 of |u|; rank counts stop at different iterates
+    record("ranks", "cube 12x12x6, 1 / 2 / 4 ranks", "ok" if diff < 1e-6 else "FAIL",
            f"largest probe difference {diff:.1e} of |u| (follower tolerance 1e-6)")
 
 
