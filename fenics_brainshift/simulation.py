@@ -1,9 +1,10 @@
 """Running a scene: the dynamic time loop or the quasi-static path, and what they report.
 
 Data flow: scene -> model (mesh, forms, loads) -> integrator + solver -> outputs. The
-effective matrix and its solver are built once; each step costs one right-hand side
-(two matrix-vector products), one Krylov solve warm-started from the previous increment,
-and the array update of u, v, a.
+effective matrix and its solver are built once; each step costs one right-hand side (a
+diagonal mass product, and K applied to the state once, shared with the energy guard), one
+solve warm-started from the previous increment (per follower iteration), and the array
+update of u, v, a.
 """
 from __future__ import annotations
 
