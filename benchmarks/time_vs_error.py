@@ -20,8 +20,9 @@ if __name__ == "__main__":
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--quick", action="store_true")
     p.add_argument("--scenes", nargs="+", default=["cube", "brain"], choices=["cube", "brain"])
+    p.add_argument("--only", action="append", metavar="NAME", help="run only this configuration; merge its row")
     args = p.parse_args()
     logs.configure("INFO")
     for scene in args.scenes:
-        sweep(scene, "quick" if args.quick else "full", ROOT / "benchmarks" / "results")
+        sweep(scene, "quick" if args.quick else "full", ROOT / "benchmarks" / "results", only=args.only)
     sys.exit(0)

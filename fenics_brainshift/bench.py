@@ -104,7 +104,8 @@ def brain_bench(level: str) -> tuple[Path, list[str], np.ndarray, Config, list[C
     scene = ROOT / "demos" / "brain.toml"
     base = ["time.mode=quasi-static", "fluid.level=0.03", "output.fields=[\"displacement\"]", "output.pictures=false"]
     samples = load_fine_surface(load_scene(scene).mesh)[0]
-    voxels = {"smoke": ["0.012"], "quick": ["0.008", "0.007"], "full": ["0.008", "0.007", "0.006", "0.005"]}[level]
+    voxels = {"smoke": ["0.012"], "quick": ["0.008", "0.007"],
+              "full": ["0.008", "0.007", "0.006", "0.005", "0.003", "0.002"]}[level]
     ref_voxel = {"smoke": "0.01", "quick": "0.007", "full": "0.005"}[level]
     reference = Config("reference P2", [f"mesh.voxel={ref_voxel}", "element.degree=2"], "reference")
     configs = [Config(f"P1 {float(v) * 1e3:g} mm", [f"mesh.voxel={v}"], "element size") for v in voxels]
@@ -178,12 +179,23 @@ def run_config(scene_file: Path, base: list[str], config: Config, samples: np.nd
 LEVELS = ("smoke", "quick", "full")
 
 
-def sweep(bench: str, level: str, out: Path, progress=None) -> list[dict]:
-    """level: "smoke" (seconds: that it all runs), "quick" (coarse meshes), "full"."""
+def sweep(bench: str, level: str, out: Path, progress=None, only: list[str] | None = None) -> list[dict]:
+    """level: "smoke" (seconds: that it all runs), "quick" (coarse meshes), "full".
+    only: run just these configurations (and the reference) and merge their rows into the
+    table already in out, so a row can be added without re-running the slow baselines."""
     scene_file, base, samples, reference, configs = BENCHES[bench](level)
+    previous = {}
+    if only:
+        known = {c.name for c in configs}
+        unknown = [name for name in only if name not in known]
+        if unknown:
+            raise ValueError(f"--only: no configuration named {', '.join(map(repr, unknown))} in the {level} "
+                             f"{bench} sweep; the names are: {', '.join(sorted(known))}")
+        previous = {r["config"]: r for r in read_rows(out / f"time_vs_error_{bench}.csv")}
+        configs = [c for c in configs if c.name in only or c.name in previous]
     # warm the form compiler's cache on a tiny mesh, so no row pays for compiling its forms
     tiny = {"cube": ["mesh.cells=[2, 2, 1]"], "brain": ["mesh.voxel=0.03"]}[bench]
-    for cfg in (reference, *configs):
+    for cfg in (reference, *[c for c in configs if c.name not in previous or c.name in (only or ())]):
         warm = Config(cfg.name, cfg.overrides + tiny + ["time.end=0.2", "time.dt=0.2"], cfg.family, cfg.naive)
         run_config(scene_file, base, warm, samples[:1])
     log.info("bench %s: reference %s, %d configurations, %d sample points", bench, reference.name,
@@ -192,6 +204,9 @@ def sweep(bench: str, level: str, out: Path, progress=None) -> list[dict]:
     rows = []
     items = configs if progress is None else progress(configs, desc=f"bench {bench}")
     for cfg in items:
+        if cfg.name in previous and cfg.name not in only:
+            rows.append(previous[cfg.name])  # measured in an earlier run, kept as it was
+            continue
         r = run_config(scene_file, base, cfg, samples)
         err = np.linalg.norm(r.samples - ref.samples, axis=1) * 1e3
         probe_err = np.linalg.norm(r.probes - ref.probes, axis=1) * 1e3
@@ -204,8 +219,19 @@ def sweep(bench: str, level: str, out: Path, progress=None) -> list[dict]:
         })
         log.info("  %-32s %7.2f s  max error %.3f mm  rms %.3f mm", cfg.name, r.total_s,
                  rows[-1]["max_error_mm"], rows[-1]["rms_error_mm"])
-        write(rows, ref, bench, level, out)  # after every row: a long sweep cut short keeps what it measured
+        write(rows, ref, bench, level, out, only)  # after every row: a sweep cut short keeps what it measured
+    write(rows, ref, bench, level, out, only)
     return rows
+
+
+def read_rows(path: Path) -> list[dict]:
+    """The rows of an earlier sweep's CSV, numbers as numbers (none if there is no file)."""
+    if not path.exists():
+        return []
+    integers = {"nodes", "dofs", "steps", "solves"}
+    with open(path, newline="") as f:
+        return [{k: (v if k in ("config", "family") else int(v) if k in integers else float(v)) for k, v in row.items()}
+                for row in csv.DictReader(f)]
 
 
 def pareto_front(rows: list[dict]) -> list[int]:
@@ -220,7 +246,7 @@ def pareto_front(rows: list[dict]) -> list[int]:
     return sorted(front, key=lambda i: rows[i]["total_s"])
 
 
-def write(rows: list[dict], ref: Result, bench: str, level: str, out: Path) -> None:
+def write(rows: list[dict], ref: Result, bench: str, level: str, out: Path, only=None) -> None:
     out.mkdir(parents=True, exist_ok=True)
     stem = out / f"time_vs_error_{bench}"
     with open(stem.with_suffix(".csv"), "w", newline="") as f:
@@ -247,6 +273,9 @@ def write(rows: list[dict], ref: Result, bench: str, level: str, out: Path) -> N
         lines.append(f"\nThe naive loop takes {naive['total_s']:.1f} s, the paper-equivalent {paper['total_s']:.1f} s "
                      f"(run-time ratio naive / paper-equivalent {naive['total_s'] / paper['total_s']:.2f}); the fastest "
                      f"configuration with at most the paper-equivalent's error: " + _best_line(rows, paper))
+    if only:
+        lines.append(f"\nRows {', '.join(only)} were (re)measured later with `--only` (and the reference again); "
+                     f"the others are from the earlier run, as they were.")
     stem.with_suffix(".md").write_text("\n".join(lines) + "\n")
     plot_pareto(rows, sorted(front, key=lambda i: rows[i]["total_s"]), stem.with_suffix(".png"), bench)
 

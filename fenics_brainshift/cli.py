@@ -73,6 +73,9 @@ def _parser() -> argparse.ArgumentParser:
     size.add_argument("--quick", action="store_true", help="coarser meshes and fewer configurations (cube: about a minute; brain: about 11 min, mostly the paper-equivalent CG)")
     size.add_argument("--smoke", action="store_true", help="tiny meshes: a few seconds, to check that the sweep runs")
     bench.add_argument("--out", default="bench_results", help="output folder")
+    bench.add_argument("--only", action="append", metavar="NAME",
+                       help="run only this configuration (repeatable) and merge its row into the table already "
+                            "in --out, keeping the other rows as measured")
     sub.add_parser("info", help="versions of DOLFINx, PETSc, MPI, the scalar type and optional extras")
     return parser
 
@@ -173,7 +176,10 @@ def _bench(args, comm) -> int:
         raise SceneError("bench: run it on one rank (it compares configurations; "
                          "benchmarks/cube_sizes.py measures ranks)")
     level = "smoke" if args.smoke else "quick" if args.quick else "full"
-    rows = sweep(args.scene, level, Path(args.out), progress)
+    try:
+        rows = sweep(args.scene, level, Path(args.out), progress, args.only)
+    except ValueError as exc:  # an --only name that is not in the sweep
+        raise SceneError(str(exc)) from None
     best = min(rows, key=lambda r: r["max_error_mm"])
     print(f"bench {args.scene}: {len(rows)} configurations; most accurate {best['config']} "
           f"({best['max_error_mm']:.3f} mm, {best['total_s']:.2f} s); wrote {args.out}/time_vs_error_{args.scene}.md, "

@@ -73,6 +73,23 @@ def test_bench_smoke_writes_table_csv_and_pareto_plot(tmp_path, capsys):
     p2 = next(r for r in rows if r["config"].startswith("P2"))
     p1 = next(r for r in rows if r["config"].startswith("P1"))
     assert float(p2["max_error_mm"]) < float(p1["max_error_mm"])  # P2 is closer to the P2 reference
+
+    # --only re-runs one configuration and keeps the others' rows exactly as they were
+    marked = [dict(r) for r in rows]
+    for r in marked:
+        r["total_s"] = "1234.5"  # a value no run measures
+    with open(tmp_path / "time_vs_error_cube.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(marked[0]))
+        writer.writeheader()
+        writer.writerows(marked)
+    assert main(["--log-level", "WARNING", "bench", "--scene", "cube", "--smoke", "--out", str(tmp_path),
+                 "--only", p1["config"]]) == 0
+    again = {r["config"]: r for r in csv.DictReader(open(tmp_path / "time_vs_error_cube.csv"))}
+    assert list(again) == names
+    assert float(again[p1["config"]]["total_s"]) != 1234.5
+    assert all(float(r["total_s"]) == 1234.5 for name, r in again.items() if name != p1["config"])
+    assert main(["--log-level", "WARNING", "bench", "--scene", "cube", "--smoke", "--out", str(tmp_path),
+                 "--only", "P9 nothing"]) == 2
     table = (tmp_path / "time_vs_error_cube.md").read_text()
     assert "| configuration |" in table and "*" in table  # the Pareto front is marked
     _not_blank(tmp_path / "time_vs_error_cube.png")
