@@ -220,20 +220,18 @@ class Simulation:
         self._resect()
         # the state to go back to if a guard stops the run during this step
         self.last_good = (self.t, self.u.x.array.copy(), self.v.x.array.copy(), self.a.x.array.copy())
-        ti, sc = self.integrator, self.scene
+        ti = self.integrator
         n = self.n_owned
         t_new = (self.steps_taken + 1) * ti.dt  # not a running sum: no drift in t
         w_new, w_old = ti.load_weights()
         u, v, a = self.u.x.array[:n], self.v.x.array[:n], self.a.x.array[:n]
-        wm, wk = ti.rhs_vectors(u, v, a, sc.damping.a, sc.damping.b)
+        if self._K_wk_of_step != self.steps_taken:  # w_m, w_k, K w_k not left by the last energy check
+            self._rhs_vectors()
+            self.K.mult(self._wk, self._K_wk)
         base = self._base  # everything but w_new F_{n+1}
         base.array[:] = w_old * self._F_old.array_r
-        self._wm.array[:] = wm
         self.M.mult(self._wm, self._tmp)
         base.axpy(-1.0, self._tmp)
-        if self._K_wk_of_step != self.steps_taken:  # not left by the last step's energy check
-            self._wk.array[:] = wk
-            self.K.mult(self._wk, self._K_wk)
         base.axpy(-1.0, self._K_wk)
 
         def rhs_for_current_du() -> PETSc.Vec:
@@ -271,14 +269,21 @@ class Simulation:
             self.K.mult(u, K_u)
         return kinetic, 0.5 * u.dot(K_u)
 
+    def _rhs_vectors(self) -> None:
+        """w_m and w_k of the current state (rhs = F_mid - M w_m - K w_k) into their vectors."""
+        n, sc = self.n_owned, self.scene
+        wm, wk = self.integrator.rhs_vectors(self.u.x.array[:n], self.v.x.array[:n], self.a.x.array[:n],
+                                             sc.damping.a, sc.damping.b)
+        self._wm.array[:] = wm
+        self._wk.array[:] = wk
+
     def _energy_check(self) -> None:
         """The energy guard on the current state. K u comes with K w_k, the next step's
-        right-hand-side product, in one pass over K (products.py)."""
+        right-hand-side product, in one pass over K (products.py); w_m and w_k are kept for
+        that step too."""
         if not self.check_energy:
             return
-        n, ti, sc = self.n_owned, self.integrator, self.scene
-        _, wk = ti.rhs_vectors(self.u.x.array[:n], self.v.x.array[:n], self.a.x.array[:n], sc.damping.a, sc.damping.b)
-        self._wk.array[:] = wk
+        self._rhs_vectors()
         self._pair.multiply(compat.petsc_vec(self.u), self._wk, self._K_u, self._K_wk)
         self._K_wk_of_step = self.steps_taken
         self.energy.check(self.t, *self.energies(self._K_u))
