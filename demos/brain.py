@@ -10,7 +10,7 @@
 # the patient lies supine, and the CSF drains from covering the brain to the craniotomy rim.
 # Dynamic FEM with the paper's Table II parameters; the fine brain surface follows the coarse
 # model and is written deformed (VTK and STL) for a navigation system or 3D Slicer. Scene:
-# `brain.toml` beside this script.
+# `brain.toml` among the bundled scenes (`brainshift scenes`).
 #
 #     python demos/brain.py                  # serial, writes out_brain/
 #     mpirun -n 2 python demos/brain.py      # the same on two ranks
@@ -24,10 +24,9 @@ import numpy as np
 from mpi4py import MPI
 
 from fenics_brainshift import logs
-from fenics_brainshift.scene import SceneError, load_scene
-from fenics_brainshift.simulation import run
+from fenics_brainshift import InputError, load_scene, run
+from fenics_brainshift.data import scene_path
 
-HERE = Path(__file__).resolve().parent
 PAPER_SHIFT_MM = "about 16-17 mm at the most anterior point (paper Table III)"
 # -
 
@@ -35,7 +34,7 @@ PAPER_SHIFT_MM = "about 16-17 mm at the most anterior point (paper Table III)"
 def parse_args(argv=None):
     p = argparse.ArgumentParser(description="Brain shift of the bundled MNI brain, supine, frontal craniotomy.",
                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    p.add_argument("--scene", default=str(HERE / "brain.toml"), help="scene file")
+    p.add_argument("--scene", default=str(scene_path("brain")), help="scene file")
     p.add_argument("--out", default="out_brain", help="output folder")
     p.add_argument("--quasi-static", action="store_true", help="settled states only (no time stepping)")
     p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
@@ -53,8 +52,8 @@ def main(argv=None) -> int:
     overrides = list(args.set) + (["time.mode=quasi-static"] if args.quasi_static else [])
     try:
         scene = load_scene(args.scene, overrides)
-        summary = run(scene, args.out, comm)
-    except SceneError as exc:
+        summary = run(scene, args.out, comm).summary
+    except InputError as exc:
         if comm.rank == 0:
             print(f"brain.py: error: {exc}", file=sys.stderr)
         return 2

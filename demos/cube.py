@@ -9,7 +9,7 @@
 # A 50 x 50 x 25 mm gelatin block (E = 729.1 Pa, nu = 0.48, 1048 kg/m3) is glued to the
 # floor of a container of silicone oil (975 kg/m3). The oil is drained from 175 ml to 10 ml
 # in steps of 25 ml; buoyancy falls and the block sags under its own weight. The scene is
-# `cube.toml` beside this script (read its note on the container's size).
+# `cube.toml` among the bundled scenes (`brainshift scenes`) (read its note on the container's size).
 #
 # 1. The paper's simulation: dynamic FEM (Newmark, lumped mass, Rayleigh damping) on the
 #    8,788-node grid through the whole drain; the top surface's mean displacement at the
@@ -30,10 +30,9 @@ import numpy as np
 from mpi4py import MPI
 
 from fenics_brainshift import logs
-from fenics_brainshift.scene import SceneError, load_scene
-from fenics_brainshift.simulation import run
+from fenics_brainshift import InputError, load_scene, run
+from fenics_brainshift.data import scene_path
 
-HERE = Path(__file__).resolve().parent
 PAPER_GRIDS = ["16x16x9", "20x20x10", "25x25x12", "30x30x15"]  # 2,890 ... 15,376 nodes
 # -
 
@@ -41,7 +40,7 @@ PAPER_GRIDS = ["16x16x9", "20x20x10", "25x25x12", "30x30x15"]  # 2,890 ... 15,37
 def parse_args(argv=None):
     p = argparse.ArgumentParser(description="The paper's gelatin cube: sag as the oil drains (Figs. 6, 7).",
                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    p.add_argument("--scene", default=str(HERE / "cube.toml"), help="scene file")
+    p.add_argument("--scene", default=str(scene_path("cube")), help="scene file")
     p.add_argument("--out", default="out_cube", help="output folder")
     p.add_argument("--cells", default="25x25x12", help="grid of the dynamic run, NXxNYxNZ hexahedra")
     p.add_argument("--grids", nargs="*", default=PAPER_GRIDS, help="grids of the quasi-static sweep (Fig. 7)")
@@ -54,7 +53,7 @@ def cells(text: str) -> list[int]:
     try:
         nx, ny, nz = (int(c) for c in text.lower().split("x"))
     except ValueError:
-        raise SceneError(f"grid '{text}' must look like 25x25x12") from None
+        raise InputError(f"grid '{text}' must look like 25x25x12") from None
     return [nx, ny, nz]
 
 
@@ -82,16 +81,16 @@ def main(argv=None) -> int:
         schedule = scene.fluid.volume.points
         hold_ends = [t for (t, v), (_, v_next) in zip(schedule, schedule[1:] + ((None, None),)) if v != v_next]
         volumes_ml = [scene.fluid.volume(t) * 1e6 for t in hold_ends]
-        summary = run(scene, out / "dynamic", comm)
+        summary = run(scene, out / "dynamic", comm).summary
         dynamic = settled_states(out / "dynamic", hold_ends)
 
         sweep = {}
         for g in args.grids:
             static_scene = load_scene(args.scene, [f"mesh.cells={cells(g)}", "time.mode=quasi-static",
                                                    "output.fields=[\"displacement\"]", *args.set])
-            s = run(static_scene, out / f"static_{g}", comm)
+            s = run(static_scene, out / f"static_{g}", comm).summary
             sweep[g] = (s["nodes"], settled_states(out / f"static_{g}", hold_ends))
-    except SceneError as exc:
+    except InputError as exc:
         if comm.rank == 0:
             print(f"cube.py: error: {exc}", file=sys.stderr)
         return 2

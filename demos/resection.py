@@ -11,7 +11,7 @@
 # is removed. The tissue over the cavity loses its support and falls into it; the cut faces
 # join the surface the CSF acts on. Dynamic FEM keeps the system solvable even if a piece is
 # cut free (the mass matrix has full rank): the reason the paper chose it. Scene:
-# `resection.toml` beside this script; removed cells carry tissue = 0 in the XDMF output
+# `resection.toml` among the bundled scenes (`brainshift scenes`); removed cells carry tissue = 0 in the XDMF output
 # (ParaView: Threshold on "tissue" >= 0.5 shows what is left).
 #
 #     python demos/resection.py                  # serial, writes out_resection/
@@ -26,18 +26,16 @@ import numpy as np
 from mpi4py import MPI
 
 from fenics_brainshift import logs
-from fenics_brainshift.scene import SceneError, load_scene
-from fenics_brainshift.simulation import run
-from fenics_brainshift.solver import SolverError
+from fenics_brainshift import InputError, SolverError, load_scene, run
+from fenics_brainshift.data import scene_path
 
-HERE = Path(__file__).resolve().parent
 # -
 
 
 def parse_args(argv=None):
     p = argparse.ArgumentParser(description="Brain shift with a lesion removed after the CSF has drained.",
                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    p.add_argument("--scene", default=str(HERE / "resection.toml"), help="scene file")
+    p.add_argument("--scene", default=str(scene_path("resection")), help="scene file")
     p.add_argument("--out", default="out_resection", help="output folder")
     p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
                    help="scene overrides, as for brainshift run (e.g. mesh.voxel=0.008 for a quick look)")
@@ -53,11 +51,11 @@ def main(argv=None) -> int:
     comm = MPI.COMM_WORLD
     try:
         scene = load_scene(args.scene, args.set)
-        summary = run(scene, args.out, comm)
-    except (SceneError, SolverError) as exc:
+        summary = run(scene, args.out, comm).summary
+    except (InputError, SolverError) as exc:
         if comm.rank == 0:
             print(f"resection.py: error: {exc}", file=sys.stderr)
-        return 2 if isinstance(exc, SceneError) else 3
+        return 2 if isinstance(exc, InputError) else 3
     if comm.rank == 0:
         out = Path(args.out)
         removal = summary["removals"][0]

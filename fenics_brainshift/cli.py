@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 from . import __version__
 
@@ -21,7 +22,7 @@ def _parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     run = sub.add_parser("run", help="run a scene file (also under mpirun -n N)",
                          formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    run.add_argument("scene", help="scene TOML file")
+    run.add_argument("scene", help="scene TOML file, or a bundled scene by name (brainshift scenes)")
     run.add_argument("--out", help="output folder (default: the scene's [output] folder)")
     run.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
                      help="override a scene value, e.g. --set time.end=2 --set solver.kind=cholesky "
@@ -77,6 +78,7 @@ def _parser() -> argparse.ArgumentParser:
                        help="run only this configuration (repeatable) and merge its row into the table already "
                             "in --out, keeping the other rows as measured")
     sub.add_parser("info", help="versions of DOLFINx, PETSc, MPI, the scalar type and optional extras")
+    sub.add_parser("scenes", help="the bundled scenes (run one by name: brainshift run cube)")
     return parser
 
 
@@ -108,13 +110,16 @@ def _version_of(module: str) -> str:
 
 
 def _blas() -> str:
-    """Which BLAS the dynamic linker gives MUMPS (Debian's alternatives)."""
+    """Which BLAS library this process loaded (Debian's alternatives pick it), from the
+    process's memory map: no architecture-specific path assumed."""
     import os
 
     try:
-        return os.path.realpath("/usr/lib/x86_64-linux-gnu/libblas.so.3").split("/")[-2]
+        with open("/proc/self/maps") as maps:
+            paths = {line.split()[-1] for line in maps if "blas" in line.rsplit("/", 1)[-1]}
     except OSError:
         return "unknown"
+    return ", ".join(sorted(os.path.relpath(os.path.realpath(p), "/usr/lib") for p in paths)) or "none loaded"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -122,40 +127,19 @@ def main(argv: list[str] | None = None) -> int:
     from mpi4py import MPI
 
     from . import logs
-    from .scene import SceneError
-    from .solver import SolverError
+    from .errors import InputError, SolverError
 
     logs.configure(args.log_level, args.log_all_ranks)
     if args.no_progress:
-        from . import progress
+        from .outputs import progress
 
         progress.ENABLED = False
     comm = MPI.COMM_WORLD
+    commands = {"info": _info_command, "scenes": _scenes, "mesh": _mesh, "compare": _compare, "bench": _bench,
+                "run": _run}
     try:
-        if args.command == "info":
-            if comm.rank == 0:
-                for key, value in _info().items():
-                    print(f"{key:18s} {value}")
-            return 0
-        if args.command == "mesh":
-            return _mesh(args, comm)
-        if args.command == "compare":
-            return _compare(args, comm)
-        if args.command == "bench":
-            return _bench(args, comm)
-        from .scene import load_scene
-        from .simulation import run
-
-        scene = load_scene(args.scene, args.set + (["output.pictures=true"] if args.pictures else []))
-        summary = run(scene, args.out or scene.output.folder, comm)
-        if comm.rank == 0:
-            probes = ", ".join(f"{k}=[{', '.join(f'{c * 1e3:.3f}' for c in v)}] mm"
-                               for k, v in summary["probes"].items())
-            print(f"{scene.name}: max |u| = {summary['max_displacement_m'] * 1e3:.3f} mm"
-                  + (f"; {probes}" if probes else "")
-                  + f"; wrote {args.out or scene.output.folder}/summary.json")
-        return 0
-    except SceneError as exc:  # bad input: nothing was written
+        return commands[args.command](args, comm)
+    except InputError as exc:  # bad input: nothing was written
         if comm.rank == 0:
             print(f"brainshift: error: {exc}", file=sys.stderr)
         return 2
@@ -165,49 +149,84 @@ def main(argv: list[str] | None = None) -> int:
         return 3
 
 
-def _bench(args, comm) -> int:
-    from pathlib import Path
+def _run(args, comm) -> int:
+    from .runner import run
+    from .scene import load_scene
 
+    scene = load_scene(args.scene, args.set + (["output.pictures=true"] if args.pictures else []))
+    out = args.out or scene.output.folder
+    result = run(scene, out, comm)
+    if comm.rank == 0:
+        summary = result.summary
+        probes = ", ".join(f"{k}=[{', '.join(f'{c * 1e3:.3f}' for c in v)}] mm" for k, v in summary["probes"].items())
+        print(f"{scene.name}: max |u| = {summary['max_displacement_m'] * 1e3:.3f} mm"
+              + (f"; {probes}" if probes else "") + f"; wrote {out}/summary.json")
+    return 0
+
+
+def _info_command(args, comm) -> int:
+    if comm.rank == 0:
+        for key, value in _info().items():
+            print(f"{key:18s} {value}")
+    return 0
+
+
+def _scenes(args, comm) -> int:
+    from .data import scene_path, scene_names
+
+    if comm.rank == 0:
+        for name in scene_names():
+            print(f"{name:10s} {scene_path(name)}")
+    return 0
+
+
+def _bench(args, comm) -> int:
     from .bench import sweep
-    from .progress import progress
-    from .scene import SceneError
+    from .errors import InputError
+    from .outputs.files import check_writable
+    from .outputs.progress import progress
 
     if comm.size > 1:
-        raise SceneError("bench: run it on one rank (it compares configurations; "
+        raise InputError("bench: run it on one rank (it compares configurations; "
                          "benchmarks/cube_sizes.py measures ranks)")
+    out = Path(args.out)
+    check_writable(out, comm)
     level = "smoke" if args.smoke else "quick" if args.quick else "full"
-    try:
-        rows = sweep(args.scene, level, Path(args.out), progress, args.only)
-    except ValueError as exc:  # an --only name that is not in the sweep
-        raise SceneError(str(exc)) from None
+    rows = sweep(args.scene, level, out, progress, args.only)
     best = min(rows, key=lambda r: r["max_error_mm"])
     print(f"bench {args.scene}: {len(rows)} configurations; most accurate {best['config']} "
-          f"({best['max_error_mm']:.3f} mm, {best['total_s']:.2f} s); wrote {args.out}/time_vs_error_{args.scene}.md, "
+          f"({best['max_error_mm']:.3f} mm, {best['total_s']:.2f} s); wrote {out}/time_vs_error_{args.scene}.md, "
           f".csv and .png")
     return 0
 
 
 def _compare(args, comm) -> int:
     import json
-    from pathlib import Path
 
     import numpy as np
 
-    from .meshing.voxelize import VoxelizeError, read_surface
-    from .metrics import compare
-    from .scene import SceneError
+    from .errors import InputError
+    from .meshing.voxelize import read_surface
+    from .outputs.files import check_writable
+    from .outputs.metrics import compare
 
+    out = Path(args.output)
+    check_writable(out.parent, comm, "folder of -o", "-o")
     if comm.rank != 0:
         return 0
+    for name in (args.pre, args.intra, args.sim):
+        if not Path(name).is_file():
+            raise InputError(f"compare: '{name}' not found")
+    if min(args.scales) <= 0 or min(args.radius, args.depth, args.search, args.spacing) <= 0:
+        raise InputError("compare: --scales, --radius, --depth, --search and --spacing must be > 0")
+    pre, intra, sim = (read_surface(Path(f), s)[0] for f, s in zip((args.pre, args.intra, args.sim), args.scales))
+    mm = 1e-3
+    roi = ((args.roi[0] * mm, args.roi[1] * mm), (args.roi[2] * mm, args.roi[3] * mm)) if args.roi else None
     try:
-        pre, intra, sim = (read_surface(Path(f), s)[0] for f, s in zip((args.pre, args.intra, args.sim), args.scales))
-        mm = 1e-3
-        roi = ((args.roi[0] * mm, args.roi[1] * mm), (args.roi[2] * mm, args.roi[3] * mm)) if args.roi else None
         result = compare(pre, intra, sim, args.up, args.second, args.radius * mm, args.depth * mm,
                          args.search * mm, roi, args.spacing * mm)
-    except (VoxelizeError, ValueError) as exc:
-        raise SceneError(f"compare: {exc}") from None
-    out = Path(args.output)
+    except ValueError as exc:  # the measures' own checks: surfaces that do not match, an empty ROI
+        raise InputError(f"compare: {exc}") from None
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({"units": "m", **result}, indent=1) + "\n")
     for name in ("A", "B"):
@@ -220,42 +239,35 @@ def _compare(args, comm) -> int:
         print(f"surface error along {se['height_axis']} ({se['grid_points']} grid points): max {se['max'] * 1e3:.2f}, "
               f"min {se['min'] * 1e3:.2f}, mean {se['mean'] * 1e3:.2f}, median {se['median'] * 1e3:.2f}, "
               f"MAE {se['mae'] * 1e3:.2f} mm")
-        _plot_surface_error(out.with_suffix(".png"), se)
+        from .outputs.pictures import surface_error_plot
+
+        surface_error_plot(out.with_suffix(".png"), se)
     print(f"wrote {out}")
     return 0
 
 
-def _plot_surface_error(path, se) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import numpy as np
-
-    err = np.array(se["error"], dtype=float) * 1e3
-    ga, gb = np.array(se["grid_a"]) * 1e3, np.array(se["grid_b"]) * 1e3
-    fig, ax = plt.subplots(figsize=(6, 4.5))
-    im = ax.pcolormesh(ga, gb, err.T, shading="nearest", cmap="coolwarm",
-                       vmin=-np.nanmax(np.abs(err)), vmax=np.nanmax(np.abs(err)))
-    fig.colorbar(im, ax=ax, label=f"SIM - INTRA along {se['height_axis']} (mm)")
-    ax.set_aspect("equal")
-    ax.set_title(f"Surface error: MAE {se['mae'] * 1e3:.2f} mm (cf. paper Fig. 20)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-
-
 def _mesh(args, comm) -> int:
-    from pathlib import Path
+    from . import formats
+    from .errors import InputError
+    from .meshing import write_voxel_mesh
+    from .outputs.files import check_writable
 
-    from .meshing.build import write_voxel_mesh
-    from .scene import SceneError
-
+    if not Path(args.input).is_file():
+        raise InputError(f"mesh: input '{args.input}' not found")
+    if not formats.is_voxelizable(args.input):
+        raise InputError(f"mesh: input '{Path(args.input).name}': use a label volume (.nii, .nii.gz) or a surface "
+                         f"(.stl, .obj, .ply, .vtk, .vtp, .gii)")
     if args.voxel <= 0 or args.scale <= 0:
-        raise SceneError(f"mesh: --voxel and --scale must be > 0 (got {args.voxel:g}, {args.scale:g})")
+        raise InputError(f"mesh: --voxel and --scale must be > 0 (got {args.voxel:g}, {args.scale:g})")
+    if not 0.0 <= args.fill <= 1.0:
+        raise InputError(f"mesh: --fill must be in [0, 1] (got {args.fill:g}); 0 keeps every voxel the object touches")
     if args.parts < 1:
-        raise SceneError(f"mesh: --parts must be >= 1 (got {args.parts})")
-    report = write_voxel_mesh(Path(args.output), comm, args.input, args.voxel * args.scale, args.scale,
+        raise InputError(f"mesh: --parts must be >= 1 (got {args.parts})")
+    output = Path(args.output)
+    if output.suffix != ".xdmf":
+        raise InputError(f"mesh: -o '{output}' must end in .xdmf")
+    check_writable(output.parent, comm, "folder of -o", "-o")
+    report = write_voxel_mesh(output, comm, args.input, args.voxel * args.scale, args.scale,
                               args.fill, args.parts, args.labels)
     if comm.rank == 0:
         print(f"{args.input}: {report}; wrote {args.output}")

@@ -20,6 +20,8 @@ if [ "$(id -u)" -ne 0 ]; then
   exec sudo --preserve-env=BRAINSHIFT_ROOTFS,BRAINSHIFT_MIRROR "$0" "$@"
 fi
 command -v debootstrap >/dev/null || {
+  # a fresh host has no package lists yet: update first, or the install finds nothing
+  DEBIAN_FRONTEND=noninteractive apt-get update -q
   DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends debootstrap
 }
 

@@ -1,4 +1,4 @@
-"""Build meshes/mni152_brain_mask_2mm.nii.gz and meshes/mni152_brain_surface.ply.
+"""Build fenics_brainshift/data/meshes/mni152_brain_mask_2mm.nii.gz and fenics_brainshift/data/meshes/mni152_brain_surface.ply.
 
 Source: the ICBM 2009a nonlinear symmetric template's grey- and white-matter probability maps
 as nilearn's wheel carries them (nilearn/datasets/data/mni_icbm152_{gm,wm}_tal_nlin_sym_09a_
@@ -27,7 +27,7 @@ import nibabel as nib
 import numpy as np
 from scipy import ndimage
 
-OUT = Path(__file__).resolve().parents[1] / "meshes"
+OUT = Path(__file__).resolve().parents[1] / "fenics_brainshift" / "data" / "meshes"
 MEMBERS = {
     "gm": "nilearn/datasets/data/mni_icbm152_gm_tal_nlin_sym_09a_converted.nii.gz",
     "wm": "nilearn/datasets/data/mni_icbm152_wm_tal_nlin_sym_09a_converted.nii.gz",

@@ -9,6 +9,8 @@ import numpy as np
 import pytest
 
 from conftest import ROOT, column_dict
+from fenics_brainshift.data import MESHES
+from fenics_brainshift.data import scene_path
 from fenics_brainshift.cli import main
 from test_scene_errors import write_scene
 
@@ -41,7 +43,7 @@ def test_help_explains_every_subcommand(capsys):
 
 def test_run_with_pictures(tmp_path, capsys):
     out = tmp_path / "out"
-    assert main(["--no-progress", "run", str(ROOT / "demos" / "cube.toml"), "--out", str(out), "--pictures",
+    assert main(["--no-progress", "run", str(scene_path("cube")), "--out", str(out), "--pictures",
                  "--set", "mesh.cells=[6, 6, 3]", "--set", "time.end=0.5"]) == 0
     assert "max |u|" in capsys.readouterr().out
     summary = json.loads((out / "summary.json").read_text())
@@ -51,7 +53,7 @@ def test_run_with_pictures(tmp_path, capsys):
 
 
 def test_pictures_of_a_resection_leave_the_removed_cells_out(tmp_path):
-    from fenics_brainshift.viz import read_last_state
+    from fenics_brainshift.outputs.pictures import read_last_state
 
     data = column_dict(4, time={"mode": "dynamic", "dt": 0.01, "end": 0.03},
                        remove=[{"at": 0.0, "where": "z > 0.075"}], output={"pictures": True})
@@ -98,7 +100,7 @@ def test_bench_smoke_writes_table_csv_and_pareto_plot(tmp_path, capsys):
 def test_mesh_and_compare_error_paths(tmp_path, capsys):
     assert main(["mesh", str(tmp_path / "missing.nii.gz"), "--voxel", "5", "-o", str(tmp_path / "m.xdmf")]) == 2
     assert "not found" in capsys.readouterr().err
-    assert main(["mesh", str(ROOT / "meshes" / "mni152_brain_mask_2mm.nii.gz"), "--voxel", "-1"]) == 2
+    assert main(["mesh", str(MESHES / "mni152_brain_mask_2mm.nii.gz"), "--voxel", "-1"]) == 2
     assert "--voxel" in capsys.readouterr().err
     assert main(["compare", str(tmp_path / "a.stl"), str(tmp_path / "b.stl"), str(tmp_path / "c.vtk")]) == 2
     assert "compare:" in capsys.readouterr().err
@@ -114,7 +116,7 @@ def test_unknown_subcommand_and_bad_flag_exit_with_usage(capsys):
 
 
 def test_progress_bar_only_on_a_terminal_or_when_asked(monkeypatch):
-    from fenics_brainshift import progress as prog
+    from fenics_brainshift.outputs import progress as prog
 
     monkeypatch.setattr(prog, "ENABLED", None)
     monkeypatch.setattr("sys.stderr.isatty", lambda: False, raising=False)

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from conftest import ROOT, mpirun, subprocess_env
+from fenics_brainshift.data import scene_path
 from fenics_brainshift.cli import main
 
 pytestmark = pytest.mark.usefixtures("serial_only")
@@ -25,7 +26,7 @@ def _run(out, ranks: int, *cmd):
 
 def _run_scene(out, ranks: int, *overrides):
     sets = [a for o in overrides for a in ("--set", o)]
-    _run(out, ranks, "-m", "fenics_brainshift.cli", "run", str(ROOT / "demos" / "cube.toml"), "--out", str(out), *sets)
+    _run(out, ranks, "-m", "fenics_brainshift.cli", "run", str(scene_path("cube")), "--out", str(out), *sets)
     return json.loads((out / "summary.json").read_text())
 
 
@@ -125,7 +126,7 @@ def test_info_command(capsys):
 def test_phantom_mesh_file_in_mm_sags_posteriorly(tmp_path):
     """demos/phantom.toml: a .msh in millimetres, supine gravity in RAS (-y)."""
     out = tmp_path / "ph"
-    code = main(["run", str(ROOT / "demos" / "phantom.toml"), "--out", str(out),
+    code = main(["run", str(scene_path("phantom")), "--out", str(out),
                  "--set", "time.mode=quasi-static"])
     assert code == 0
     s = json.loads((out / "summary.json").read_text())

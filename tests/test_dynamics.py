@@ -12,11 +12,11 @@ import pytest
 from dolfinx.fem.petsc import set_bc
 
 from conftest import COMM, column_dict, decay_per_step
-from fenics_brainshift.integrators import newmark_discrete_frequency
-from fenics_brainshift.model import build_model
+from fenics_brainshift.stepping.integrators import newmark_discrete_frequency
+from fenics_brainshift.runner import build_model
 from fenics_brainshift.scene import SolverConfig, scene_from_dict
-from fenics_brainshift.simulation import Simulation
-from fenics_brainshift.solver import LinearSolver
+from fenics_brainshift.runner import Simulation
+from fenics_brainshift.linalg import LinearSolver
 
 pytestmark = pytest.mark.mpi
 H = 0.1
@@ -27,7 +27,7 @@ def _lowest_mode(model):
     M = model.assemble(model.mass_form(), with_bcs=False)
     K = model.assemble(model.stiffness_form(), with_bcs=False)
     K_bc = model.assemble(model.stiffness_form(), with_bcs=True)
-    solver = LinearSolver(K_bc, SolverConfig(kind="cholesky"), "modes")
+    solver = LinearSolver(K_bc, "cholesky", name="modes")
     x, b = K.createVecRight(), K.createVecRight()
     x.set(1.0)
     set_bc(x, model.bcs)
@@ -50,15 +50,15 @@ def _free_vibration(scheme: dict, damping: dict, omega_dt: float, steps: int, de
     model = build_model(scene, COMM)
     omega, phi = _lowest_mode(model)
     scene.time.dt = omega_dt / omega
-    sim = Simulation(model)
-    n = sim.n_owned
+    sim = Simulation(scene, COMM, model)
+    n = sim.state.n_owned
     sim.u.x.array[:n] = phi.array_r
     sim.u.x.scatter_forward()
-    sim.setup_dynamic()
-    top = [sim.probes.values(sim.u)[0, 2]]
+    sim.setup()
+    top = [sim.probe_values()[0, 2]]
     for _ in range(steps):
         sim.step()
-        top.append(sim.probes.values(sim.u)[0, 2])
+        top.append(sim.probe_values()[0, 2])
     top = np.array(top)
     return omega, scene.time.dt, top / top[0], sim
 
@@ -73,11 +73,31 @@ def test_newmark_no_amplitude_decay_and_theoretical_period_elongation(omega_dt, 
     assert decay_per_step(q) == pytest.approx(1.0, abs=1e-8)
 
 
+def _chung_hulbert_spectral_radius(rho_inf: float, omega_dt: float) -> float:
+    """Spectral radius of generalized-alpha on u'' + w^2 u = 0, from the scheme's equations
+    written out here (Chung & Hulbert 1993, eqs. 3-5 and 25), not from the package:
+    (1-am) a1 + am a0 + W^2 [(1-af) u1 + af u0] = 0, u1 = u0 + v0 + (1/2-b) a0 + b a1,
+    v1 = v0 + (1-g) a0 + g a1 in units with dt = 1 (W = omega dt)."""
+    am, af = (2 * rho_inf - 1) / (rho_inf + 1), rho_inf / (rho_inf + 1)
+    g, b = 0.5 - am + af, 0.25 * (1 - am + af) ** 2
+    W2 = omega_dt**2
+    # unknowns (u1, v1, a1) = lhs^-1 rhs (u0, v0, a0)
+    lhs = np.array([[(1 - af) * W2, 0.0, 1 - am], [1.0, 0.0, -b], [0.0, 1.0, -g]])
+    rhs = np.array([[-af * W2, 0.0, -am], [1.0, 1.0, 0.5 - b], [0.0, 1.0, 1 - g]])
+    return float(np.max(np.abs(np.linalg.eigvals(np.linalg.solve(lhs, rhs)))))
+
+
+@pytest.mark.parametrize("rho_inf", [0.0, 0.5, 0.8])
+def test_chung_hulbert_radius_tends_to_rho_inf(rho_inf):
+    """The hand-written recurrence has the published limit: rho(W -> infinity) = rho_inf."""
+    assert _chung_hulbert_spectral_radius(rho_inf, 1e10) == pytest.approx(rho_inf, abs=1e-5)
+
+
 @pytest.mark.parametrize("rho_inf", [0.0, 0.5, 0.8])
 def test_generalized_alpha_decay_per_step_matches_spectral_radius(rho_inf):
     scheme = {"scheme": "generalized-alpha", "rho_inf": rho_inf}
     omega, dt, q, sim = _free_vibration(scheme, {}, 3.0, 40)
-    expected = sim.integrator.spectral_radius(omega)
+    expected = _chung_hulbert_spectral_radius(rho_inf, omega * dt)
     assert expected < 0.999  # the case really dissipates
     assert decay_per_step(q) == pytest.approx(expected, rel=1e-5)
 

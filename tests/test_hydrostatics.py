@@ -10,8 +10,10 @@ from scipy.spatial import ConvexHull, QhullError
 
 from conftest import COMM
 from fenics_brainshift import compat
-from fenics_brainshift.hydrostatics import HydrostaticLoad, consistent_loads, paper_loads, split_wet, wet_integrals
-from fenics_brainshift.meshing import build_mesh, mesh_from_arrays
+from fenics_brainshift.physics.hydrostatic import HydrostaticLoad
+from fenics_brainshift.physics.wet_facets import consistent_loads, paper_loads, split_wet, wet_integrals
+from fenics_brainshift.meshing import mesh_from_arrays
+from fenics_brainshift.runner.build import mesh_from_spec as build_mesh
 from fenics_brainshift.meshing.hexgrid import voxel_mesh
 from fenics_brainshift.scene import MeshSpec
 
@@ -278,7 +280,7 @@ def test_follower_geometry_translation_equals_lower_level():
 
 @pytest.mark.mpi
 def test_hydrostatic_load_function_api():
-    from fenics_brainshift.hydrostatics import hydrostatic_load
+    from fenics_brainshift.physics.hydrostatic import hydrostatic_load
 
     mesh = MESHES["box"](COMM)
     V = compat.vector_space(mesh, 1)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from conftest import decay_per_step
-from fenics_brainshift.integrators import TimeIntegrator, newmark_discrete_frequency
+from fenics_brainshift.stepping.integrators import TimeIntegrator, newmark_discrete_frequency
 
 
 def _oscillate(ti: TimeIntegrator, omega: float, steps: int, xi: float = 0.0):

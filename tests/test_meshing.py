@@ -7,9 +7,10 @@ import ufl
 from dolfinx import fem
 
 from conftest import COMM
-from fenics_brainshift.meshing import build_mesh
+from fenics_brainshift.runner.build import mesh_from_spec as build_mesh
 from fenics_brainshift.meshing.hexgrid import structured_box
-from fenics_brainshift.scene import MeshSpec, SceneError
+from fenics_brainshift.errors import InputError
+from fenics_brainshift.scene import MeshSpec
 
 
 def _volume(mesh) -> float:
@@ -81,7 +82,7 @@ def test_mesh_files_in_millimetres(tmp_path, serial_only):
     assert _volume(again) == pytest.approx(0.05 * 0.05 * 0.025, rel=1e-10)
     # a corrupt file is a named error, not a traceback
     (tmp_path / "bad.msh").write_text("this is not gmsh")
-    with pytest.raises(SceneError, match=r"\[mesh\] file 'bad.msh' could not be read"):
+    with pytest.raises(InputError, match=r"\[mesh\] file 'bad.msh' could not be read"):
         build_mesh(MeshSpec(file=str(tmp_path / "bad.msh")), COMM)
 
 

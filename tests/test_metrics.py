@@ -8,11 +8,12 @@ import numpy as np
 import pytest
 
 from conftest import ROOT
+from fenics_brainshift.data import MESHES
 from fenics_brainshift.cli import main
 from fenics_brainshift.meshing.voxelize import read_surface
-from fenics_brainshift.metrics import compare, region
+from fenics_brainshift.outputs.metrics import compare, region
 
-PRE = ROOT / "meshes" / "mni152_brain_surface.ply"
+PRE = MESHES / "mni152_brain_surface.ply"
 UP, SECOND = [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]
 
 

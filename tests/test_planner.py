@@ -5,10 +5,10 @@ import numpy as np
 import pytest
 
 from conftest import COMM, column_dict
-from fenics_brainshift.meshing import build_mesh
-from fenics_brainshift.planner import make_plan
+from fenics_brainshift.runner.build import mesh_from_spec as build_mesh
+from fenics_brainshift.runner.plan import make_plan
 from fenics_brainshift.scene import scene_from_dict
-from fenics_brainshift.simulation import run
+from fenics_brainshift.runner import run
 
 pytestmark = pytest.mark.mpi
 
@@ -63,7 +63,7 @@ def test_plan_is_logged_and_kept_in_the_summary(shared_tmp, caplog):
     logger.addHandler(caplog.handler)
     logger.setLevel(logging.INFO)
     try:
-        summary = run(cube([[0.0, 0.03], [2.0, 0.0]]), shared_tmp / "out", COMM)
+        summary = run(cube([[0.0, 0.03], [2.0, 0.0]]), shared_tmp / "out", COMM).summary
     finally:
         logger.removeHandler(caplog.handler)
         logger.setLevel(level)
@@ -78,12 +78,12 @@ def test_stiffness_band_is_exact_for_quasi_static_without_follower(shared_tmp):
     fluid = {"density": 1000.0, "level": 0.012, "follower": False}
     data = column_dict(6, fluid=fluid)
     data["material"] = {"G": 2370.0, "nu": 0.45, "density": 1040.0, "G_sd": 440.0}
-    summary = run(scene_from_dict(data), shared_tmp / "band", COMM)
+    summary = run(scene_from_dict(data), shared_tmp / "band", COMM).summary
     band = summary["stiffness_band"]
     assert band["exact"] and band["relative_sd"] == pytest.approx(r)
     for k, G in enumerate((2370.0 * (1 - r), 2370.0 * (1 + r))):
         data["material"] = {"G": G, "nu": 0.45, "density": 1040.0}
-        solved = run(scene_from_dict(data), shared_tmp / f"band{k}", COMM)
+        solved = run(scene_from_dict(data), shared_tmp / f"band{k}", COMM).summary
         expected = band["probes"]["top"][0 if k == 0 else 2]
         np.testing.assert_allclose(solved["probes"]["top"], expected, rtol=1e-9, atol=1e-15)
         assert solved["max_displacement_m"] == pytest.approx(band["max_displacement_m"][0 if k == 0 else 2], rel=1e-9)
@@ -93,26 +93,25 @@ def test_reusing_the_fluid_load_keeps_the_answer():
     """A body resting at its (follower) equilibrium under a constant level: the surface does
     does not move, so the load assembled for the static answer serves every step; without
     reuse every step reassembles it. The answers agree to the follower tolerance."""
-    from fenics_brainshift.model import build_model
-    from fenics_brainshift.simulation import Simulation
+    from fenics_brainshift.runner import build_model
+    from fenics_brainshift.runner import Simulation
 
     finals, counts = {}, {}
     for tol in (0.0, 1e-8):
         scene = cube(0.012, mode="dynamic", time={"mode": "dynamic", "dt": 0.02, "end": 1.0})
         scene.fluid.reuse_tol = tol
         model = build_model(scene, COMM)
-        static = Simulation(model)
-        static.setup_static()
-        static.solve_static(0.0)
-        sim = Simulation(model)
+        static = Simulation(scene, COMM, model)
+        static.solve_to_settled(0.0)
+        sim = Simulation(scene, COMM, model)
         sim.u.x.array[:] = static.u.x.array
-        sim.setup_dynamic()
-        before = (model.fluid.assemblies, sim.history.solves)
+        sim.setup()
+        before = (model.fluid.assemblies, sim.solves.count)
         for _ in range(20):
             sim.step()
-        counts[tol] = (model.fluid.assemblies - before[0], sim.history.solves - before[1])
+        counts[tol] = (model.fluid.assemblies - before[0], sim.solves.count - before[1])
         # compared at a probe: two builds of one scene may be partitioned differently (0.9, MPI)
-        finals[tol] = sim.probes.values(sim.u)
+        finals[tol] = sim.probe_values()
     assert counts[0.0] == (20, 20)  # one assembly and one solve per step
     assert counts[1e-8] == (0, 20)  # the load of the static answer serves every step
     scale = np.abs(finals[0.0]).max()

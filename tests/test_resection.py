@@ -15,9 +15,10 @@ import pytest
 from mpi4py import MPI
 
 from conftest import COMM
-from fenics_brainshift.model import build_model
-from fenics_brainshift.scene import SceneError, scene_from_dict
-from fenics_brainshift.simulation import Simulation, run
+from fenics_brainshift.runner import build_model
+from fenics_brainshift.errors import InputError
+from fenics_brainshift.scene import scene_from_dict
+from fenics_brainshift.runner import Simulation, run
 
 pytestmark = pytest.mark.mpi
 W, RHO_S, G = 0.02, 1000.0, 9.81
@@ -46,19 +47,19 @@ CUT = {"at": 0.0, "where": "0.02 < z < 0.03"}
 
 def _upper_mean(sim, z_min: float) -> np.ndarray:
     """Mass-weighted mean displacement of the nodes above z_min (global)."""
-    n_blocks = sim.n_owned // 3
+    n_blocks = sim.state.n_owned // 3
     z = sim.model.V.tabulate_dof_coordinates()[:n_blocks, 2]
-    mass = sim.M.getDiagonal().array_r.reshape(-1, 3)[:, 0]
+    mass = sim.dynamic.M.getDiagonal().array_r.reshape(-1, 3)[:, 0]
     sel = z > z_min
-    u = sim.u.x.array[: sim.n_owned].reshape(-1, 3)
+    u = sim.u.x.array[: sim.state.n_owned].reshape(-1, 3)
     local = np.concatenate([(mass[sel, None] * u[sel]).sum(axis=0), [mass[sel].sum()]])
     total = COMM.allreduce(local, op=MPI.SUM)
     return total[:3] / total[3]
 
 
 def _run(data: dict):
-    sim = Simulation(build_model(scene_from_dict(data), COMM))
-    sim.setup_dynamic()
+    sim = Simulation(scene_from_dict(data), COMM)
+    sim.setup()
     history = []
     for _ in range(STEPS):
         sim.step()
@@ -71,7 +72,7 @@ def test_free_piece_falls_with_g_when_dry_and_stays_unstrained():
         [(0, 0, 0.03), (W, 0, 0.03), (0, W, 0.06), (W, W, 0.06), (W / 2, W / 2, 0.045), (0, W / 2, 0.05)])}
     sim = _run(block(0.06, 6, remove=[CUT], probes=corners))
     t = sim.t
-    values = sim.probes.values(sim.u)
+    values = sim.probe_values()
     exact = -0.5 * G * t**2
     # Newmark integrates a constant acceleration exactly; every point moves alike: no strain
     np.testing.assert_allclose(values[:, 2], exact, rtol=1e-10)
@@ -106,7 +107,7 @@ def test_thirty_percent_removed_in_three_cuts_runs_to_the_end(shared_tmp):
                  remove=cuts, time={"mode": "dynamic", "dt": 0.005, "end": 0.15},
                  mesh={"shape": "box", "size": [W, W, 0.06], "cells": [4, 4, 12]},
                  damping={"a": 5.0}, solver={"kind": "cg-gamg", "rtol": 1e-10})
-    summary = run(scene_from_dict(data), shared_tmp / "out", COMM)
+    summary = run(scene_from_dict(data), shared_tmp / "out", COMM).summary
     assert summary["status"] == "ok"
     assert summary["removed_fraction"] >= 0.30
     assert [r["cells"] > 0 for r in summary["removals"]] == [True, True, True]
@@ -132,9 +133,9 @@ def test_removal_by_label_of_the_label_volume(shared_tmp):
     data = block(0.02, 2, remove=[{"at": 0.0, "label": 2}], mesh={"file": str(shared_tmp / "seg.nii.gz"),
                                                                  "voxel": 0.004, "unit": "mm"})
     data["fixed"] = [{"where": "z < 0.0041"}]
-    sim = Simulation(build_model(scene_from_dict(data), COMM))
-    sim.setup_dynamic()
-    removed = sim.removals[0]["cells"]
+    sim = Simulation(scene_from_dict(data), COMM)
+    sim.setup()
+    removed = sim.dynamic.removals[0]["cells"]
     assert removed == 5 * 4  # 4 voxels of 5 tetrahedra
     sim.step()
 
@@ -144,7 +145,7 @@ def test_removal_by_label_of_the_label_volume(shared_tmp):
     ("z > -1.0", "would remove every remaining cell"),
 ])
 def test_removal_that_selects_nothing_or_everything_is_refused(region, message):
-    with pytest.raises(SceneError, match=message):
+    with pytest.raises(InputError, match=message):
         build_model(scene_from_dict(block(0.02, 2, remove=[{"at": 0.0, "where": region}])), COMM)
 
 
@@ -155,9 +156,9 @@ def test_cells_left_hanging_by_an_edge_go_with_the_cut():
     h = 0.01
     data = block(2 * h, 2, remove=[{"at": 0.0, "where": f"sqrt((x - {h / 2})**2 + (y - {h / 2})**2 + (z - {1.5 * h})**2) < {h / 10}"}],
                  mesh={"shape": "box", "size": [h, h, 2 * h], "cells": [1, 1, 2]})
-    sim = Simulation(build_model(scene_from_dict(data), COMM))
-    sim.setup_dynamic()
-    assert sim.removals[0]["cells"] == 1 and sim.removals[0]["isolated_cells"] == 2
-    assert sim.tissue.removed_fraction == pytest.approx(0.3)
+    sim = Simulation(scene_from_dict(data), COMM)
+    sim.setup()
+    assert sim.dynamic.removals[0]["cells"] == 1 and sim.dynamic.removals[0]["isolated_cells"] == 2
+    assert sim.model.tissue.removed_fraction == pytest.approx(0.3)
     sim.step()
     assert np.all(np.isfinite(sim.u.x.array))

@@ -11,7 +11,7 @@ import pytest
 
 from conftest import ROOT, column_dict, subprocess_env
 from fenics_brainshift.cli import main
-from fenics_brainshift.regions import PredicateError, parse_predicate
+from fenics_brainshift.scene.predicates import PredicateError, parse_predicate
 
 
 def _toml(value, key=None) -> str:

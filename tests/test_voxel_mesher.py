@@ -10,9 +10,10 @@ import pytest
 from mpi4py import MPI
 
 from conftest import COMM, ROOT, mpirun, subprocess_env
+from fenics_brainshift.data import scene_path
 from fenics_brainshift import compat
 from fenics_brainshift.cli import main
-from fenics_brainshift.meshing import build_mesh
+from fenics_brainshift.runner.build import mesh_from_spec as build_mesh
 from fenics_brainshift.meshing.voxelize import largest_parts, voxelize
 from fenics_brainshift.scene import MeshSpec
 
@@ -177,7 +178,7 @@ def test_embedding_reproduces_any_affine_displacement_exactly():
     """Fine-surface points inside and just outside the coarse voxel mesh."""
     from dolfinx import fem
 
-    from fenics_brainshift.embedding import SurfaceEmbedding
+    from fenics_brainshift.outputs.fine_surface import SurfaceEmbedding
     from fenics_brainshift.meshing import mesh_from_arrays
     from fenics_brainshift.meshing.hexgrid import voxel_mesh
 
@@ -248,14 +249,15 @@ def test_fixed_region_on_a_grid_plane_selects_the_same_nodes_on_any_rank_count()
     """demos/brain.toml's `y < -0.0985` falls exactly on a plane of 5 mm voxel nodes. Dof
     coordinates tabulated cell by cell round differently per partition; the supports are
     chosen on the mesh's own vertex coordinates, so they match the input points exactly."""
-    from fenics_brainshift.model import fixed_conditions
+    from fenics_brainshift.physics.supports import fixed_conditions
+    from fenics_brainshift.runner.build import supports
     from fenics_brainshift.scene import load_scene
 
-    scene = load_scene(ROOT / "demos" / "brain.toml", ["time.mode=quasi-static"])
+    scene = load_scene(scene_path("brain"), ["time.mode=quasi-static"])
     model = voxelize(scene.mesh.file, scene.mesh.voxel)
     mesh = build_mesh(scene.mesh, COMM)
     V = compat.vector_space(mesh, 1)
-    bcs = fixed_conditions(V, scene)
+    bcs = fixed_conditions(V, supports(scene))
     import dolfinx.la
     from dolfinx.fem.petsc import set_bc
 

@@ -1,14 +1,23 @@
-"""Turn a MeshSpec into a distributed DOLFINx mesh (coordinates in metres)."""
+"""Distributed DOLFINx meshes (coordinates in metres) from grids, voxel models and files.
+
+Each takes plain values; run/build.py picks one from a scene's [mesh]. Big meshes are
+refused before they are allocated (budget.py).
+"""
 from __future__ import annotations
 
 from pathlib import Path
 
 import numpy as np
 
-from .. import compat
-from ..scene import MeshSpec, SceneError
+from .. import compat, formats
+from ..errors import InputError
+from ..logs import get_logger
+from .budget import require, run_bytes
 from .hexgrid import structured_box
-from .shapes import gmsh_shape, read_msh
+from .shapes import read_msh
+from .voxelize import VoxelizeError, voxelize
+
+log = get_logger("meshing")
 
 
 def mesh_from_arrays(comm, points: np.ndarray, tets: np.ndarray):
@@ -18,70 +27,69 @@ def mesh_from_arrays(comm, points: np.ndarray, tets: np.ndarray):
     return compat.create_mesh(comm, tets, points)
 
 
-def voxel_model_mesh(spec: MeshSpec, comm):
-    """The embedding mesher for a scene's [mesh]: (mesh, VoxelModel on rank 0 or None)."""
-    return voxelized_mesh(comm, spec.file, spec.voxel, spec.scale, spec.fill, spec.parts,
-                          list(spec.labels) if spec.labels else None)
+def box_mesh(comm, size, cells, origin=(0.0, 0.0, 0.0), degree: int = 1):
+    """A box of cells = [nx, ny, nz] hexahedra, five conforming tetrahedra each."""
+    nodes = float(np.prod(np.asarray(cells, dtype=float) + 1))
+    require(run_bytes(nodes, degree), f"[mesh] cells = {list(cells)} ({nodes:.3g} nodes)",
+            "use fewer cells (the paper's cube has [25, 25, 12])")
+    points, tets = structured_box(size, cells, origin) if comm.rank == 0 else (None, None)
+    return mesh_from_arrays(comm, points, tets)
 
 
-def voxelized_mesh(comm, input_file, voxel: float, scale: float, fill: float, parts: int, labels):
-    """Voxel-mesh on rank 0 (errors raised on every rank), then distribute the tetrahedra."""
-    from ..logs import get_logger
-    from .voxelize import VoxelizeError, voxelize
-
+def voxelized_mesh(comm, input_file, voxel: float, scale: float, fill: float = 0.5, parts: int = 1,
+                   labels=None, degree: int | None = 1):
+    """Voxel-mesh on rank 0 (errors raised on every rank), then distribute the tetrahedra.
+    Returns (mesh, VoxelModel on rank 0 or None). ``degree``: the run's element degree, to
+    refuse a mesh the run could not hold (None: the mesh only)."""
     model, error = None, None
     if comm.rank == 0:
         try:
             model = voxelize(input_file, voxel, scale, fill, parts, labels)
-            get_logger("meshing").info("voxel mesh of %s: %s", Path(input_file).name, model.report())
-        except VoxelizeError as exc:
+            log.info("voxel mesh of %s: %s", Path(input_file).name, model.report())
+            if degree is not None:
+                require(run_bytes(len(model.points), degree), f"a run on {len(model.points)} nodes "
+                        f"({voxel * 1e3:g} mm voxels)", "use larger voxels")
+        except InputError as exc:
             error = str(exc)
     error = comm.bcast(error, root=0)
     if error:
-        raise SceneError(f"[mesh] {error}")
+        raise VoxelizeError(error)
     points, tets = (model.points, model.tets) if model is not None else (None, None)
     return mesh_from_arrays(comm, points, tets), model
 
 
-def build_mesh(spec: MeshSpec, comm):
-    if spec.shape == "box" and spec.cells is not None:
-        points, tets = structured_box(spec.size, spec.cells, spec.origin) if comm.rank == 0 else (None, None)
-        return mesh_from_arrays(comm, points, tets)
-    if spec.shape is not None:
-        return gmsh_shape(comm, spec.shape, spec.size, spec.origin, spec.h)
-    path = Path(spec.file)
+def read_mesh_file(comm, path: str | Path, scale: float = 1.0):
+    """A tetrahedral mesh from .msh (gmsh) or .xdmf (DOLFINx/meshio), scaled to metres."""
+    path = Path(path)
     if not path.is_file():
-        raise SceneError(f"[mesh] file '{path}' not found")
-    if spec.needs_voxels:
-        return voxel_model_mesh(spec, comm)[0]
+        raise InputError(f"[mesh] file '{path}' not found")
+    if not formats.is_tetra_mesh(path):
+        raise InputError(f"[mesh] file '{path.name}' must be .msh or .xdmf")
     try:
         if path.suffix == ".msh":
             mesh = read_msh(comm, str(path))
-        elif path.suffix == ".xdmf":
+        else:
             import dolfinx.io
 
             with dolfinx.io.XDMFFile(comm, str(path), "r") as f:
                 mesh = f.read_mesh(name="mesh")
-        else:
-            raise SceneError(f"[mesh] file '{path.name}' must be .msh or .xdmf")
-    except SceneError:
-        raise
     except Exception as exc:  # corrupt or unreadable file: say which and why, no traceback
-        raise SceneError(f"[mesh] file '{path.name}' could not be read as a tetrahedral mesh: {exc}") from None
+        raise InputError(f"[mesh] file '{path.name}' could not be read as a tetrahedral mesh: {exc}") from None
     if mesh.topology.dim != 3:
-        raise SceneError(f"[mesh] file '{path.name}' holds a {mesh.topology.dim}-D mesh; a volume (tetrahedra) is needed")
-    mesh.geometry.x[:] *= spec.scale
+        raise InputError(f"[mesh] file '{path.name}' holds a {mesh.topology.dim}-D mesh; a volume (tetrahedra) is needed")
+    mesh.geometry.x[:] *= scale
     return mesh
 
 
 def write_voxel_mesh(path: Path, comm, input_file: str, voxel: float, scale: float, fill: float = 0.5,
-                     parts: int = 1, labels=None):
+                     parts: int = 1, labels=None) -> str:
     """`brainshift mesh`: voxel-mesh a segmentation and write it as XDMF (metres), with the cell
-    tags "voxel" (1 + the index of the voxel each tetrahedron came from). Returns the report."""
+    tags "voxel" (1 + the index of the voxel each tetrahedron came from). Returns the report.
+    The caller checks that ``path``'s folder can be written before calling."""
     import dolfinx.io
     import dolfinx.mesh
 
-    mesh, model = voxelized_mesh(comm, input_file, voxel, scale, fill, parts, labels)
+    mesh, model = voxelized_mesh(comm, input_file, voxel, scale, fill, parts, labels, degree=None)
     tet_voxel = comm.bcast(model.tet_voxel if model else None, root=0)
     n_owned = mesh.topology.index_map(3).size_local
     original = np.asarray(mesh.topology.original_cell_index)[:n_owned]

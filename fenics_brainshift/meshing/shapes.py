@@ -3,7 +3,10 @@ from __future__ import annotations
 
 from contextlib import contextmanager
 
+import numpy as np
+
 from .. import compat
+from .budget import require, run_bytes
 
 
 @contextmanager
@@ -24,9 +27,13 @@ def gmsh_session():
             gmsh.finalize()
 
 
-def gmsh_shape(comm, shape: str, size, origin, h: float):
+def gmsh_shape(comm, shape: str, size, origin, h: float, degree: int = 1):
     """A tetrahedral mesh of a box (size = extents, origin = corner) or an ellipsoid
     (size = semi-axes, origin = centre) with element size h."""
+    volume = float(np.prod(size)) * (4.0 / 3.0 * np.pi if shape == "ellipsoid" else 1.0)
+    nodes = 1.5 * volume / h**3  # about what gmsh makes for a tetrahedral mesh of edge h
+    require(run_bytes(nodes, degree), f"[mesh] h = {h:g} m for a {shape} of {volume * 1e6:.3g} ml "
+            f"(about {nodes:.3g} nodes)", "[mesh] h is in metres: use a larger element size")
     with gmsh_session() as gmsh:
         model = gmsh.model
         if comm.rank == 0:

@@ -26,12 +26,23 @@ from scipy import ndimage
 
 from .hexgrid import voxel_mesh
 
-LABEL_SUFFIXES = (".nii", ".nii.gz")
-SURFACE_SUFFIXES = (".stl", ".obj", ".ply", ".vtk", ".vtp", ".vtu", ".off", ".gii")
+from .. import formats
+from ..errors import InputError
+from .budget import GRID_BYTES_PER_VOXEL, SAMPLE_BYTES, require
 
 
-class VoxelizeError(ValueError):
+class VoxelizeError(InputError):
     """Input that cannot be voxelised; the message says why and what to change."""
+
+
+def check_grid(shape, voxel: float, bytes_per_voxel: float) -> None:
+    """Refuse a voxel grid that would not fit in memory, naming the likely unit slip."""
+    cells = float(np.prod(np.asarray(shape, dtype=float)))
+    extent = np.asarray(shape, dtype=float) * voxel
+    require(cells * bytes_per_voxel, f"a grid of {cells:.3g} voxels of {voxel * 1e3:g} mm over an object "
+            f"{extent.max() * 1e3:.4g} mm across",
+            "is the voxel size in the right unit? (a scene's [mesh] voxel is in metres; `brainshift mesh "
+            "--voxel` is in the input's unit, mm for medical images)")
 
 
 @dataclass
@@ -56,11 +67,6 @@ class VoxelModel:
                 f"{self.input_volume_m3 * 1e6:.1f} ml ({change:+.1f} %); {self.dropped_parts} floating part(s) dropped")
 
 
-def is_voxelizable(path: str | Path) -> bool:
-    name = str(path).lower()
-    return name.endswith(LABEL_SUFFIXES) or name.endswith(SURFACE_SUFFIXES)
-
-
 def voxelize(path: str | Path, voxel: float, scale: float = 1e-3, fill: float = 0.5, parts: int = 1,
              labels: list[int] | None = None, samples: int = 3) -> VoxelModel:
     """Voxel model of a label volume or surface file. ``voxel`` in m; ``scale`` turns the
@@ -72,14 +78,13 @@ def voxelize(path: str | Path, voxel: float, scale: float = 1e-3, fill: float = 
         raise VoxelizeError(f"voxel size must be > 0 (got {voxel})")
     if not 0.0 <= fill <= 1.0:
         raise VoxelizeError(f"fill must be in [0, 1] (got {fill})")
-    name = path.name.lower()
-    if name.endswith(LABEL_SUFFIXES):
+    if formats.is_label_volume(path):
         fraction, origin, input_volume = label_occupancy(path, voxel, scale, labels)
-    elif name.endswith(SURFACE_SUFFIXES):
+    elif formats.is_surface(path):
         fraction, origin, input_volume = surface_occupancy(read_surface(path, scale), voxel, samples)
     else:
-        raise VoxelizeError(f"'{path.name}': use a label volume ({', '.join(LABEL_SUFFIXES)}) or a "
-                            f"surface ({', '.join(SURFACE_SUFFIXES)})")
+        raise VoxelizeError(f"'{path.name}': use a label volume ({', '.join(formats.LABEL_SUFFIXES)}) or a "
+                            f"surface ({', '.join(formats.SURFACE_SUFFIXES)})")
     keep = fraction >= fill if fill > 0 else fraction > 0
     keep, dropped = largest_parts(keep, parts)
     keep = close_pinches(keep)
@@ -164,6 +169,7 @@ def label_occupancy(path: Path, voxel: float, scale: float, labels=None):
     origin = centres.min(axis=0) - half
     index = np.floor((centres - origin) / voxel).astype(np.int64)
     shape = index.max(axis=0) + 1
+    check_grid(shape, voxel, GRID_BYTES_PER_VOXEL)
     counts = np.zeros(shape)
     np.add.at(counts, tuple(index.T), 1.0)
     return np.minimum(counts * fine_volume / voxel**3, 1.0), origin, len(ijk) * fine_volume
@@ -214,6 +220,7 @@ def surface_occupancy(surface, voxel: float, samples: int):
     lo, hi = points.min(axis=0), points.max(axis=0)
     origin = lo - 0.5 * voxel
     shape = np.floor((hi - origin) / voxel).astype(int) + 1
+    check_grid(shape, voxel, GRID_BYTES_PER_VOXEL + SAMPLE_BYTES * samples**3)
     # sample points: samples^3 per voxel, at sub-cell centres
     sub = (np.arange(samples) + 0.5) / samples
     axes = [origin[a] + voxel * (np.arange(shape[a])[:, None] + sub[None, :]).ravel() for a in range(3)]

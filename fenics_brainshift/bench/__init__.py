@@ -1,0 +1,5 @@
+"""Run time against error: `brainshift bench` and benchmarks/time_vs_error.py."""
+from .report import machine_line
+from .sweep import sweep
+
+__all__ = ["machine_line", "sweep"]

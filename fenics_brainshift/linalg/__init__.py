@@ -1,0 +1,6 @@
+"""PETSc: linear solvers under one options prefix, the near-nullspace, matrix products."""
+from .nullspace import rigid_body_modes
+from .products import PairProduct, diagonal_matrix
+from .solver import KINDS, LinearSolver
+
+__all__ = ["KINDS", "LinearSolver", "PairProduct", "diagonal_matrix", "rigid_body_modes"]

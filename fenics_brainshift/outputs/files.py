@@ -1,0 +1,55 @@
+"""Small output files written atomically by rank 0 (summary.json, probes.csv), and the check
+that an output folder can be written, made before any work."""
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+
+
+def check_writable(out: Path, comm, what: str = "output folder", flag: str = "--out") -> None:
+    """The folder must be creatable (its nearest existing parent writable) or writable;
+    checked on rank 0, raised on every rank."""
+    problem = None
+    if comm.rank == 0:
+        existing = out
+        while not existing.exists() and existing != existing.parent:
+            existing = existing.parent
+        if out.exists() and not out.is_dir():
+            problem = f"{what} '{out}' is an existing file; choose another {flag}"
+        elif not existing.is_dir() or not os.access(existing, os.W_OK | os.X_OK):
+            problem = f"{what} '{out}' cannot be written ('{existing}' is not a writable folder); choose another {flag}"
+    problem = comm.bcast(problem, root=0)
+    if problem:
+        raise InputError(problem)
+
+
+def write_json(path: Path, data: dict, comm) -> None:
+    """Written by rank 0 via a temporary file and a rename: never half a file."""
+    if comm.rank == 0:
+        tmp = path.with_suffix(".json.tmp")
+        tmp.write_text(json.dumps(data, indent=2, default=_plain) + "\n")
+        os.replace(tmp, path)
+    comm.barrier()
+
+
+def write_csv(path: Path, header: list[str], rows: list[list[float]], comm) -> None:
+    """A CSV of numbers with a header line, written by rank 0 via a temporary file."""
+    if comm.rank == 0:
+        tmp = path.with_suffix(".csv.tmp")
+        np.savetxt(tmp, np.array(rows, dtype=float).reshape(-1, len(header)), delimiter=",",
+                   header=",".join(header), comments="", fmt="%.10g")
+        os.replace(tmp, path)
+    comm.barrier()
+
+
+def _plain(value):
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    raise TypeError(f"not JSON serialisable: {type(value)}")

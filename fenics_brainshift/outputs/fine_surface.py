@@ -1,0 +1,68 @@
+"""A fine surface that follows the coarse model (the paper's Sim-intra-brain).
+
+Every vertex of the fine surface is located once in a coarse tetrahedron; its displacement is
+the finite-element displacement there (for P1, the barycentric interpolation of the four
+corner values, as the paper interpolates the voxel nodes). Vertices just outside the coarse
+mesh (a voxel model does not cover every bump of the surface) take the nearest cell and are
+extrapolated with the same affine map, so an affine displacement is reproduced exactly
+everywhere. Works under MPI: each vertex is evaluated by one rank, the result gathered.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .. import formats
+from ..meshing.voxelize import read_surface
+from .points import PointEvaluator
+
+
+class SurfaceEmbedding(PointEvaluator):
+    """The fine surface's vertices located once in the coarse mesh (see the module note)."""
+
+    def __init__(self, mesh, points: np.ndarray, triangles: np.ndarray):
+        super().__init__(mesh, points)
+        self.triangles = np.asarray(triangles, dtype=np.int64)
+
+    def displacement(self, u) -> np.ndarray:
+        """(N, 3) displacement of the fine surface's vertices, on every rank."""
+        return self.values(u)
+
+    def write(self, folder: Path, stem: str, u) -> None:
+        """folder/stem.vtk and folder/stem.stl of the deformed surface (rank 0 writes), with the
+        displacement as point data in the VTK file."""
+        import meshio
+
+        d = self.displacement(u)
+        if self.comm.rank == 0:
+            mesh = meshio.Mesh(self.points + d, [("triangle", self.triangles)], point_data={"displacement": d})
+            mesh.write(folder / f"{stem}.vtk")
+            meshio.Mesh(self.points + d, [("triangle", self.triangles)]).write(folder / f"{stem}.stl", binary=True)
+        self.comm.barrier()
+
+
+def surface_of_label_volume(path: str | Path, scale: float, labels=None) -> tuple[np.ndarray, np.ndarray]:
+    """A marching-cubes surface (m) of a label volume, for when no surface file is given."""
+    import nibabel as nib
+    from skimage.measure import marching_cubes
+
+    image = nib.load(str(path))
+    data = np.asanyarray(image.dataobj)
+    inside = np.isin(data, labels) if labels else data > 0
+    verts, faces, _, _ = marching_cubes(np.pad(inside.astype(np.float32), 1), level=0.5)
+    A = image.affine
+    return ((verts - 1.0) @ A[:3, :3].T + A[:3, 3]) * scale, faces
+
+
+def load_fine_surface(file: str | None, surface: str | None, scale: float, labels=None):
+    """The fine surface (points in m, triangles) a mesh input implies: ``surface`` if given,
+    else a surface ``file`` itself, else a marching-cubes surface of a label volume ``file``;
+    None for gmsh shapes and tetrahedral files. ``scale``: the files' unit in m."""
+    if surface is not None:
+        return read_surface(Path(surface), scale)
+    if file is not None and formats.is_surface(file):
+        return read_surface(Path(file), scale)
+    if file is not None and formats.is_label_volume(file):
+        return surface_of_label_volume(file, scale, list(labels) if labels else None)
+    return None

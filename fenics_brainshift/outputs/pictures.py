@@ -1,0 +1,193 @@
+"""Pictures and plots of a finished run, made from its output files on rank 0.
+
+- deformed.png: the body at the last output time, warped by its displacement and coloured
+  by |u| (mm), the undeformed body as a translucent grey ghost, the fluid level as a translucent
+  plane (the paper's Figs. 14 and 18); removed cells (tissue = 0) are left out.
+- probes.png: each probe's displacement along gravity against time, the fluid level on a
+  second axis (Fig. 16).
+
+Rendering is off-screen (pyvista/VTK); matplotlib draws the plots. Both are optional extras:
+without pyvista the picture is skipped with a log line, never an error.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ..logs import get_logger
+
+log = get_logger("viz")
+
+
+def read_last_state(xdmf: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """(points, tetrahedra, displacement, tissue or None) at the last time of a run's XDMF."""
+    import meshio
+
+    with meshio.xdmf.TimeSeriesReader(str(xdmf)) as reader:
+        points, cells = reader.read_points_cells()
+        point_data, cell_data = {}, {}
+        for k in range(reader.num_steps):
+            _, pd, cd = reader.read_data(k)
+            point_data.update(pd)
+            cell_data.update(cd)
+    tets = next(c.data for c in cells if c.type == "tetra")
+    tissue = cell_data.get("tissue")
+    return points, tets, point_data["displacement"], (np.asarray(tissue[0]).ravel() if tissue else None)
+
+
+def deformed_picture(out: Path, gravity, level: float | None, path: Path | None = None) -> Path | None:
+    """deformed.png of a run folder; None when pyvista is not installed."""
+    try:
+        import pyvista as pv
+    except ImportError:
+        log.info("pyvista not installed: no deformed.png (pip install pyvista)")
+        return None
+    pv.OFF_SCREEN = True
+    points, tets, u, tissue = read_last_state(out / "displacement.xdmf")
+    if tissue is not None:
+        tets = tets[tissue > 0.5]
+    grid = pv.UnstructuredGrid({pv.CellType.TETRA: tets}, points)
+    surface = grid.extract_surface(algorithm="dataset_surface")
+    moved = grid.copy()
+    moved.points = points + u
+    moved.point_data["displacement (mm)"] = np.linalg.norm(u, axis=1) * 1e3
+    g = np.asarray(gravity, dtype=float)
+    up = -g / np.linalg.norm(g) if np.linalg.norm(g) > 0 else np.array([0.0, 0.0, 1.0])
+
+    plotter = pv.Plotter(off_screen=True, window_size=(1000, 750))
+    plotter.set_background("white")
+    plotter.add_mesh(moved.extract_surface(algorithm="dataset_surface"), scalars="displacement (mm)", cmap="viridis", smooth_shading=True,
+                     scalar_bar_args={"title": "displacement magnitude (mm)", "color": "black"})
+    plotter.add_mesh(surface, color="lightgray", opacity=0.3)  # the undeformed body, as a ghost
+    if level is not None and np.isfinite(level):
+        lo, hi = points.min(axis=0), points.max(axis=0)
+        centre = 0.5 * (lo + hi)
+        centre = centre + (level - centre @ up) * up
+        size = 1.4 * float(np.linalg.norm(hi - lo))
+        plane = pv.Plane(center=centre, direction=up, i_size=size, j_size=size)
+        plotter.add_mesh(plane, color="#3a7bd5", opacity=0.25)
+    # look horizontally along the first axis across gravity (x: from the side for a supine
+    # head in RAS and for the cube), from a slightly raised viewpoint
+    axis = next(a for a in np.eye(3) if abs(a @ up) < 0.9)
+    side = axis - (axis @ up) * up
+    side /= np.linalg.norm(side)
+    focus = points.mean(axis=0)
+    distance = 2.5 * float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
+    plotter.camera_position = [tuple(focus + distance * (0.85 * side + 0.35 * up)), tuple(focus), tuple(up)]
+    plotter.add_text("deformed body coloured by displacement; undeformed body in grey; fluid level (blue plane)", font_size=9,
+                     color="black")
+    path = path or out / "deformed.png"
+    plotter.screenshot(str(path))
+    plotter.close()
+    return path
+
+
+PICTURES = ("probes.png", "deformed.png")
+
+
+def probe_plot(out: Path, gravity, path: Path | None = None) -> Path | None:
+    """probes.png: probe displacement along gravity against time, the level on a second axis."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    with open(out / "probes.csv") as f:
+        header = f.readline().strip().split(",")
+    data = np.loadtxt(out / "probes.csv", delimiter=",", skiprows=1, ndmin=2)
+    names = [h[:-2] for h in header if h.endswith("_x") and not h.endswith("_mean_x")]
+    names += [h[:-2] for h in header if h.endswith("_mean_x")]
+    if not names:
+        return None
+    g = np.asarray(gravity, dtype=float)
+    down = g / np.linalg.norm(g) if np.linalg.norm(g) > 0 else np.array([0.0, 0.0, -1.0])
+    t = data[:, 0]
+    fig, ax = plt.subplots(figsize=(6.5, 4))
+    style = "o-" if len(t) < 12 else "-"
+    for name in names:
+        u = np.stack([data[:, header.index(f"{name}_{c}")] for c in "xyz"], axis=1)
+        ax.plot(t, u @ down * 1e3, style, label=name)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("displacement along gravity (mm)")
+    ax.grid(True, alpha=0.3)
+    level = data[:, header.index("level")]
+    lines = ax.get_legend_handles_labels()[0]
+    if np.isfinite(level).any():
+        ax2 = ax.twinx()
+        ax2.plot(t, level * 1e3, "--", color="tab:gray", label="fluid level")
+        ax2.set_ylabel("fluid level along up (mm)")
+        lines += ax2.get_legend_handles_labels()[0]
+    ax.legend(lines, [ln.get_label() for ln in lines], fontsize=8, loc="best")
+    ax.set_title("Probes against time (cf. paper Fig. 16)")
+    fig.tight_layout()
+    path = path or out / "probes.png"
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def surface_error_plot(path, se) -> None:
+    """compare.png: SIM - INTRA along the height axis over the ROI (cf. paper Fig. 20)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    err = np.array(se["error"], dtype=float) * 1e3
+    ga, gb = np.array(se["grid_a"]) * 1e3, np.array(se["grid_b"]) * 1e3
+    fig, ax = plt.subplots(figsize=(6, 4.5))
+    im = ax.pcolormesh(ga, gb, err.T, shading="nearest", cmap="coolwarm",
+                       vmin=-np.nanmax(np.abs(err)), vmax=np.nanmax(np.abs(err)))
+    fig.colorbar(im, ax=ax, label=f"SIM - INTRA along {se['height_axis']} (mm)")
+    ax.set_aspect("equal")
+    ax.set_title(f"Surface error: MAE {se['mae'] * 1e3:.2f} mm (cf. paper Fig. 20)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def pictures(out: Path) -> list[Path]:
+    """Every picture of a finished run folder (rank 0 only)."""
+    summary = json.loads((out / "summary.json").read_text())
+    gravity = summary.get("gravity_vector", [0.0, 0.0, -9.81])
+    made = [probe_plot(out, gravity), deformed_picture(out, gravity, summary.get("final_level_m"))]
+    return [p for p in made if p is not None]
+
+
+def render_in_subprocess(out: Path) -> list[Path]:
+    """pictures(out) in a fresh Python: VTK's OpenGL setup was seen to abort (std::bad_alloc)
+    inside a process that had just run PETSc/MUMPS, and a crash there must not end a run
+    whose results are already written. No MPI in the child."""
+    import os
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("OMPI_", "PMIX_", "PMI_"))}
+    for name in PICTURES:  # so that what exists afterwards was made now
+        (out / name).unlink(missing_ok=True)
+    proc = subprocess.run([sys.executable, "-m", "fenics_brainshift.outputs.pictures", str(out)], capture_output=True, text=True,
+                          env=env, timeout=600)
+    made = [out / name for name in PICTURES if (out / name).is_file()]
+    if proc.returncode != 0:
+        log.warning("pictures of %s failed (exit %d): %s", out, proc.returncode,
+                    (proc.stderr.strip().splitlines() or ["no message"])[-1])
+    return made
+
+
+def main(argv: list[str] | None = None) -> int:
+    import sys
+    import warnings
+
+    warnings.filterwarnings("ignore", module="pyvista")
+    args = sys.argv[1:] if argv is None else argv
+    if len(args) != 1:
+        raise SystemExit("usage: python -m fenics_brainshift.outputs.pictures RUN_FOLDER")
+    pictures(Path(args[0]))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,122 @@
+"""The finite-element model: mesh, space, supports, material, matrices and loads.
+
+Built once from plain values (run/build.py makes them from a scene); the time loop and the
+quasi-static path both use it. Nothing here steps in time.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import ufl
+from dolfinx import fem
+from dolfinx.fem.petsc import assemble_matrix
+from petsc4py import PETSc
+
+from .. import compat
+from ..linalg import diagonal_matrix
+from . import forms
+from .fluid import FluidLoad, FluidSettings
+from .gravity import GravityLoad
+from .material import LinearElastic, lame_parameters
+from .resection import Tissue, fill_empty_diagonal
+from .supports import fixed_conditions
+
+
+@dataclass
+class Model:
+    mesh: object
+    V: object
+    bcs: list
+    mu: float
+    lmbda: float
+    density: float
+    lumped: bool
+    gravity: GravityLoad
+    fluid: FluidLoad | None = None
+    tissue: Tissue | None = None  # only when cells can be removed
+
+    @classmethod
+    def create(cls, mesh, degree: int, E: float, nu: float, density: float, gravity, supports=(),
+               fluid: FluidSettings | None = None, cuts=(), lumped: bool | None = None) -> "Model":
+        """A model on ``mesh``: Lagrange ``degree`` 1 or 2, linear elastic (E Pa, nu), density
+        (kg/m3), gravity (m/s2, 3-vector), supports (supports.Support), an optional fluid, cuts
+        (resection.Cut); lumped mass by default for P1 (consistent for P2)."""
+        V = compat.vector_space(mesh, degree)
+        bcs = fixed_conditions(V, supports)
+        mu, lmbda = lame_parameters(E, nu)
+        tissue = Tissue(mesh, cuts) if cuts else None
+        rho = PETSc.ScalarType(density) * (tissue.indicator if tissue is not None else 1.0)
+        fluid_load = FluidLoad(V, fluid) if fluid is not None else None
+        return cls(mesh, V, bcs, mu, lmbda, density, degree == 1 if lumped is None else lumped,
+                   GravityLoad(V, rho, gravity), fluid_load, tissue)
+
+    @property
+    def comm(self):
+        return self.mesh.comm
+
+    # -- forms ---------------------------------------------------------------------------
+    def _trial_test(self):
+        return ufl.TrialFunction(self.V), ufl.TestFunction(self.V)
+
+    def _present(self, coefficient: float):
+        """A material coefficient, times the tissue indicator when cells can be removed."""
+        c = PETSc.ScalarType(coefficient)
+        return c * self.tissue.indicator if self.tissue is not None else c
+
+    @property
+    def material(self) -> LinearElastic:
+        return LinearElastic(self._present(self.mu), self._present(self.lmbda))
+
+    def mass_form(self):
+        u, v = self._trial_test()
+        return forms.mass(u, v, self._present(self.density), self.lumped)
+
+    def stiffness_form(self):
+        u, v = self._trial_test()
+        return self.material.stiffness(u, v)
+
+    def combined(self, c_mass: float, c_stiff: float):
+        """c_mass M + c_stiff K as one form (the effective matrix of a time scheme)."""
+        return c_mass * self.mass_form() + c_stiff * self.stiffness_form()
+
+    def assemble(self, ufl_form, with_bcs: bool) -> PETSc.Mat:
+        """A matrix; with_bcs: rows and columns of fixed dofs replaced by the identity, and
+        (after a resection) a unit diagonal on rows with no tissue left, so the matrix that
+        is solved stays regular."""
+        A = assemble_matrix(fem.form(ufl_form), bcs=self.bcs if with_bcs else [])
+        A.assemble()
+        if with_bcs and self.tissue is not None:
+            fill_empty_diagonal(A)
+        return A
+
+    def mass_matrix(self) -> PETSc.Mat:
+        """M without supports, for products; a lumped mass keeps only its diagonal."""
+        full = self.assemble(self.mass_form(), with_bcs=False)
+        if not self.lumped:
+            return full
+        diagonal = full.getDiagonal()
+        full.destroy()
+        return diagonal_matrix(diagonal)
+
+    # -- sizes and loads -------------------------------------------------------------------
+    def sizes(self) -> dict:
+        topo = self.mesh.topology
+        im = self.V.dofmap.index_map
+        return {
+            "nodes": int(topo.index_map(0).size_global),
+            "cells": int(topo.index_map(topo.dim).size_global),
+            "dofs": int(im.size_global * self.V.dofmap.index_map_bs),
+        }
+
+    def external_load(self, t: float, u=None) -> tuple[PETSc.Vec, PETSc.Vec | None]:
+        """(F_gravity, F_fluid at time t on the geometry x + u) as assembled vectors; the
+        fluid part is None when dry."""
+        fluid = self.fluid.assemble(t, u) if self.fluid is not None else None
+        return self.gravity.vector, fluid
+
+    def load_into(self, t: float, out: PETSc.Vec, u=None) -> PETSc.Vec:
+        """F(t) = F_gravity + F_fluid into out (owned entries); with follower loading the fluid
+        load is evaluated on x + u (a Function on V)."""
+        grav, fluid = self.external_load(t, u)
+        out.array[:] = grav.array_r if fluid is None else grav.array_r + fluid.array_r
+        return out

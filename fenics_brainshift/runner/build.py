@@ -1,0 +1,89 @@
+"""From a scene to the plain values the numerics take: the mesh, the model, the solver settings.
+
+The only module besides scene/ that knows the scene's sections; everything it builds takes
+arrays, numbers, callables and option dicts.
+"""
+from __future__ import annotations
+
+from dataclasses import asdict
+
+from ..errors import InputError
+from ..meshing import box_mesh, gmsh_shape, read_mesh_file, voxelized_mesh
+from ..meshing.label_volume import labels_at
+from ..outputs.fine_surface import load_fine_surface
+from ..physics import Cut, FluidSettings, Model, Support
+from ..scene import Scene
+from ..stepping import TimeIntegrator
+
+
+def build_mesh(scene: Scene, comm):
+    """The scene's [mesh] as a distributed DOLFINx mesh in metres."""
+    return mesh_from_spec(scene.mesh, comm, scene.element.degree)
+
+
+def mesh_from_spec(spec, comm, degree: int = 1):
+    """A [mesh] section (MeshSpec) as a distributed DOLFINx mesh in metres; ``degree`` of the
+    run that will use it, for the memory check."""
+    if spec.shape == "box" and spec.cells is not None:
+        return box_mesh(comm, spec.size, spec.cells, spec.origin, degree)
+    if spec.shape is not None:
+        return gmsh_shape(comm, spec.shape, spec.size, spec.origin, spec.h, degree)
+    if spec.needs_voxels:
+        return voxelized_mesh(comm, spec.file, spec.voxel, spec.scale, spec.fill, spec.parts,
+                              list(spec.labels) if spec.labels else None, degree)[0]
+    return read_mesh_file(comm, spec.file, spec.scale)
+
+
+def supports(scene: Scene) -> list[Support]:
+    return [Support(f"[[fixed]] where = \"{f.where}\"", f.predicate, tuple(f.components)) for f in scene.fixed]
+
+
+def fluid_settings(scene: Scene) -> FluidSettings | None:
+    f = scene.fluid
+    if f is None:
+        return None
+    return FluidSettings(density=f.density, gravity=scene.gravity.vector, rule=f.rule, follower=f.follower,
+                         reuse_tol=f.reuse_tol, quadrature_degree=f.quadrature_degree, level=f.level,
+                         volume=f.volume, container_area=f.container_area, floor=f.floor)
+
+
+def cuts(scene: Scene) -> list[Cut]:
+    """The [[remove]]s as cuts selecting cells by centroid."""
+    out = []
+    for r in scene.remove:
+        if r.predicate is not None:
+            select = (lambda predicate: lambda centroids: predicate(centroids.T))(r.predicate)
+        else:
+            select = (lambda label: lambda centroids: labels_at(scene.mesh.file, centroids, scene.mesh.scale) == label)(r.label)
+        out.append(Cut(r.at, r.describe(), select))
+    return out
+
+
+def build_model(scene: Scene, comm) -> Model:
+    """Mesh, space, supports, material and loads of a scene; every input check happens here."""
+    mesh = build_mesh(scene, comm)
+    mat = scene.material
+    return Model.create(mesh, scene.element.degree, mat.E, mat.nu, mat.density, scene.gravity.vector,
+                        supports(scene), fluid_settings(scene), cuts(scene),
+                        lumped=scene.element.mass == "lumped")
+
+
+def solver_settings(scene: Scene) -> dict:
+    """LinearSolver keywords from [solver]."""
+    return asdict(scene.solver)
+
+
+def integrator(scene: Scene) -> TimeIntegrator:
+    t = scene.time
+    if t.scheme == "newmark":
+        return TimeIntegrator.newmark(t.dt)
+    return TimeIntegrator.generalized_alpha(t.dt, t.rho_inf)
+
+
+def fine_surface(scene: Scene):
+    """(points m, triangles) of the scene's fine surface, or None; unreadable is InputError."""
+    spec = scene.mesh
+    try:
+        return load_fine_surface(spec.file, spec.surface, spec.scale, spec.labels)
+    except InputError as exc:
+        raise InputError(f"[mesh] surface: {exc}") from None

@@ -1,0 +1,101 @@
+"""Running a scene end to end: build, step or settle, and (optionally) write.
+
+Every input check happens while building the Simulation and setting up its solver, before
+the output folder is created, so bad input leaves no output behind.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from mpi4py import MPI
+
+from ..errors import SolverError
+from ..logs import get_logger
+from ..outputs.files import check_writable, write_csv, write_json
+from ..outputs.fine_surface import SurfaceEmbedding
+from ..outputs.xdmf import FieldWriter
+from ..scene import Scene
+from . import build
+from .loop import History, march
+from .simulation import Simulation
+from .summary import probe_table, summary
+
+log = get_logger("run")
+
+
+@dataclass
+class Result:
+    """What a run returns: the simulation (mesh, model, state), the displacement, the probes'
+    final values, the summary (summary.json's content) and the history of every step."""
+
+    simulation: Simulation = field(repr=False)
+    summary: dict
+    history: History = field(repr=False)
+    out: Path | None = None
+
+    @property
+    def mesh(self):
+        return self.simulation.model.mesh
+
+    @property
+    def displacement(self):
+        """The final displacement (m), a DOLFINx Function."""
+        return self.simulation.u
+
+    @property
+    def probes(self) -> dict[str, list[float]]:
+        return self.summary["probes"]
+
+
+def run(scene: Scene, out: str | Path | None = None, comm=MPI.COMM_WORLD, raise_on_stop: bool = True) -> Result:
+    """Run a scene. With ``out``, write DIR/summary.json, displacement.xdmf, probes.csv (and the
+    fine surface and pictures when the scene asks); without it, write nothing. A guard that
+    fires raises SolverError after the last good state is written (raise_on_stop=False: the
+    Result says so in summary["status"] instead)."""
+    t_start = time.perf_counter()
+    out = Path(out) if out is not None else None
+    if out is not None:
+        check_writable(out, comm)
+    sim = Simulation(scene, comm)
+    surface = build.fine_surface(scene) if out is not None else None
+    embedding = SurfaceEmbedding(sim.model.mesh, *surface) if surface is not None else None
+    sim.setup()
+    writer = None
+    if out is not None:
+        if comm.rank == 0:
+            out.mkdir(parents=True, exist_ok=True)
+        comm.barrier()
+        m = sim.model
+        writer = FieldWriter(out, m.mesh, m.V, scene.output.fields, m.mu, m.lmbda, embedding,
+                             m.tissue.indicator if m.tissue is not None else None)
+    setup_s = time.perf_counter() - t_start
+    _log_start(sim, setup_s)
+    h, stopped = march(sim, writer)
+    result = Result(sim, summary(sim, h, stopped, setup_s), h, out)
+    if out is not None:
+        writer.close()
+        write_csv(out / "probes.csv", *probe_table(sim, h), comm)
+        write_json(out / "summary.json", result.summary, comm)
+        if scene.output.pictures and stopped is None and comm.rank == 0:
+            from ..outputs.pictures import render_in_subprocess
+
+            for path in render_in_subprocess(out):
+                log.info("  wrote %s", path)
+        comm.barrier()
+    sim.destroy()
+    if stopped is not None and raise_on_stop:
+        where = f", is in {out}" if out is not None else ""
+        raise SolverError(f"{stopped} (stopped; the last good state, t = {sim.t:g} s{where})")
+    return result
+
+
+def _log_start(sim: Simulation, setup_s: float) -> None:
+    scene, sizes = sim.scene, sim.model.sizes()
+    for line in sim.plan.log_lines():
+        log.info(line)
+    log.info("%s: %d nodes, %d cells, %d dofs, P%d, %s, solver %s, %d rank(s); setup %.2f s",
+             scene.name, sizes["nodes"], sizes["cells"], sizes["dofs"], scene.element.degree,
+             f"{scene.time.scheme} dt={scene.time.dt:g} s" if sim.is_dynamic else "quasi-static",
+             scene.solver.kind, sim.model.comm.size, setup_s)

@@ -1,0 +1,116 @@
+"""A scene set up to run, for users who drive the loop themselves (and for run()).
+
+    sim = Simulation(load_scene("cube"))   # mesh, model, plan: every input check
+    sim.setup()                            # operators and the factor or preconditioner
+    while sim.t < 1.0:
+        sim.step()                         # one time step (dynamic)
+    sim.solve_to_settled(10.0)             # or the settled state for the loads at t = 10 s
+    sim.u                                  # the displacement, a DOLFINx Function
+"""
+from __future__ import annotations
+
+import numpy as np
+from mpi4py import MPI
+
+from ..linalg import rigid_body_modes
+from ..outputs.probes import Probes, SurfaceAverages
+from ..physics import total_force
+from ..scene import Scene
+from ..stepping import DynamicStepper, Solves, State, StaticSolver
+from . import build
+from .plan import make_plan
+
+
+class Simulation:
+    """Model, state, plan, and the time stepper or quasi-static solver of a scene."""
+
+    def __init__(self, scene: Scene, comm=MPI.COMM_WORLD, model=None):
+        """``model``: one built before from this scene (build_model), to share its mesh."""
+        self.scene = scene
+        self.model = model if model is not None else build.build_model(scene, comm)
+        self.plan = make_plan(scene, self.model.mesh)
+        self.state = State(self.model.V)
+        self.probes = Probes(self.model.mesh, scene.probes)
+        self.surfaces = SurfaceAverages(self.state.u, scene.surfaces)
+        nullspace = rigid_body_modes(self.model.V) if scene.solver.kind == "cg-gamg" else None
+        self.solves = Solves(build.solver_settings(scene), nullspace)
+        self.dynamic: DynamicStepper | None = None
+        self.static: StaticSolver | None = None
+
+    # -- driving it -------------------------------------------------------------------------
+    @property
+    def is_dynamic(self) -> bool:
+        """What the plan chose: time stepping, or settled states."""
+        return self.plan.mode == "dynamic"
+
+    def setup(self) -> None:
+        """Build the operators and the solver the plan chose (may raise InputError for bad
+        solver settings, before anything is written)."""
+        if self.is_dynamic:
+            self._dynamic()
+        else:
+            self._static()
+
+    def step(self) -> int:
+        """One time step; returns the Krylov iterations of its last solve."""
+        return self._dynamic().step()
+
+    def solve_to_settled(self, t: float) -> int:
+        """The settled (quasi-static) state for the loads at time t; returns the iterations."""
+        return self._static().solve(t)
+
+    def _dynamic(self) -> DynamicStepper:
+        if self.dynamic is None:
+            self.dynamic = DynamicStepper(self.model, self.state, build.integrator(self.scene),
+                                          (self.scene.damping.a, self.scene.damping.b), self.solves)
+            self.dynamic.setup()
+        return self.dynamic
+
+    def _static(self) -> StaticSolver:
+        if self.static is None:
+            self.static = StaticSolver(self.model, self.state, self.solves)
+            self.static.setup()
+        return self.static
+
+    def restore(self, snapshot: tuple) -> None:
+        """Back to a state taken with state.snapshot() (after a guard fired)."""
+        (self.dynamic.restore if self.dynamic is not None else self.state.restore)(snapshot)
+
+    def destroy(self) -> None:
+        for part in (self.dynamic, self.static):
+            if part is not None:
+                part.destroy()
+
+    # -- what it holds ----------------------------------------------------------------------
+    @property
+    def t(self) -> float:
+        return self.state.t
+
+    @property
+    def u(self):
+        """The displacement (m), a DOLFINx Function."""
+        return self.state.u
+
+    @property
+    def level(self) -> float | None:
+        """The fluid level of the last load evaluation (None when dry)."""
+        return self.model.fluid.level if self.model.fluid is not None else None
+
+    @property
+    def follower_iterations(self) -> int:
+        part = self.dynamic if self.is_dynamic else self.static
+        return part.settle.iterations if part is not None else 0
+
+    def probe_values(self) -> np.ndarray:
+        """(n_probes, 3) displacement at the scene's probes (m), on every rank."""
+        return self.probes.values(self.state.u)
+
+    def forces(self) -> dict:
+        """Resultant gravity and fluid forces (N), the fluid level and the submerged volume,
+        on the current state."""
+        grav, fluid = self.model.external_load(self.state.t, self.state.u)
+        hydro = self.model.fluid.hydro if fluid is not None else None
+        return {"gravity_force_N": total_force(grav, self.model.comm),
+                "fluid_force_N": hydro.force if hydro else np.zeros(3),
+                "submerged_volume_m3": hydro.submerged_volume if hydro else 0.0,
+                "final_level_m": self.level}

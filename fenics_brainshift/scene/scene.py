@@ -1,0 +1,59 @@
+"""A scene: every section together, with the checks that need more than one section."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from .. import formats
+from ..errors import InputError
+from .body import FixedRegion, Material, MeshSpec, Removal
+from .checks import vector3
+from .loads import Fluid, Gravity
+from .numerics import Damping, Element, Output, SolverConfig, TimeScheme
+from .predicates import Predicate, PredicateError, parse_predicate
+
+
+@dataclass(slots=True)
+class Scene:
+    mesh: MeshSpec
+    material: Material
+    gravity: Gravity = field(default_factory=Gravity)
+    fluid: Fluid | None = None
+    fixed: tuple[FixedRegion, ...] = ()
+    remove: tuple[Removal, ...] = ()
+    time: TimeScheme = field(default_factory=TimeScheme)
+    damping: Damping = field(default_factory=Damping)
+    solver: SolverConfig = field(default_factory=SolverConfig)
+    element: Element = field(default_factory=Element)
+    probes: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+    surfaces: dict[str, Predicate] = field(default_factory=dict)
+    output: Output = field(default_factory=Output)
+    name: str = "scene"
+
+    def __post_init__(self):
+        if self.fluid is not None and self.gravity.magnitude == 0.0:
+            raise InputError("[gravity] vector must be non-zero when a [fluid] is present (it defines 'up')")
+        if self.fluid is not None and self.fluid.rule == "paper" and self.element.degree != 1:
+            raise InputError("[fluid] rule = \"paper\" shares forces among triangle vertices: degree 1 only; use \"consistent\"")
+        if self.time.mode == "quasi-static" and not self.fixed:
+            raise InputError("[[fixed]] a quasi-static scene needs at least one fixed region (K alone is singular)")
+        for r in self.remove:
+            if self.time.mode == "quasi-static":
+                raise InputError("[[remove]] needs [time] mode = \"dynamic\" (or \"auto\"): a freed piece makes K "
+                                 "singular, the mass matrix keeps the dynamic system solvable")
+            if r.at >= self.time.end:
+                raise InputError(f"[[remove]] at = {r.at:g} s is not before [time] end = {self.time.end:g} s")
+            if self.fluid is not None and self.fluid.rule == "quadrature":
+                raise InputError("[[remove]] needs the fluid load on the surface left after the cut: use [fluid] "
+                                 "rule = \"consistent\" (\"quadrature\" acts on the original surface only)")
+            if r.label is not None and not formats.is_label_volume(self.mesh.file or ""):
+                raise InputError("[[remove]] label needs [mesh] file to be a label volume (.nii, .nii.gz); "
+                                 "use where = \"...\" otherwise")
+        self.remove = tuple(sorted(self.remove, key=lambda r: r.at))
+        self.probes = {str(k): vector3(f"[probes] {k}", v) for k, v in self.probes.items()}
+        surfaces = {}
+        for k, v in self.surfaces.items():
+            try:
+                surfaces[str(k)] = v if isinstance(v, Predicate) else parse_predicate(v)
+            except PredicateError as exc:
+                raise InputError(f"[surfaces] {k}: {exc}") from None
+        self.surfaces = surfaces

@@ -1,0 +1,141 @@
+"""Scenes from TOML files or dictionaries, and `--set section.key=value` overrides."""
+from __future__ import annotations
+
+import tomllib
+from dataclasses import fields
+from pathlib import Path
+from typing import Any
+
+from .. import formats
+from ..errors import InputError
+from .body import FixedRegion, Material, MeshSpec, Removal
+from .loads import Fluid, Gravity
+from .numerics import Damping, Element, Output, SolverConfig, TimeScheme
+from .scene import Scene
+
+
+# ---------------------------------------------------------------- TOML loading
+_SECTIONS = {
+    "mesh": MeshSpec, "material": Material, "gravity": Gravity, "fluid": Fluid,
+    "time": TimeScheme, "damping": Damping, "solver": SolverConfig, "element": Element,
+    "output": Output,
+}
+
+
+def _build(cls, table: Any, where: str):
+    if not isinstance(table, dict):
+        raise InputError(f"{where} must be a table")
+    known = [f.name for f in fields(cls) if f.name != "predicate"]
+    for key in table:
+        if key not in known:
+            raise InputError(f"{where} unknown key '{key}'; known keys: {', '.join(known)}")
+    try:
+        return cls(**table)
+    except TypeError as exc:  # a value of the wrong kind deep inside
+        raise InputError(f"{where} {exc}") from None
+
+
+def scene_from_dict(data: dict, base: Path | None = None) -> Scene:
+    """Build a Scene from parsed TOML; relative mesh files resolve against ``base``."""
+    known = list(_SECTIONS) + ["fixed", "remove", "probes", "surfaces", "name"]
+    for key in data:
+        if key not in known:
+            raise InputError(f"unknown section [{key}]; known sections: {', '.join(known)}")
+    for required in ("mesh", "material"):
+        if required not in data:
+            raise InputError(f"missing section [{required}]")
+    kwargs: dict[str, Any] = {name: _build(cls, data[name], f"[{name}]")
+                              for name, cls in _SECTIONS.items() if name in data}
+    fixed = data.get("fixed", [])
+    if not isinstance(fixed, list):
+        raise InputError("[[fixed]] must be an array of tables: [[fixed]] where = \"z < 0.001\"")
+    kwargs["fixed"] = tuple(_build(FixedRegion, f, "[[fixed]]") for f in fixed)
+    remove = data.get("remove", [])
+    if not isinstance(remove, list):
+        raise InputError("[[remove]] must be an array of tables: [[remove]] at = 10.0, where = \"...\"")
+    kwargs["remove"] = tuple(_build(Removal, r, "[[remove]]") for r in remove)
+    probes = data.get("probes", {})
+    if not isinstance(probes, dict):
+        raise InputError("[probes] must be a table of name = [x, y, z]")
+    kwargs["probes"] = probes
+    surfaces = data.get("surfaces", {})
+    if not isinstance(surfaces, dict):
+        raise InputError("[surfaces] must be a table of name = \"condition on x, y, z\"")
+    kwargs["surfaces"] = surfaces
+    if "name" in data:
+        if not isinstance(data["name"], str):
+            raise InputError("name must be a string")
+        kwargs["name"] = data["name"]
+    mesh = kwargs["mesh"]
+    if base is not None:
+        if mesh.file is not None and not Path(mesh.file).is_absolute():
+            mesh.file = str((base / mesh.file).resolve())
+        if mesh.surface is not None and not Path(mesh.surface).is_absolute():
+            mesh.surface = str((base / mesh.surface).resolve())
+    check_mesh_files(mesh)
+    return Scene(**kwargs)
+
+
+def apply_override(data: dict, assignment: str) -> None:
+    """Apply ``section.key=value`` (``fixed.0.where=...`` indexes arrays) to parsed TOML.
+
+    The value is read as a TOML value (numbers, booleans, strings, arrays); a bare word that
+    is not valid TOML is taken as a string, so ``solver.kind=cholesky`` works unquoted."""
+    key, sep, text = assignment.partition("=")
+    if not sep or not key.strip():
+        raise InputError(f"--set '{assignment}': expected section.key=value, e.g. time.end=2.0")
+    try:
+        value = tomllib.loads(f"v = {text.strip()}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = text.strip()
+    node: Any = data
+    parts = key.strip().split(".")
+    for i, part in enumerate(parts):
+        last = i == len(parts) - 1
+        if isinstance(node, list):
+            if not part.isdigit() or int(part) >= len(node):
+                raise InputError(f"--set '{key}': '{part}' is not an index of that array (0..{len(node) - 1})")
+            if last:
+                node[int(part)] = value
+            else:
+                node = node[int(part)]
+        elif isinstance(node, dict):
+            if last:
+                node[part] = value
+            else:
+                node = node.setdefault(part, {})
+        else:
+            raise InputError(f"--set '{key}': '{'.'.join(parts[:i])}' is a value, not a table")
+
+
+def load_scene(path: str | Path, overrides: list[str] = ()) -> Scene:
+    """Read and validate a scene file, or a bundled scene by name ("cube", "brain", ...: see
+    ``brainshift scenes``); every problem is a one-line InputError. ``overrides`` are
+    ``section.key=value`` strings applied before validation."""
+    from ..data import bundled_scene
+
+    path = Path(path)
+    if not path.is_file():
+        bundled = bundled_scene(str(path))
+        if bundled is None:
+            raise InputError(f"scene file '{path}' not found (bundled scenes: `brainshift scenes`)")
+        path = bundled
+    try:
+        data = tomllib.loads(path.read_text())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path.name}: not valid TOML ({exc})") from None
+    for assignment in overrides:
+        apply_override(data, assignment)
+    return scene_from_dict(data, base=path.parent)
+
+
+def check_mesh_files(mesh: MeshSpec) -> None:
+    """[mesh] file and surface exist and have a suffix the package reads."""
+    for key in ("file", "surface"):
+        name = getattr(mesh, key)
+        if name is None:
+            continue
+        if not Path(name).is_file():
+            raise InputError(f"[mesh] {key} '{name}' not found; give a path relative to the scene file")
+        if not formats.is_mesh_input(name) or (key == "surface" and not formats.is_voxelizable(name)):
+            raise InputError(f"[mesh] {key} '{Path(name).name}': {formats.MESH_HELP}")

@@ -1,0 +1,220 @@
+"""Time stepping: Newmark / generalized-alpha on a model, with the energy guard and resection.
+
+The effective matrix and its solver are built once (and again after a resection); each step
+costs one right-hand side (a diagonal mass product, and K applied to the state once, shared
+with the energy guard), one solve warm-started from the previous increment (per follower
+iteration), and the array update of u, v, a.
+"""
+from __future__ import annotations
+
+import dolfinx.la
+from dolfinx import fem
+from dolfinx.fem.petsc import set_bc
+
+from .. import compat
+from ..linalg import LinearSolver, PairProduct
+from ..logs import get_logger
+from .energy import EnergyBalance
+from .integrators import TimeIntegrator
+from .settle import Settle
+from .solves import Solves
+from .state import State
+
+log = get_logger("stepping")
+
+
+class DynamicStepper:
+    """Advances a State on a Model by one time step at a time.
+
+    integrator: a TimeIntegrator; damping: Rayleigh (a 1/s, b s); solves: the step solver
+    (Solves); the guard stops a run whose energy grows (energy.py)."""
+
+    def __init__(self, model, state: State, integrator: TimeIntegrator, damping: tuple[float, float],
+                 solves: Solves, follower_tolerance: float = 1e-6):
+        self.model, self.state, self.integrator = model, state, integrator
+        self.damping_a, self.damping_b = damping
+        self.solves = solves
+        V = model.V
+        self.du = fem.Function(V)
+        self._geometry = fem.Function(V)
+        # work vectors, allocated once (they own their memory: never wrap a temporary Function)
+        self._F = dolfinx.la.create_petsc_vector(V.dofmap.index_map, V.dofmap.index_map_bs)
+        self._F_old, self._rhs, self._tmp, self._wm, self._wk, self._base, self._K_u, self._K_wk = (
+            self._F.duplicate() for _ in range(8))
+        self._K_wk_of_step = -1
+        self.settle = Settle(self._F, model.bcs, model.fluid, follower_tolerance)
+        newmark = integrator.alpha_m == 0.0 and integrator.alpha_f == 0.0
+        self.energy = EnergyBalance(tolerance=1e-2 if newmark else 1.0)
+        self.check_energy = True
+        self.steps_taken = 0
+        self.removals: list[dict] = []  # what each resection took, for the summary
+        self.M = self.K = self.A = self._pair = None
+
+    # -- setup --------------------------------------------------------------------------------
+    def setup(self) -> None:
+        """Remove what is due at t = 0, build the operators, start in equilibrium."""
+        self._remove_due_cells()
+        self._build_operators()
+        self._energy_check()
+
+    def _build_operators(self) -> None:
+        """M, K, the effective matrix and its solver, F_n and a consistent a_n. Once, and
+        again after a resection (the matrices change; the state u, v carries over)."""
+        m = self.model
+        cm, ck = self.integrator.effective_coefficients(self.damping_a, self.damping_b)
+        self.M = m.mass_matrix()  # M and K only ever multiply vectors
+        self.K = m.assemble(m.stiffness_form(), with_bcs=False)
+        self.A = m.assemble(m.combined(cm, ck), with_bcs=True)
+        self._mass_diagonal = self.M.getDiagonal() if m.lumped else None
+        self._pair = PairProduct(self.K)
+        self._K_wk_of_step = -1  # K w_k is cached for the state after this many steps
+        self.solves.reset(self.A)
+        m.load_into(self.state.t, self._F_old, self.state.u)
+        self._initial_acceleration()
+
+    def _initial_acceleration(self) -> None:
+        """M a0 = F(0) - C v0 - K u0, so the scheme starts in equilibrium (and generalized-alpha
+        with rho_inf = 1 follows Newmark's trajectory exactly)."""
+        m, st = self.model, self.state
+        rhs = self._rhs
+        self._F_old.copy(rhs)
+        u, v = compat.petsc_vec(st.u), compat.petsc_vec(st.v)
+        self.K.mult(u, self._tmp)
+        rhs.axpy(-1.0, self._tmp)
+        self._wm.array[:] = self.damping_a * v.array_r
+        self._wk.array[:] = self.damping_b * v.array_r
+        self.M.mult(self._wm, self._tmp)
+        rhs.axpy(-1.0, self._tmp)
+        self.K.mult(self._wk, self._tmp)
+        rhs.axpy(-1.0, self._tmp)
+        set_bc(rhs, m.bcs)
+        M_bc = m.assemble(m.mass_form(), with_bcs=True)
+        mass_solver = LinearSolver(M_bc, "cg-jacobi", rtol=1e-14, atol=1e-300, max_it=10000, name="mass")
+        mass_solver.solve(rhs, compat.petsc_vec(st.a))
+        st.a.x.scatter_forward()
+        mass_solver.destroy()
+        M_bc.destroy()
+
+    # -- resection ------------------------------------------------------------------------------
+    def _remove_due_cells(self) -> bool:
+        """Apply the cuts due at the current time; True if any was."""
+        tissue = self.model.tissue
+        if tissue is None:
+            return False
+        due = tissue.due(self.state.t, 1e-9 * self.integrator.dt)
+        if not due:
+            return False
+        for index in due:
+            cut = tissue.cuts[index]
+            count, isolated = tissue.apply(index)
+            self.removals.append({"at": cut.at, "t": self.state.t, "region": cut.label, "cells": count,
+                                  "isolated_cells": isolated})
+            log.info("  t=%.3f s: removed %d cells (%s) and %d left hanging by an edge or vertex; %.1f %% of "
+                     "the body removed so far", self.state.t, count, cut.label, isolated,
+                     100.0 * tissue.removed_fraction)
+        self.model.gravity.refresh()
+        if self.model.fluid is not None:
+            self.model.fluid.set_present(tissue.present)
+        return True
+
+    def _resect(self) -> None:
+        """Between steps: remove due cells, rebuild the operators on what is left, and stop
+        the nodes left without tissue (their rows become identity rows with zero load)."""
+        if not self._remove_due_cells():
+            return
+        self._destroy_operators()
+        self._build_operators()
+        empty = self.M.getDiagonal()
+        orphans = empty.array_r == 0.0
+        empty.destroy()
+        for f in (self.state.v, self.state.a):
+            f.x.array[: self.state.n_owned][orphans] = 0.0
+            f.x.scatter_forward()
+
+    # -- the step -------------------------------------------------------------------------------
+    def step(self) -> int:
+        """Advance one time step; returns the Krylov iterations of the last solve. With follower
+        loading the fluid load at t_{n+1} is evaluated on x + u_{n+1}, iterated within the step."""
+        self._resect()
+        st, ti = self.state, self.integrator
+        t_new = (self.steps_taken + 1) * ti.dt  # not a running sum: no drift in t
+        w_new, w_old = ti.load_weights()
+        if self._K_wk_of_step != self.steps_taken:  # w_m, w_k, K w_k not left by the last energy check
+            self._rhs_vectors()
+            self.K.mult(self._wk, self._K_wk)
+        base = self._base  # everything but w_new F_{n+1}
+        base.array[:] = w_old * self._F_old.array_r
+        self.M.mult(self._wm, self._tmp)
+        base.axpy(-1.0, self._tmp)
+        base.axpy(-1.0, self._K_wk)
+        follower = self.settle.follower
+
+        def rhs_for_current_du():
+            if follower:  # the geometry of this iterate: x + u_n + du
+                self._geometry.x.array[:] = st.u.x.array + self.du.x.array
+            self.model.load_into(t_new, self._F, self._geometry if follower else st.u)
+            base.copy(self._rhs)
+            self._rhs.axpy(w_new, self._F)
+            return self._rhs
+
+        its = self.settle(self.du, rhs_for_current_du, self.solves, t_new, scale=st.norm(st.u), same_problem=True)
+        n = st.n_owned
+        ti.update(st.u.x.array[:n], st.v.x.array[:n], st.a.x.array[:n], self.du.x.array[:n])
+        for f in (st.u, st.v, st.a):
+            f.x.scatter_forward()
+        du = compat.petsc_vec(self.du)
+        self.energy.add_work(0.5 * (du.dot(self._F) + du.dot(self._F_old)))
+        self._F.copy(self._F_old)  # F_{n+1} becomes F_n
+        st.t = t_new
+        self.steps_taken += 1
+        self._energy_check()
+        return its
+
+    def restore(self, snapshot: tuple) -> None:
+        """Back to a state taken before a step that failed a guard."""
+        self.state.restore(snapshot)
+        self._K_wk_of_step = -1
+
+    # -- energy -------------------------------------------------------------------------------
+    def energies(self, K_u=None) -> tuple[float, float]:
+        """(kinetic, strain) energy of the current state, J (K_u: K u, when known)."""
+        u, v = compat.petsc_vec(self.state.u), compat.petsc_vec(self.state.v)
+        if self._mass_diagonal is not None:  # no matrix product for a diagonal mass
+            self._tmp.pointwiseMult(v, v)
+            kinetic = 0.5 * self._tmp.dot(self._mass_diagonal)
+        else:
+            self.M.mult(v, self._tmp)
+            kinetic = 0.5 * v.dot(self._tmp)
+        if K_u is None:
+            K_u = self._tmp
+            self.K.mult(u, K_u)
+        return kinetic, 0.5 * u.dot(K_u)
+
+    def _rhs_vectors(self) -> None:
+        """w_m and w_k of the current state (rhs = F_mid - M w_m - K w_k) into their vectors."""
+        st = self.state
+        n = st.n_owned
+        wm, wk = self.integrator.rhs_vectors(st.u.x.array[:n], st.v.x.array[:n], st.a.x.array[:n],
+                                             self.damping_a, self.damping_b)
+        self._wm.array[:] = wm
+        self._wk.array[:] = wk
+
+    def _energy_check(self) -> None:
+        """The energy guard on the current state. K u comes with K w_k, the next step's
+        right-hand-side product, in one pass over K (linalg/products.py)."""
+        if not self.check_energy:
+            return
+        self._rhs_vectors()
+        self._pair.multiply(compat.petsc_vec(self.state.u), self._wk, self._K_u, self._K_wk)
+        self._K_wk_of_step = self.steps_taken
+        self.energy.check(self.state.t, *self.energies(self._K_u))
+
+    def _destroy_operators(self) -> None:
+        for mat in (self.M, self.K, self.A):
+            mat.destroy()
+        self._pair.destroy()
+
+    def destroy(self) -> None:
+        if self.M is not None:
+            self._destroy_operators()
+        self.solves.destroy()

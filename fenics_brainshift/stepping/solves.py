@@ -1,0 +1,43 @@
+"""Every linear solve of a run goes through here: counted, timed, checked for NaN/Inf."""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from petsc4py import PETSc
+
+from ..errors import SolverError
+from ..linalg import LinearSolver
+
+
+class Solves:
+    """A LinearSolver on one matrix (rebuilt with ``reset``), with totals over the run."""
+
+    def __init__(self, settings: dict, near_nullspace=None):
+        self.settings = settings  # LinearSolver keywords: kind, rtol, atol, max_it, options
+        self.near_nullspace = near_nullspace
+        self.solver: LinearSolver | None = None
+        self.count = 0
+        self.seconds = 0.0
+        self.iterations: list[int] = []
+
+    def reset(self, A: PETSc.Mat) -> None:
+        """A new matrix: its solver is set up now (factor or preconditioner)."""
+        self.destroy()
+        self.solver = LinearSolver(A, near_nullspace=self.near_nullspace, **self.settings)
+
+    def __call__(self, rhs: PETSc.Vec, x: PETSc.Vec, t: float) -> int:
+        t0 = time.perf_counter()
+        its = self.solver.solve(rhs, x)
+        self.seconds += time.perf_counter() - t0
+        self.count += 1
+        self.iterations.append(its)
+        if not np.isfinite(x.norm()):
+            raise SolverError(f"the solution is no longer finite at t = {t:g} s (NaN or Inf); "
+                              f"reduce [time] dt or check the loads")
+        return its
+
+    def destroy(self) -> None:
+        if self.solver is not None:
+            self.solver.destroy()
+            self.solver = None
