@@ -1,6 +1,7 @@
 # Two commands on a fresh Debian 12 or 13 machine (see README):
 #   make demo   installs what is missing, then runs the gelatin-cube demo
 #   make test   installs what is missing, then runs the tests serially and under mpirun -n 2
+#               (--oversubscribe: two ranks on a one-core machine too)
 PY := .venv/bin/python
 # Open MPI refuses to run as root without these (containers, CI).
 export OMPI_ALLOW_RUN_AS_ROOT := 1
@@ -23,7 +24,7 @@ test-serial:
 	$(PY) -m pytest -q -p no:cacheprovider tests
 
 test-mpi:
-	mpirun -n 2 $(PY) -m pytest -q -p no:cacheprovider -m mpi tests
+	mpirun -n 2 --oversubscribe $(PY) -m pytest -q -p no:cacheprovider -m mpi tests
 
 # The same suite on DOLFINx 0.9 in a Debian 13 root filesystem (needs root; cached).
 test-debian13:

@@ -1,7 +1,7 @@
 """Per-step time, setup time and Krylov iterations of the gelatin cube at the paper's sizes.
 
 The paper (section III-D, Fig. 8) ran 2,890 / 4,851 / 8,788 / 15,376-node cubes with CG on a
-GPU. Here each grid runs a few Newmark steps of demos/cube.toml per solver, serially and
+GPU. Here each grid runs a few Newmark steps of the bundled cube scene per solver, serially and
 under mpirun -n 2, each as its own `brainshift run` process, and the summary.json numbers
 go to benchmarks/results/cube_sizes.csv and .md (with the machine and this command).
 
@@ -38,7 +38,7 @@ def machine() -> str:
 def run_case(cells, solver: str, ranks: int, steps: int, workdir: Path, follower: bool) -> dict:
     out = workdir / f"{'x'.join(map(str, cells))}_{solver}_{ranks}"
     cmd = [sys.executable, "-m", "fenics_brainshift.cli", "--log-level", "WARNING", "run",
-           str(ROOT / "demos" / "cube.toml"), "--out", str(out),
+           "cube", "--out", str(out),
            "--set", f"mesh.cells=[{cells[0]}, {cells[1]}, {cells[2]}]",
            "--set", f"solver.kind={solver}",
            "--set", f"time.end={steps * 0.05}",
@@ -86,7 +86,7 @@ def main(argv=None) -> int:
         writer.writerows(rows)
     command = "python benchmarks/cube_sizes.py " + " ".join(argv if argv is not None else sys.argv[1:])
     lines = [f"Machine: {machine()}  ", f"Command: `{command.strip()}`  ",
-             f"Cube of demos/cube.toml (container drain, follower loading "
+             f"Cube of the bundled cube scene (container drain, follower loading "
              f"{'on, iterated per step' if args.follower else 'off: one solve per step'}), the first "
              f"{args.steps} Newmark steps (dt = 0.05 s) per case; times are medians.", "",
              "| nodes | elements | solver | ranks | setup (s) | step (ms) | solves/step | Krylov its/solve | top u_z (mm) |",

@@ -25,9 +25,8 @@ CASE = r'''
 import json, resource, statistics, sys, time
 from mpi4py import MPI
 from fenics_brainshift import logs
-from fenics_brainshift.model import build_model
 from fenics_brainshift.scene import scene_from_dict
-from fenics_brainshift.simulation import Simulation
+from fenics_brainshift.runner import Simulation
 logs.configure("WARNING")
 n, steps, kind = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3]
 scene = scene_from_dict({
@@ -40,9 +39,9 @@ scene = scene_from_dict({
 })
 comm = MPI.COMM_WORLD
 t0 = time.perf_counter()
-sim = Simulation(build_model(scene, comm))
-sim.check_energy = False
-sim.setup_dynamic()
+sim = Simulation(scene, comm)
+sim.setup()
+sim.dynamic.check_energy = False
 setup = time.perf_counter() - t0
 times, its = [], []
 for _ in range(steps):

@@ -29,12 +29,13 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from cube_sizes import machine  # noqa: E402
 
 from fenics_brainshift import compat, logs  # noqa: E402
-from fenics_brainshift.hydrostatics import HydrostaticLoad  # noqa: E402
-from fenics_brainshift.meshing import build_mesh  # noqa: E402
-from fenics_brainshift.model import build_model  # noqa: E402
+from fenics_brainshift.physics import HydrostaticLoad  # noqa: E402
+from fenics_brainshift.data import scene_path  # noqa: E402
+from fenics_brainshift.runner.build import mesh_from_spec as build_mesh  # noqa: E402
+from fenics_brainshift.runner import build_model  # noqa: E402
 from fenics_brainshift.scene import MeshSpec, load_scene, scene_from_dict  # noqa: E402
-from fenics_brainshift.simulation import Simulation, run  # noqa: E402
-from fenics_brainshift.solver import SolverError  # noqa: E402
+from fenics_brainshift.runner import Simulation, run  # noqa: E402
+from fenics_brainshift.errors import SolverError  # noqa: E402
 
 COMM = MPI.COMM_SELF
 ROWS: list[dict] = []
@@ -61,14 +62,14 @@ def cube(nu=0.45, degree=1, solver="cholesky", dt=0.01, end=0.1, scheme="newmark
 
 def energy_norm(sim, f) -> float:
     vec = compat.petsc_vec(f)
-    sim.K.mult(vec, sim._tmp)
-    return float(np.sqrt(max(vec.dot(sim._tmp), 0.0)))
+    K_vec = vec.duplicate()
+    sim.dynamic.K.mult(vec, K_vec)
+    return float(np.sqrt(max(vec.dot(K_vec), 0.0)))
 
 
 def static_of(scene, model=None):
-    sim = Simulation(model or build_model(scene, COMM))
-    sim.setup_static()
-    sim.solve_static(0.0)
+    sim = Simulation(scene, COMM, model)
+    sim.solve_to_settled(0.0)
     return sim
 
 
@@ -78,8 +79,8 @@ def time_steps(steps: int) -> None:
         for dt in (1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0):
             scene = cube(dt=dt, end=steps * dt, scheme=scheme, rho_inf=rho)
             model = build_model(scene, COMM)
-            sim = Simulation(model)
-            sim.setup_dynamic()
+            sim = Simulation(scene, COMM, model)
+            sim.setup()
             u_static = energy_norm(sim, static_of(scene, model).u)
             peak, outcome = 0.0, "ok"
             try:
@@ -88,7 +89,7 @@ def time_steps(steps: int) -> None:
                     peak = max(peak, energy_norm(sim, sim.u))
             except SolverError as exc:
                 outcome = f"stopped ({exc})"
-            t, ek, es, w = np.array(sim.energy.history).T
+            t, ek, es, w = np.array(sim.dynamic.energy.history).T
             drift = np.abs(ek + es - w).max() / max((ek + es).max(), 1e-300)
             newmark = scheme == "newmark"
             name = scheme if newmark else f"gen-alpha rho_inf={rho:g}"
@@ -107,20 +108,20 @@ def high_mode_damping() -> None:
     rng = np.random.default_rng(1)
     for rho in (1.0, 0.8, 0.5, 0.0):
         scene = cube(dt=10.0, end=100.0, scheme="generalized-alpha", rho_inf=rho)
-        sim = Simulation(build_model(scene, COMM))
-        n = sim.n_owned
+        sim = Simulation(scene, COMM)
+        n = sim.state.n_owned
         sim.u.x.array[:n] = rng.normal(size=n) * 1e-4
         from dolfinx.fem.petsc import set_bc
         set_bc(compat.petsc_vec(sim.u), sim.model.bcs)
         sim.u.x.scatter_forward()
-        sim.check_energy = rho == 1.0  # the guard is for growth; here energy only falls
-        sim.setup_dynamic()
+        sim.setup()
+        sim.dynamic.check_energy = rho == 1.0  # the guard is for growth; here energy only falls
         sim.model.gravity.vector.set(0.0)
-        sim._F_old.set(0.0)
+        sim.dynamic._F_old.set(0.0)
         amplitude = []
         for _ in range(30):
             sim.step()
-            amplitude.append(np.sqrt(sum(sim.energies())))
+            amplitude.append(np.sqrt(sum(sim.dynamic.energies())))
         n, span = len(amplitude), 10
         jordan = (n - span) / n if rho < 1.0 else 1.0  # rho_inf = 1: two distinct eigenvalues on the unit circle
         ratio = ((amplitude[-1] / amplitude[-1 - span]) * jordan) ** (1 / span) if amplitude[-1 - span] > 0 else 0.0
@@ -140,8 +141,8 @@ def poisson_ratios() -> None:
                 sag_p2[nu] = sag
             its = {}
             for solver in ("cg-gamg", "cg-jacobi"):
-                sim = Simulation(build_model(cube(nu=nu, degree=degree, solver=solver, dt=0.05, end=0.1), COMM))
-                sim.setup_dynamic()
+                sim = Simulation(cube(nu=nu, degree=degree, solver=solver, dt=0.05, end=0.1), COMM)
+                sim.setup()
                 try:
                     its[solver] = sim.step()
                 except SolverError:
@@ -164,20 +165,20 @@ def long_runs(steps: int) -> None:
     scene = scene_from_dict(data)
     model = build_model(scene, COMM)
     static = static_of(scene, model)
-    sim = Simulation(model)
+    sim = Simulation(scene, COMM, model)
     sim.u.x.array[:] = static.u.x.array
-    sim.setup_dynamic()
+    sim.setup()
     t0 = time.perf_counter()
     for _ in range(steps):
         sim.step()
     drift = np.abs(sim.u.x.array - static.u.x.array).max() / np.abs(static.u.x.array).max()
     record("long run, body at rest", f"{steps} undamped Newmark steps", "ok" if drift < 1e-9 else "FAIL",
            f"drift |u - u_static| / |u_static| = {drift:.1e} ({time.perf_counter() - t0:.1f} s)")
-    sim = Simulation(model)
-    sim.setup_dynamic()
+    sim = Simulation(scene, COMM, model)
+    sim.setup()
     for _ in range(steps):
         sim.step()
-    t, ek, es, w = np.array(sim.energy.history).T
+    t, ek, es, w = np.array(sim.dynamic.energy.history).T
     balance = np.abs(ek + es - w).max() / (ek + es).max()
     record("long run, free vibration", f"{steps} undamped steps after sudden gravity", "ok" if balance < 1e-8 else "FAIL",
            f"max |E - W| / max E = {balance:.1e}; E stays in [{(ek + es).min():.2e}, {(ek + es).max():.2e}] J")
@@ -246,7 +247,7 @@ def follower_brain(voxel: float) -> None:
     for G in (1200.0, 500.0):
         overrides = [f"mesh.voxel={voxel}", "time.mode=quasi-static", f"material.G={G}",
                      "fluid.level=[[0.0, 0.085], [1.0, 0.0]]"]
-        scene = load_scene(ROOT / "demos" / "brain.toml", overrides)
+        scene = load_scene(scene_path("brain"), overrides)
         scene.mesh.surface = None
         with tempfile.TemporaryDirectory() as tmp:
             try:
@@ -268,7 +269,7 @@ def ranks() -> None:
         for n in (1, 2, 4):
             out = Path(tmp) / f"r{n}"
             cmd = [shutil.which("mpirun"), "-n", str(n), "--oversubscribe", sys.executable, "-m", "fenics_brainshift.cli",
-                   "--log-level", "WARNING", "run", str(ROOT / "demos" / "cube.toml"), "--out", str(out),
+                   "--log-level", "WARNING", "run", str(scene_path("cube")), "--out", str(out),
                    "--set", "mesh.cells=[12, 12, 6]", "--set", "time.end=1.0"]
             subprocess.run(cmd, check=True, env=env, cwd=ROOT, capture_output=True)
             summary = json.loads((out / "summary.json").read_text())

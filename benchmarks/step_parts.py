@@ -35,12 +35,15 @@ from petsc4py import PETSc
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from fenics_brainshift.bench import NaiveSimulation, machine_line  # noqa: E402
-from fenics_brainshift.hydrostatics import _scatter_add, consistent_loads, split_wet  # noqa: E402
-from fenics_brainshift.model import build_model  # noqa: E402
-from fenics_brainshift.products import PairProduct  # noqa: E402
+from fenics_brainshift.bench import machine_line  # noqa: E402
+from fenics_brainshift.bench.sweep import NaiveStepper  # noqa: E402
+from fenics_brainshift.data import scene_path  # noqa: E402
+from fenics_brainshift.physics.hydrostatic import _scatter_add  # noqa: E402
+from fenics_brainshift.physics.wet_facets import consistent_loads, split_wet  # noqa: E402
+from fenics_brainshift.linalg import PairProduct  # noqa: E402
+from fenics_brainshift.runner import build  # noqa: E402
 from fenics_brainshift.scene import load_scene  # noqa: E402
-from fenics_brainshift.simulation import Simulation  # noqa: E402
+from fenics_brainshift.runner import Simulation  # noqa: E402
 
 OVERRIDES = ["mesh.voxel=0.008", "fluid.follower=false", "output.pictures=false"]
 
@@ -70,11 +73,15 @@ def all_split_load(hydro, level: float) -> np.ndarray:
     return local.ravel()
 
 
-def timed_steps(kind, scene, count: int):
-    """A fresh simulation of the scene (Simulation or NaiveSimulation) and the wall time of
-    each of its first count steps."""
-    sim = kind(build_model(scene, MPI.COMM_SELF))
-    sim.setup_dynamic()
+def timed_steps(naive: bool, scene, count: int):
+    """A fresh simulation of the scene (naive: the effective matrix and its solver rebuilt
+    every step) and the wall time of each of its first count steps."""
+    sim = Simulation(scene, MPI.COMM_SELF)
+    if naive:
+        sim.dynamic = NaiveStepper(sim.model, sim.state, build.integrator(scene), (scene.damping.a, scene.damping.b),
+                                   sim.solves)
+        sim.dynamic.setup()
+    sim.setup()
     seconds = []
     for _ in range(count):
         t0 = time.perf_counter()
@@ -89,10 +96,10 @@ def main(argv=None) -> None:
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results")
     args = parser.parse_args(argv)
 
-    scene = load_scene(ROOT / "demos" / "brain.toml", OVERRIDES)
-    model = build_model(scene, MPI.COMM_SELF)
-    sim = Simulation(model)
-    sim.setup_dynamic()
+    scene = load_scene(scene_path("brain"), OVERRIDES)
+    sim = Simulation(scene, MPI.COMM_SELF)
+    model = sim.model
+    sim.setup()
     sizes = model.sizes()
     rows = []
 
@@ -100,10 +107,10 @@ def main(argv=None) -> None:
         rows.append({"part": part, "variant": variant, "median_ms": round(median_ms(samples), 3), "note": note})
 
     # triangular solves, interleaved
-    rhs = sim.A.createVecLeft()
+    rhs = sim.dynamic.A.createVecLeft()
     rhs.setRandom()
     x = rhs.duplicate()
-    solvers = {p: factor_solver(sim.A, p) for p in ("mumps", "cholmod")}
+    solvers = {p: factor_solver(sim.dynamic.A, p) for p in ("mumps", "cholmod")}
     entries = {p: int(k.getPC().getFactorMatrix().getInfo()["nz_used"]) for p, k in solvers.items()}
     times = {p: [] for p in solvers}
     for _ in range(args.repeat):
@@ -116,7 +123,7 @@ def main(argv=None) -> None:
 
     # lumped mass product: assembled pattern against the diagonal
     full = model.assemble(model.mass_form(), with_bcs=False)
-    diag = sim.M
+    diag = sim.dynamic.M
     times = {"assembled (stiffness pattern)": [], "diagonal only": []}
     for _ in range(args.repeat):
         for name, mat in (("assembled (stiffness pattern)", full), ("diagonal only", diag)):
@@ -126,7 +133,7 @@ def main(argv=None) -> None:
             times[name].append(time.perf_counter() - t0)
     for name, samples in times.items():
         record("lumped-mass product", name, samples)
-    pair = PairProduct(sim.K)
+    pair = PairProduct(sim.dynamic.K)
     y1, y2 = rhs.duplicate(), rhs.duplicate()
     times = {"two MatMult": [], "one MatMatMult (PairProduct)": []}
     for _ in range(args.repeat):
@@ -134,8 +141,8 @@ def main(argv=None) -> None:
             solvers["cholmod"].solve(rhs, x)
             t0 = time.perf_counter()
             if name == "two MatMult":
-                sim.K.mult(rhs, y1)
-                sim.K.mult(x, y2)
+                sim.dynamic.K.mult(rhs, y1)
+                sim.dynamic.K.mult(x, y2)
             else:
                 pair.multiply(rhs, x, y1, y2)
             times[name].append(time.perf_counter() - t0)
@@ -163,38 +170,38 @@ def main(argv=None) -> None:
         ksp.destroy()
 
     # whole steps on a fresh state: level falling (steps 1-50), then held
-    sim, steps = timed_steps(Simulation, scene, scene.time.steps)
-    record("dynamic step", f"level falling ({sim.solver.ksp.getPC().getFactorSolverType()})", steps[:50])
+    sim, steps = timed_steps(False, scene, scene.time.steps)
+    record("dynamic step", f"level falling ({sim.solves.solver.ksp.getPC().getFactorSolverType()})", steps[:50])
     record("dynamic step", "level held", steps[50:])
     # the first 20 of those steps by the naive loop (effective matrix and factor rebuilt every
     # step, UFL quadrature load): the goal is at least 10x
-    naive_scene = load_scene(ROOT / "demos" / "brain.toml", OVERRIDES + ["fluid.rule=quadrature"])
-    _, naive_steps = timed_steps(NaiveSimulation, naive_scene, 20)
+    naive_scene = load_scene(scene_path("brain"), OVERRIDES + ["fluid.rule=quadrature"])
+    _, naive_steps = timed_steps(True, naive_scene, 20)
     record("dynamic step", "naive loop (rebuilt every step, quadrature load)", naive_steps,
            f"{median_ms(naive_steps) / median_ms(steps[:20]):.0f}x the same 20 steps above")
     # with follower loading (the demo's setting)
-    follower_scene = load_scene(ROOT / "demos" / "brain.toml", OVERRIDES[:1] + ["output.pictures=false"])
-    follower, follower_steps = timed_steps(Simulation, follower_scene, follower_scene.time.steps)
+    follower_scene = load_scene(scene_path("brain"), OVERRIDES[:1] + ["output.pictures=false"])
+    follower, follower_steps = timed_steps(False, follower_scene, follower_scene.time.steps)
     record("dynamic step", "follower loading (Anderson)", follower_steps,
-           f"{follower.history.solves / len(follower_steps):.1f} solves per step")
+           f"{follower.solves.count / len(follower_steps):.1f} solves per step")
 
     # the settled state after the drain, quasi-static, at the paper's 5 mm voxels
     for follow in ("false", "true"):
         overrides = ["mesh.voxel=0.005", "time.mode=quasi-static", "fluid.level=0.03", f"fluid.follower={follow}",
                      "output.pictures=false"]
         t0 = time.perf_counter()
-        static = Simulation(build_model(load_scene(ROOT / "demos" / "brain.toml", overrides), MPI.COMM_SELF))
-        static.setup_static()
+        static = Simulation(load_scene(scene_path("brain"), overrides), MPI.COMM_SELF)
+        static.setup()
         setup = time.perf_counter() - t0
         t0 = time.perf_counter()
-        static.solve_static(0.0)
+        static.solve_to_settled(0.0)
         shift = time.perf_counter() - t0
         nodes = static.model.sizes()["nodes"]
         label = "with" if follow == "true" else "without"
         rows.append({"part": "quasi-static final shift, 5 mm", "variant": f"{label} follower loading",
                      "median_ms": round(shift * 1e3, 3),
                      "note": f"{nodes:,} nodes; setup (mesh, forms, factor) {setup:.2f} s; "
-                             f"{static.history.solves} solves"})
+                             f"{static.solves.count} solves"})
 
     args.out.mkdir(parents=True, exist_ok=True)
     with open(args.out / "step_parts.csv", "w", newline="") as fh:
