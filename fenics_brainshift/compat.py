@@ -12,6 +12,10 @@ import dolfinx.geometry
 import dolfinx.io
 from dolfinx import fem
 
+from .logs import quiet_compiler
+
+quiet_compiler()  # the form compiler's gcc lines are not the user's business
+
 DOLFINX_VERSION = dolfinx.__version__
 _MAJOR_MINOR = tuple(int(p) for p in DOLFINX_VERSION.split(".")[:2])
 MODERN = _MAJOR_MINOR >= (0, 8)  # functionspace(), basix.ufl, x.petsc_vec, bb_tree

@@ -42,3 +42,16 @@ def configure(level: str = "INFO", all_ranks: bool = False) -> None:
     if not root.handlers:
         root.addHandler(logging.NullHandler())
     root.setLevel(logging.WARNING)
+
+
+def _not_compiler_chatter(record: logging.LogRecord) -> bool:
+    """Drop the C build's INFO lines (the JIT of forms goes through setuptools' distutils,
+    which logs each gcc command line to the root logger and lowers its level to INFO)."""
+    return record.levelno >= logging.WARNING or "distutils" not in record.pathname
+
+
+def quiet_compiler() -> None:
+    """Keep the form compiler's gcc command lines out of the user's terminal (idempotent)."""
+    root = logging.getLogger()
+    if _not_compiler_chatter not in root.filters:
+        root.addFilter(_not_compiler_chatter)

@@ -3,12 +3,15 @@ and the pictures a run makes (produced, and not blank)."""
 from __future__ import annotations
 
 import csv
+import subprocess
+import sys
+from pathlib import Path
 import json
 
 import numpy as np
 import pytest
 
-from conftest import ROOT, column_dict
+from conftest import ROOT, column_dict, subprocess_env
 from fenics_brainshift.data import MESHES
 from fenics_brainshift.data import scene_path
 from fenics_brainshift.cli import main
@@ -97,14 +100,60 @@ def test_bench_smoke_writes_table_csv_and_pareto_plot(tmp_path, capsys):
     _not_blank(tmp_path / "time_vs_error_cube.png")
 
 
-def test_mesh_and_compare_error_paths(tmp_path, capsys):
-    assert main(["mesh", str(tmp_path / "missing.nii.gz"), "--voxel", "5", "-o", str(tmp_path / "m.xdmf")]) == 2
-    assert "not found" in capsys.readouterr().err
-    assert main(["mesh", str(MESHES / "mni152_brain_mask_2mm.nii.gz"), "--voxel", "-1"]) == 2
-    assert "--voxel" in capsys.readouterr().err
-    assert main(["compare", str(tmp_path / "a.stl"), str(tmp_path / "b.stl"), str(tmp_path / "c.vtk")]) == 2
-    assert "compare:" in capsys.readouterr().err
-    assert not (tmp_path / "m.xdmf").exists()
+BRAIN_MASK, BRAIN_SURFACE = MESHES / "mni152_brain_mask_2mm.nii.gz", MESHES / "mni152_brain_surface.ply"
+
+
+def _subcommand_failures(tmp: Path) -> list[tuple[list[str], str]]:
+    """(argv, what the one-line error must say) for each kind of failure of each subcommand
+    but `run` (whose table is in test_scene_errors.py)."""
+    (tmp / "a_file").write_text("not a folder")
+    (tmp / "garbage.stl").write_text("solid x\nnot a surface\n")
+    return [
+        (["mesh", str(tmp / "missing.nii.gz"), "--voxel", "5", "-o", str(tmp / "m.xdmf")], "mesh: input"),
+        (["mesh", str(tmp / "a_file"), "-o", str(tmp / "m.xdmf")], "use a label volume"),
+        (["mesh", str(BRAIN_MASK), "--voxel", "-1", "-o", str(tmp / "m.xdmf")], "--voxel and --scale must be > 0"),
+        (["mesh", str(BRAIN_MASK), "--fill", "2", "-o", str(tmp / "m.xdmf")], "--fill must be in [0, 1]"),
+        (["mesh", str(BRAIN_MASK), "--parts", "0", "-o", str(tmp / "m.xdmf")], "--parts must be >= 1"),
+        (["mesh", str(BRAIN_MASK), "-o", str(tmp / "m.vtk")], "must end in .xdmf"),
+        (["mesh", str(BRAIN_MASK), "-o", str(tmp / "a_file" / "m.xdmf")], "folder of -o"),
+        # metres given for a millimetre surface: a grid of 10^13 voxels
+        (["mesh", str(BRAIN_SURFACE), "--voxel", "0.005", "-o", str(tmp / "m.xdmf")],
+         "is the voxel size in the right unit?"),
+        (["mesh", str(BRAIN_MASK), "--voxel", "0.005", "-o", str(tmp / "m.xdmf")], "is the voxel size in the right unit?"),
+        (["mesh", str(tmp / "garbage.stl"), "-o", str(tmp / "m.xdmf")], "could not be read as a surface"),
+        (["compare", str(tmp / "a.stl"), str(BRAIN_SURFACE), str(BRAIN_SURFACE), "-o", str(tmp / "c.json")],
+         "compare: '"),
+        (["compare", str(BRAIN_SURFACE), str(BRAIN_SURFACE), str(BRAIN_SURFACE), "--radius", "0", "-o",
+          str(tmp / "c.json")], "must be > 0"),
+        (["compare", str(BRAIN_SURFACE), str(BRAIN_SURFACE), str(BRAIN_SURFACE), "-o", str(tmp / "a_file" / "c.json")],
+         "folder of -o"),
+        (["compare", str(tmp / "garbage.stl"), str(BRAIN_SURFACE), str(BRAIN_SURFACE), "-o", str(tmp / "c.json")],
+         "could not be read as a surface"),
+        (["bench", "--scene", "cube", "--smoke", "--out", str(tmp / "a_file")], "is an existing file"),
+        (["bench", "--scene", "cube", "--smoke", "--out", str(tmp / "b"), "--only", "P9 nothing"],
+         "--only: no configuration named 'P9 nothing'"),
+        (["run", "no-such-scene"], "scene file 'no-such-scene' not found"),
+    ]
+
+
+def test_every_subcommand_fails_with_one_line_and_writes_nothing(tmp_path, capsys, serial_only):
+    for argv, expected in _subcommand_failures(tmp_path):
+        before = sorted(p.name for p in tmp_path.rglob("*"))
+        assert main(["--log-level", "WARNING", *argv]) == 2, argv
+        err = capsys.readouterr().err.strip()
+        assert expected in err and len(err.splitlines()) == 1 and "Traceback" not in err, (argv, err)
+        assert sorted(p.name for p in tmp_path.rglob("*")) == before, argv  # nothing written
+
+
+def test_compiler_command_lines_stay_out_of_the_terminal(tmp_path, serial_only):
+    """A fresh form cache compiles C; the gcc lines must not reach a user of the Python API."""
+    env = {**subprocess_env(), "XDG_CACHE_HOME": str(tmp_path / "cache")}
+    code = ("from fenics_brainshift import load_scene, run; "
+            "run(load_scene('cube', ['mesh.cells=[2, 2, 1]', 'time.mode=quasi-static']))")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "gcc" not in proc.stdout + proc.stderr and "build_ext" not in proc.stdout + proc.stderr
+    assert list((tmp_path / "cache").rglob("*.so")), "nothing was compiled: the test did not test"
 
 
 def test_unknown_subcommand_and_bad_flag_exit_with_usage(capsys):

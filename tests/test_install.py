@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import shutil
 import subprocess
-import venv
 
 from conftest import ROOT, subprocess_env
 
@@ -23,9 +22,13 @@ def test_wheel_install_runs_the_bundled_scenes_from_elsewhere(tmp_path, serial_o
     src, env_dir, work = tmp_path / "src", tmp_path / "env", tmp_path / "work"
     _copy_source(src)
     work.mkdir()
-    venv.EnvBuilder(system_site_packages=True, with_pip=False).create(env_dir)
-    python = env_dir / "bin" / "python"
     env = subprocess_env()
+    env.pop("VIRTUAL_ENV", None)
+    # Debian's interpreter, as the install script uses: a venv made from the checkout's .venv
+    # would see the checkout's editable install as a system package, and pip would remove it
+    subprocess.run(["/usr/bin/python3", "-m", "venv", "--system-site-packages", "--without-pip", str(env_dir)],
+                   check=True, env=env)
+    python = env_dir / "bin" / "python"
 
     def call(*cmd, cwd=work):
         proc = subprocess.run([str(c) for c in cmd], cwd=cwd, env=env, capture_output=True, text=True, timeout=600)

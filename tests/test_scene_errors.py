@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from conftest import ROOT, column_dict, subprocess_env
+from fenics_brainshift.data import MESHES
 from fenics_brainshift.cli import main
 from fenics_brainshift.scene.predicates import PredicateError, parse_predicate
 
@@ -91,6 +92,36 @@ BAD = [
      "[[remove]] give exactly one of"),
     ("remove label of a box", {**column_dict(4), "time": DYNAMIC, "remove": [{"label": 2}]},
      "[[remove]] label needs [mesh] file to be a label volume"),
+    # found by trying the tools as a new user would
+    ("fixed holds every node (a bound in mm)", {**column_dict(4), "fixed": [{"where": "z < 40"}]},
+     "[[fixed]] where = \"z < 40\" selects every node of the mesh"),
+    ("cells in the thousands", {**column_dict(4), "mesh": {"shape": "box", "size": [0.02, 0.02, 0.1],
+                                                           "cells": [3000, 3000, 3000]}},
+     "[mesh] cells = [3000, 3000, 3000] (2.7e+10 nodes) would need about"),
+    ("element size in mm for metres", {**column_dict(4), "mesh": {"shape": "ellipsoid", "size": [0.07, 0.08, 0.06],
+                                                                  "h": 1e-5}},
+     "[mesh] h = 1e-05 m for a ellipsoid"),
+    ("voxel of a micrometre", {**column_dict(4), "fixed": [{"where": "y < -0.09"}], "probes": {},
+                               "mesh": {"file": str(MESHES / "mni152_brain_mask_2mm.nii.gz"), "unit": "mm",
+                                        "voxel": 1e-6}},
+     "is the voxel size in the right unit?"),
+    ("container smaller than the body", {**column_dict(4), "fluid": {"volume": 1e-5, "container_area": 1e-4}},
+     "[fluid] container_area = 0.0001 m2 is not larger than the body's horizontal cross-section (0.0004 m2)"),
+    ("remove with the quadrature rule", {**column_dict(4), "time": DYNAMIC, "remove": [{"at": 0.0, "where": "z > 0.05"}],
+                                         "fluid": {"level": 0.05, "rule": "quadrature", "follower": False}},
+     "[[remove]] needs the fluid load on the surface left after the cut"),
+    ("follower with the quadrature rule", {**column_dict(4), "fluid": {"level": 0.05, "rule": "quadrature",
+                                                                       "follower": True}},
+     "[fluid] rule = \"quadrature\" integrates on the undeformed surface only"),
+    ("sqrt of two arguments", {**column_dict(4), "fixed": [{"where": "sqrt(x, y) < 0.001"}]},
+     "sqrt() takes exactly 1 argument (got 2)"),
+    ("min of one argument", {**column_dict(4), "fixed": [{"where": "min(z) < 0.001"}]},
+     "min() takes at least 2 arguments (got 1)"),
+    ("a constant that overflows", {**column_dict(4), "fixed": [{"where": "z < 10**400"}]}, "10 ** 400 is out of range"),
+    ("PETSc option it cannot read", _with("solver", kind="cg-jacobi", options={"ksp_max_it": "many"}),
+     "[solver] options: PETSc could not read them"),
+    ("PETSc option nothing uses", _with("solver", kind="cg-gamg", options={"ksp_maxit": 10}),
+     "[solver] options: PETSc used none of ksp_maxit"),
 ]
 
 
@@ -134,6 +165,28 @@ def test_output_folder_that_cannot_be_written(tmp_path, capsys, serial_only):
         err = capsys.readouterr().err.strip()
         assert expected in err and len(err.splitlines()) == 1, err
     assert (tmp_path / "taken").read_text() == "a file, not a folder"
+
+
+def test_unreadable_surface_is_named(tmp_path, capsys, serial_only):
+    (tmp_path / "broken.stl").write_bytes(b"solid nothing\nthis is not an STL\n")
+    scene = write_scene(tmp_path / "scene.toml", {**column_dict(4), "mesh": {
+        "shape": "box", "size": [0.02, 0.02, 0.1], "cells": [1, 1, 4], "surface": "broken.stl"}})
+    out = tmp_path / "out"
+    assert main(["run", str(scene), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "[mesh] surface: 'broken.stl' could not be read as a surface" in err and len(err.splitlines()) == 1, err
+    assert not out.exists()
+
+
+def test_hypre_missing_from_petsc_is_bad_input(tmp_path, capsys, serial_only, monkeypatch):
+    from fenics_brainshift.linalg import solver
+
+    has = solver.has_package
+    monkeypatch.setattr(solver, "has_package", lambda name: False if name == "hypre" else has(name))
+    scene = write_scene(tmp_path / "scene.toml", _with("solver", kind="cg-hypre"))
+    assert main(["run", str(scene), "--out", str(tmp_path / "out")]) == 2
+    assert "needs PETSc built with hypre" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
 
 
 def test_not_toml_and_missing_scene(tmp_path, capsys):

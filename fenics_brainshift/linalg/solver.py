@@ -86,6 +86,11 @@ class LinearSolver:
         self.ksp.destroy()
 
 
+def has_package(name: str) -> bool:
+    """Was this PETSc built with the external package (hypre, mumps, suitesparse)?"""
+    return bool(PETSc.Sys.hasExternalPackage(name))
+
+
 def _defaults(kind: str, serial: bool) -> dict[str, str]:
     if kind == "cg-gamg":
         # Unsmoothed aggregation with a 0.01 drop threshold: more CG iterations at nu -> 0.5, but
@@ -100,7 +105,7 @@ def _defaults(kind: str, serial: bool) -> dict[str, str]:
         # and strength 0.5, the usual 3-D choice: on the 2:2:1 block at nu = 0.48 its CG
         # iterations go 20 -> 22 from 8k to 78k dofs where GAMG's go 38 -> 54
         # (benchmarks/scaling.py --kind cg-hypre)
-        if not PETSc.Sys.hasExternalPackage("hypre"):
+        if not has_package("hypre"):
             raise InputError("[solver] kind = \"cg-hypre\" needs PETSc built with hypre, which this one is not; "
                              "use \"cg-gamg\"")
         return {"ksp_type": "cg", "pc_type": "hypre", "pc_hypre_type": "boomeramg",
@@ -118,9 +123,9 @@ def _factor_package(kind: str, serial: bool) -> dict[str, str]:
     One rank, Cholesky: CHOLMOD (SuiteSparse), whose solves are about half MUMPS's on the
     brain (benchmarks/results/step_parts.md). Otherwise MUMPS, with workspace to spare
     (ICNTL(14) = 100 %: the default +20 % was seen to fall short in parallel)."""
-    if kind == "cholesky" and serial and PETSc.Sys.hasExternalPackage("suitesparse"):  # CHOLMOD
+    if kind == "cholesky" and serial and has_package("suitesparse"):  # CHOLMOD
         return {"pc_factor_mat_solver_type": "cholmod"}
-    if PETSc.Sys.hasExternalPackage("mumps"):
+    if has_package("mumps"):
         return {"pc_factor_mat_solver_type": "mumps", "mat_mumps_icntl_14": "100"}
     return {}
 
