@@ -20,6 +20,14 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--no-progress", action="store_true",
                         help="no progress bar (it shows on rank 0 only when stderr is a terminal)")
     sub = parser.add_subparsers(dest="command", required=True)
+    for add in (_add_run, _add_mesh, _add_compare, _add_bench):
+        add(sub)
+    sub.add_parser("info", help="versions of DOLFINx, PETSc, MPI, the scalar type and optional extras")
+    sub.add_parser("scenes", help="the bundled scenes (run one by name: brainshift run cube)")
+    return parser
+
+
+def _add_run(sub) -> None:
     run = sub.add_parser("run", help="run a scene file (also under mpirun -n N)",
                          formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     run.add_argument("scene", help="scene TOML file, or a bundled scene by name (brainshift scenes)")
@@ -29,6 +37,9 @@ def _parser() -> argparse.ArgumentParser:
                           "(repeatable; arrays by index: fixed.0.where='z < 0.01')")
     run.add_argument("--pictures", action="store_true",
                      help="also write deformed.png and probes.png (same as --set output.pictures=true)")
+
+
+def _add_mesh(sub) -> None:
     mesh = sub.add_parser("mesh", help="voxel-mesh a segmentation (label volume or surface) to XDMF",
                           description="The paper's embedding mesher: voxels of SIZE over the object's bounding "
                                       "box, those the object fills kept, floating parts dropped, five "
@@ -42,6 +53,9 @@ def _parser() -> argparse.ArgumentParser:
     mesh.add_argument("--parts", type=int, default=1, help="keep this many largest face-connected parts")
     mesh.add_argument("--labels", type=int, nargs="+", help="labels of a label volume to mesh (default: all > 0)")
     mesh.add_argument("-o", "--output", default="mesh.xdmf", help="output XDMF file")
+
+
+def _add_compare(sub) -> None:
     cmp = sub.add_parser("compare", help="the paper's error measures: PRE, INTRA (measured) and SIM surfaces",
                          description="Landmarks A (farthest along --up) and B (farthest along --second) with "
                                      "their 5 mm regions, d_MRI, d_MRI_bar, d_Sim and Error %% (eqs. 22-25), and "
@@ -62,6 +76,9 @@ def _parser() -> argparse.ArgumentParser:
                      help="surface-error rectangle on the two axes other than --up's, mm")
     cmp.add_argument("--spacing", type=float, default=1.0, help="surface-error grid spacing, mm")
     cmp.add_argument("-o", "--output", default="compare.json", help="JSON result (a PNG of the surface error beside it)")
+
+
+def _add_bench(sub) -> None:
     bench = sub.add_parser("bench", help="run time against error: a sweep of configurations, Pareto front",
                            description="Every configuration computes the final shift of the scene; its run time "
                                        "(scene to answer) and its error against a fine P2 reference at fixed "
@@ -77,9 +94,6 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--only", action="append", metavar="NAME",
                        help="run only this configuration (repeatable) and merge its row into the table already "
                             "in --out, keeping the other rows as measured")
-    sub.add_parser("info", help="versions of DOLFINx, PETSc, MPI, the scalar type and optional extras")
-    sub.add_parser("scenes", help="the bundled scenes (run one by name: brainshift run cube)")
-    return parser
 
 
 def _info() -> dict:

@@ -80,6 +80,16 @@ def test_mesh_files_in_millimetres(tmp_path, serial_only):
         f.write_mesh(build_mesh(MeshSpec(file=str(tmp_path / "block.msh"), unit="m"), COMM))
     again = build_mesh(MeshSpec(file=str(tmp_path / "block.xdmf"), unit="mm"), COMM)
     assert _volume(again) == pytest.approx(0.05 * 0.05 * 0.025, rel=1e-10)
+    # meshio's XDMF (another grid name, cells by type) reads too: the same block, in mm
+    import meshio
+
+    points, tets = structured_box((50.0, 50.0, 25.0), (2, 2, 1))
+    meshio.write(tmp_path / "meshio.xdmf", meshio.Mesh(points, [("tetra", tets)]))
+    third = build_mesh(MeshSpec(file=str(tmp_path / "meshio.xdmf"), unit="mm"), COMM)
+    assert _volume(third) == pytest.approx(0.05 * 0.05 * 0.025, rel=1e-12)
+    meshio.write(tmp_path / "triangles.xdmf", meshio.Mesh(points, [("triangle", tets[:, :3])]))
+    with pytest.raises(InputError, match=r"'triangles.xdmf' could not be read as a tetrahedral mesh: it holds no tetra"):
+        build_mesh(MeshSpec(file=str(tmp_path / "triangles.xdmf")), COMM)
     # a corrupt file is a named error, not a traceback
     (tmp_path / "bad.msh").write_text("this is not gmsh")
     with pytest.raises(InputError, match=r"\[mesh\] file 'bad.msh' could not be read"):

@@ -94,17 +94,15 @@ def has_package(name: str) -> bool:
 def _defaults(kind: str, serial: bool) -> dict[str, str]:
     if kind == "cg-gamg":
         # Unsmoothed aggregation with a 0.01 drop threshold: more CG iterations at nu -> 0.5, but
-        # sparse coarse operators; measured on the 2:2:1 block, 2 ranks (benchmarks/scaling.py):
-        # 78k dofs setup 4.8 -> 0.9 s, step 3.5 -> 1.8 s; 254k dofs 24.8 -> 3.1 s, 14.7 -> 8.2 s.
+        # sparse coarse operators, so faster setups and steps (docs/performance.md, Scaling)
         return {"ksp_type": "cg", "pc_type": "gamg", "ksp_initial_guess_nonzero": "true",
                 "pc_gamg_agg_nsmooths": "0", "pc_gamg_threshold": "0.01",
                 "pc_gamg_coarse_eq_limit": "1000", "mg_levels_ksp_type": "chebyshev",
                 "mg_levels_pc_type": "jacobi", "mg_levels_esteig_ksp_type": "cg"}
     if kind == "cg-hypre":
         # BoomerAMG with HMIS coarsening, extended+i interpolation (at most 4 entries per row)
-        # and strength 0.5, the usual 3-D choice: on the 2:2:1 block at nu = 0.48 its CG
-        # iterations go 20 -> 22 from 8k to 78k dofs where GAMG's go 38 -> 54
-        # (benchmarks/scaling.py --kind cg-hypre)
+        # and strength 0.5, the usual 3-D choice: CG iterations nearly flat with the mesh size
+        # (docs/performance.md, Scaling)
         if not has_package("hypre"):
             raise InputError("[solver] kind = \"cg-hypre\" needs PETSc built with hypre, which this one is not; "
                              "use \"cg-gamg\"")

@@ -68,17 +68,50 @@ def read_mesh_file(comm, path: str | Path, scale: float = 1.0):
     try:
         if path.suffix == ".msh":
             mesh = read_msh(comm, str(path))
-        else:
+        elif _dolfinx_xdmf(comm, path):
             import dolfinx.io
 
             with dolfinx.io.XDMFFile(comm, str(path), "r") as f:
                 mesh = f.read_mesh(name="mesh")
+        else:  # meshio's XDMF (a grid of another name, cells by type)
+            mesh = mesh_from_arrays(comm, *_meshio_tetrahedra(comm, path))
     except Exception as exc:  # corrupt or unreadable file: say which and why, no traceback
         raise InputError(f"[mesh] file '{path.name}' could not be read as a tetrahedral mesh: {exc}") from None
     if mesh.topology.dim != 3:
         raise InputError(f"[mesh] file '{path.name}' holds a {mesh.topology.dim}-D mesh; a volume (tetrahedra) is needed")
     mesh.geometry.x[:] *= scale
     return mesh
+
+
+def _dolfinx_xdmf(comm, path: Path) -> bool:
+    """Does the XDMF file hold a grid named "mesh" (DOLFINx's and `brainshift mesh`'s)?"""
+    found = None
+    if comm.rank == 0:
+        import xml.etree.ElementTree as ET
+
+        found = any(grid.get("Name") == "mesh" for grid in ET.parse(path).getroot().iter("Grid"))
+    return comm.bcast(found, root=0)
+
+
+def _meshio_tetrahedra(comm, path: Path):
+    """(points, tetrahedra) of an XDMF file meshio reads, on rank 0 (errors on every rank)."""
+    points, tets, error = None, None, None
+    if comm.rank == 0:
+        import meshio
+
+        try:
+            data = meshio.read(str(path))
+            blocks = [c.data for c in data.cells if c.type == "tetra"]
+            if not blocks:
+                error = "it holds no tetrahedra"
+            else:
+                points, tets = data.points[:, :3], np.concatenate(blocks)
+        except Exception as exc:  # meshio says what it could not parse
+            error = str(exc) or type(exc).__name__
+    error = comm.bcast(error, root=0)
+    if error:
+        raise ValueError(error)
+    return points, tets
 
 
 def write_voxel_mesh(path: Path, comm, input_file: str, voxel: float, scale: float, fill: float = 0.5,

@@ -18,7 +18,7 @@ def probe_table(sim, h) -> tuple[list[str], list[list[float]]]:
 
 
 def summary(sim, h, stopped, setup_s: float) -> dict:
-    """Every key README's summary.json table names."""
+    """Every key docs/outputs.md's summary.json row names."""
     scene, model, plan = sim.scene, sim.model, sim.plan
     dynamic = sim.is_dynamic
     its = sim.solves.iterations

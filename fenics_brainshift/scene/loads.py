@@ -42,7 +42,7 @@ class Fluid:
     (the paper's depth-weighted nodal shares, P1), "quadrature" (plain UFL quadrature of
     degree ``quadrature_degree``, a reference). ``follower``: evaluate the load on the current
     geometry x + u (the paper does), iterated to convergence within each time step and each
-    quasi-static solve (one step late would be unstable: README, Follower geometry)."""
+    quasi-static solve (one step late would be unstable: docs/physics.md, Follower geometry)."""
 
     density: float = 1000.0
     level: Schedule | Any = None

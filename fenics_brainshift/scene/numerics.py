@@ -15,7 +15,7 @@ MODES = ("auto", "dynamic", "quasi-static")
 class TimeScheme:
     """dynamic: Newmark average acceleration (the paper) or generalized-alpha (rho_inf).
     quasi-static: K u = F solved at each breakpoint of the fluid level schedule.
-    auto: the planner picks one of the two (planner.py)."""
+    auto: the planner picks one of the two (runner/plan.py)."""
 
     mode: str = "auto"
     scheme: str = "newmark"

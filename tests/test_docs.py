@@ -1,0 +1,48 @@
+"""The documentation's examples run as written, and its links point at files that exist."""
+from __future__ import annotations
+
+import re
+
+import pytest
+
+from conftest import COMM, ROOT
+
+pytestmark = pytest.mark.mpi
+DOCS = sorted((ROOT / "docs").glob("*.md")) + [ROOT / "README.md"]
+
+
+@pytest.mark.parametrize("block", range(3))
+def test_api_examples_run(block):
+    code = re.findall(r"```python\n(.*?)```", (ROOT / "docs" / "api.md").read_text(), re.S)
+    assert len(code) == 3
+    exec(compile(code[block], f"docs/api.md example {block + 1}", "exec"), {})
+
+
+def test_readme_scene_runs(shared_tmp):
+    from fenics_brainshift.cli import main
+
+    toml = re.findall(r"```toml\n(.*?)```", (ROOT / "README.md").read_text(), re.S)[0]
+    scene = shared_tmp / "readme.toml"
+    if COMM.rank == 0:
+        scene.write_text(toml)
+    COMM.barrier()
+    assert main(["--log-level", "WARNING", "run", str(scene), "--out", str(shared_tmp / "out")]) == 0
+    assert (shared_tmp / "out" / "summary.json").is_file()
+
+
+@pytest.mark.parametrize("page", DOCS, ids=[p.name for p in DOCS])
+def test_links_and_paths_exist(page):
+    text = page.read_text()
+    targets = re.findall(r"\]\(([^)#\s]+)", text)  # markdown links
+    targets += [t for t in re.findall(r"`((?:fenics_brainshift|benchmarks|demos|scripts|tests|docs|docker)/[^`\s]*)`", text)]
+    for target in targets:
+        if target.startswith(("http://", "https://")):
+            continue
+        target = re.sub(r"\{([^,}]*),[^}]*\}", r"\1", target)  # a.{csv,md}: the first is enough
+        if "*" in target:
+            target = target.rsplit("/", 1)[0]  # a glob: its folder must exist
+        base = page.parent if not target.startswith(("fenics_brainshift/", "benchmarks/", "demos/", "scripts/",
+                                                      "tests/", "docker/")) else ROOT
+        path = (base / target).resolve()
+        assert path.exists(), f"{page.name}: {target}"
+        assert ROOT in path.parents or path == ROOT, f"{page.name}: {target} is outside the repository"
