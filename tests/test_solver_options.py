@@ -70,7 +70,7 @@ def test_malformed_or_unused_options_are_bad_input(options, message):
 
 
 def test_viewers_read_only_at_solve_time_are_accepted():
-    sim = _static({"kind": "cholesky", "options": {"ksp_converged_reason": False}})
+    sim = _static({"kind": "cholesky", "options": {"ksp_converged_reason": True}})
     sim.solve_to_settled(0.0)
 
 

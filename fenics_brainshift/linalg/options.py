@@ -18,9 +18,10 @@ _READ_AT_SOLVE = re.compile(r"(view|monitor|converged_reason|_draw)")
 
 
 def option_text(value) -> str:
-    """A TOML value as PETSc reads it."""
+    """A TOML value as PETSc reads it: true is the bare flag (a boolean or a viewer's
+    default, on every PETSc version), false is "false"."""
     if isinstance(value, bool):
-        return "true" if value else "false"
+        return "" if value else "false"
     return str(value)
 
 
