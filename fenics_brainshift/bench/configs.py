@@ -1,7 +1,7 @@
 """The configurations a benchmark sweep compares, for the cube and the bundled brain."""
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -17,23 +17,6 @@ class Config:
     overrides: list[str]
     family: str  # what the row varies, for the table and the plot's colours
     naive: bool = False
-
-
-@dataclass
-class Result:
-    config: Config
-    nodes: int
-    dofs: int
-    setup_s: float
-    solve_s: float
-    solves: int
-    steps: int
-    samples: np.ndarray = field(repr=False)
-    probes: np.ndarray = field(repr=False)
-
-    @property
-    def total_s(self) -> float:
-        return self.setup_s + self.solve_s
 
 
 # ------------------------------------------------------------------ the scenes
