@@ -251,7 +251,7 @@ def follower_brain(voxel: float) -> None:
         scene.mesh.surface = None
         with tempfile.TemporaryDirectory() as tmp:
             try:
-                summary = run(scene, Path(tmp) / "out", COMM)
+                summary = run(scene, Path(tmp) / "out", COMM).summary
                 outcome = "ok" if summary["status"] == "ok" else "FAIL"
                 measure = (f"max |u| {summary['max_displacement_m'] * 1e3:.1f} mm, frontal pole "
                            f"{np.linalg.norm(summary['probes']['frontal_pole']) * 1e3:.1f} mm; "
@@ -296,7 +296,7 @@ def resection() -> None:
                    {"at": 0.1, "where": "0.02 < z < 0.025"}],
     }
     with tempfile.TemporaryDirectory() as tmp:
-        summary = run(scene_from_dict(data), Path(tmp) / "out", COMM)
+        summary = run(scene_from_dict(data), Path(tmp) / "out", COMM).summary
     record("resection", "block, 4 cuts, the last frees the top", "ok" if summary["status"] == "ok" else "FAIL",
            f"{summary['removed_fraction']:.0%} removed; max |u| {summary['max_displacement_m'] * 1e3:.1f} mm "
            f"(the freed piece sinks); {summary['steps']} steps")
