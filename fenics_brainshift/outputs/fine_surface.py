@@ -25,16 +25,12 @@ class SurfaceEmbedding(PointEvaluator):
         super().__init__(mesh, points)
         self.triangles = np.asarray(triangles, dtype=np.int64)
 
-    def displacement(self, u) -> np.ndarray:
-        """(N, 3) displacement of the fine surface's vertices, on every rank."""
-        return self.values(u)
-
     def write(self, folder: Path, stem: str, u) -> None:
         """folder/stem.vtk and folder/stem.stl of the deformed surface (rank 0 writes), with the
         displacement as point data in the VTK file."""
         import meshio
 
-        d = self.displacement(u)
+        d = self.values(u)  # (N, 3) displacement of the fine surface's vertices, on every rank
         if self.comm.rank == 0:
             mesh = meshio.Mesh(self.points + d, [("triangle", self.triangles)], point_data={"displacement": d})
             mesh.write(folder / f"{stem}.vtk")
