@@ -34,6 +34,13 @@ def scalar_space(mesh, family: str = "Lagrange", degree: int = 1):
     return fem.FunctionSpace(mesh, (family, degree))
 
 
+def cell_tensor_space(mesh):
+    """Cell-wise constant (DG0) 3 x 3 tensors: the deformation gradient of each cell."""
+    if MODERN:
+        return fem.functionspace(mesh, ("DG", 0, (3, 3)))
+    return fem.TensorFunctionSpace(mesh, ("DG", 0))
+
+
 def petsc_vec(f: fem.Function):
     """The PETSc vector that shares memory with a Function's values (owned + ghosts)."""
     return f.x.petsc_vec if MODERN else f.vector

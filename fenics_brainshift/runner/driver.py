@@ -74,6 +74,8 @@ def run(scene: Scene, out: str | Path | None = None, comm=MPI.COMM_WORLD, raise_
     _log_start(sim, setup_s)
     h, stopped = march(sim, writer)
     result = Result(sim, summary(sim, h, stopped, setup_s), h, out)
+    if "warning" in result.summary["validity"]:
+        log.warning("%s: %s", scene.name, result.summary["validity"]["warning"])
     if out is not None:
         writer.close()
         write_csv(out / "probes.csv", *probe_table(sim, h), comm)

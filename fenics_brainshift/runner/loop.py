@@ -24,12 +24,21 @@ class History:
     probes: list[np.ndarray] = field(default_factory=list)
     surfaces: list[np.ndarray] = field(default_factory=list)
     step_seconds: list[float] = field(default_factory=list)
+    largest_strain: float = 0.0  # principal Green-Lagrange, over the output times
+    largest_rotation_deg: float = 0.0
 
     def record(self, sim) -> None:
         self.times.append(sim.t)
         self.levels.append(np.nan if sim.level is None else sim.level)
         self.probes.append(sim.probe_values())
         self.surfaces.append(sim.surfaces.values())
+
+    def measure_strain(self, sim) -> None:
+        """The largest strain and rotation of the current state (at output times: a DG0
+        interpolation and a small eigenproblem per cell)."""
+        strain, rotation = sim.strain_meter.measure()
+        self.largest_strain = max(self.largest_strain, strain)
+        self.largest_rotation_deg = max(self.largest_rotation_deg, rotation)
 
 
 def events(sim) -> list[tuple[float, bool]]:
@@ -75,6 +84,7 @@ def march(sim, writer=None) -> tuple[History, SolverError | None]:
             h.record(sim)
             if due:
                 write(sim.t, sim.u, sim.state.v)
+                h.measure_strain(sim)
                 written = sim.t
             bar.set_postfix_str(f"t={sim.t:.2f} s level={_level(sim.level)} {h.step_seconds[-1] * 1e3:.0f} ms/step",
                                 refresh=False)
@@ -88,6 +98,7 @@ def march(sim, writer=None) -> tuple[History, SolverError | None]:
             h.record(sim)
         if written != sim.t and (sim.is_dynamic or not h.step_seconds):
             write(sim.t, sim.u, sim.state.v)
+            h.measure_strain(sim)
     finally:
         bar.close()
     return h, stopped

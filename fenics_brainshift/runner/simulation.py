@@ -14,6 +14,7 @@ from mpi4py import MPI
 
 from ..linalg import rigid_body_modes
 from ..outputs.probes import Probes, SurfaceAverages
+from ..outputs.validity import StrainMeter
 from ..physics import total_force
 from ..scene import Scene
 from ..stepping import DynamicStepper, Solves, State, StaticSolver
@@ -32,6 +33,7 @@ class Simulation:
         self.state = State(self.model.V)
         self.probes = Probes(self.model.mesh, scene.probes)
         self.surfaces = SurfaceAverages(self.state.u, scene.surfaces)
+        self.strain_meter = StrainMeter(self.state.u)
         nullspace = rigid_body_modes(self.model.V) if scene.solver.kind == "cg-gamg" else None
         self.solves = Solves(build.solver_settings(scene), nullspace)
         self.dynamic: DynamicStepper | None = None

@@ -6,6 +6,7 @@ import statistics
 import numpy as np
 
 from .. import compat
+from ..outputs.validity import assessment
 from .plan import stiffness_band
 
 
@@ -48,6 +49,7 @@ def summary(sim, h, stopped, setup_s: float) -> dict:
         "probes": probes,
         "surfaces": sim.surfaces.as_dict(h.surfaces[-1]),
         **sim.forces(),
+        "validity": assessment(h.largest_strain, h.largest_rotation_deg),
     }
     if dynamic and sim.dynamic is not None:
         e = sim.dynamic.energy
