@@ -73,7 +73,7 @@ class HydrostaticLoad:
         values = u.x.array.reshape(-1, 3)
         return f.x_vertices + values[f.vertex_dofs], f.x_opposite + values[f.opposite_dofs]
 
-    def _reference_surface(self):
+    def reference_surface(self):
         """Normals, areas, vertex heights, each facet's lowest height, outward orientation
         (+1/-1 on the vertex order's cross product) and the vertex dofs of the reference
         surface, computed once."""
@@ -89,10 +89,10 @@ class HydrostaticLoad:
     def _wet_triangles(self, level: float, u=None):
         """(indices, unit outward normals, areas, vertex depths) of the facets with a wet
         vertex; dry facets cost nothing more. On the reference geometry (u None) all of it
-        comes from _reference_surface. On x + u only facets that can be wet are moved: those
+        comes from reference_surface. On x + u only facets that can be wet are moved: those
         whose lowest reference vertex is below the level plus the surface's greatest fall;
         their outward side is the reference one (a facet does not turn inside out)."""
-        n, area, height, lowest, orientation, surface_dofs = self._reference_surface()
+        n, area, height, lowest, orientation, surface_dofs = self.reference_surface()
         if u is None:
             wet = np.flatnonzero((height < level).any(axis=1))
             return wet, n[wet], area[wet], level - height[wet]

@@ -36,3 +36,51 @@ class LinearElastic:
     def stiffness(self, u, v):
         """The bilinear form of K."""
         return ufl.inner(self.stress(u), self.strain(v)) * ufl.dx
+
+
+@dataclass(frozen=True)
+class Hyperelastic:
+    """A finite-deformation material given by its strain-energy density psi(F) per reference
+    volume (total Lagrangian). mu, lmbda: the small-strain Lame parameters (numbers or UFL
+    coefficients), so that the linearisation at F = I is LinearElastic(mu, lmbda)."""
+
+    mu: object
+    lmbda: object
+    kind: str = "neo-hookean"
+
+    @staticmethod
+    def deformation_gradient(u):
+        return ufl.variable(ufl.Identity(len(u)) + ufl.grad(u))
+
+    def energy_density(self, F):
+        """psi(F). Compressible neo-Hookean: mu/2 (I1 - 3) - mu ln J + lmbda/2 (ln J)^2;
+        Saint Venant-Kirchhoff: lmbda/2 (tr E)^2 + mu E:E with E = (F^T F - I) / 2."""
+        if self.kind == "neo-hookean":
+            J = ufl.det(F)
+            return self.mu / 2 * (ufl.tr(F.T * F) - 3) - self.mu * ufl.ln(J) + self.lmbda / 2 * ufl.ln(J) ** 2
+        E = 0.5 * (F.T * F - ufl.Identity(3))
+        return self.lmbda / 2 * ufl.tr(E) ** 2 + self.mu * ufl.inner(E, E)
+
+    def first_piola(self, u):
+        F = self.deformation_gradient(u)
+        return ufl.diff(self.energy_density(F), F)
+
+    def cauchy(self, u):
+        F = self.deformation_gradient(u)
+        return self.first_piola(u) * F.T / ufl.det(F)
+
+    def internal_force(self, u, v):
+        """The residual's internal part: the derivative of the stored energy along v."""
+        return ufl.inner(self.first_piola(u), ufl.grad(v)) * ufl.dx
+
+    def tangent(self, u, du, v):
+        """The consistent tangent: the derivative of internal_force along du."""
+        return ufl.derivative(self.internal_force(u, v), u, du)
+
+    def von_mises(self, u):
+        s = self.cauchy(u)
+        dev = s - ufl.tr(s) / 3.0 * ufl.Identity(len(u))
+        return ufl.sqrt(1.5 * ufl.inner(dev, dev))
+
+
+MODELS = ("linear", "neo-hookean", "saint-venant-kirchhoff")

@@ -17,7 +17,7 @@ from ..linalg import diagonal_matrix
 from . import forms
 from .fluid import FluidLoad, FluidSettings
 from .gravity import GravityLoad
-from .material import LinearElastic, lame_parameters
+from .material import MODELS, Hyperelastic, LinearElastic, lame_parameters
 from .resection import Tissue, fill_empty_diagonal
 from .supports import fixed_conditions
 
@@ -34,13 +34,18 @@ class Model:
     gravity: GravityLoad
     fluid: FluidLoad | None = None
     tissue: Tissue | None = None  # only when cells can be removed
+    material_model: str = "linear"  # or "neo-hookean", "saint-venant-kirchhoff"
 
     @classmethod
     def create(cls, mesh, degree: int, E: float, nu: float, density: float, gravity, supports=(),
-               fluid: FluidSettings | None = None, cuts=(), lumped: bool | None = None) -> "Model":
-        """A model on ``mesh``: Lagrange ``degree`` 1 or 2, linear elastic (E Pa, nu), density
-        (kg/m3), gravity (m/s2, 3-vector), supports (supports.Support), an optional fluid, cuts
-        (resection.Cut); lumped mass by default for P1 (consistent for P2)."""
+               fluid: FluidSettings | None = None, cuts=(), lumped: bool | None = None,
+               material_model: str = "linear") -> "Model":
+        """A model on ``mesh``: Lagrange ``degree`` 1 or 2, a material (E Pa, nu; "linear",
+        "neo-hookean" or "saint-venant-kirchhoff"), density (kg/m3), gravity (m/s2, 3-vector),
+        supports (supports.Support), an optional fluid, cuts (resection.Cut); lumped mass by
+        default for P1 (consistent for P2)."""
+        if material_model not in MODELS:
+            raise ValueError(f"material_model must be one of {', '.join(MODELS)} (got {material_model!r})")
         V = compat.vector_space(mesh, degree)
         bcs = fixed_conditions(V, supports)
         mu, lmbda = lame_parameters(E, nu)
@@ -48,7 +53,7 @@ class Model:
         rho = PETSc.ScalarType(density) * (tissue.indicator if tissue is not None else 1.0)
         fluid_load = FluidLoad(V, fluid) if fluid is not None else None
         return cls(mesh, V, bcs, mu, lmbda, density, degree == 1 if lumped is None else lumped,
-                   GravityLoad(V, rho, gravity), fluid_load, tissue)
+                   GravityLoad(V, rho, gravity), fluid_load, tissue, material_model)
 
     @property
     def comm(self):
@@ -64,8 +69,17 @@ class Model:
         return c * self.tissue.indicator if self.tissue is not None else c
 
     @property
+    def nonlinear(self) -> bool:
+        return self.material_model != "linear"
+
+    @property
     def material(self) -> LinearElastic:
+        """The linear material (for a hyperelastic model: its linearisation at u = 0)."""
         return LinearElastic(self._present(self.mu), self._present(self.lmbda))
+
+    @property
+    def hyperelastic(self) -> Hyperelastic:
+        return Hyperelastic(self._present(self.mu), self._present(self.lmbda), self.material_model)
 
     def mass_form(self):
         u, v = self._trial_test()

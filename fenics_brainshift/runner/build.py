@@ -65,7 +65,7 @@ def build_model(scene: Scene, comm) -> Model:
     mat = scene.material
     return Model.create(mesh, scene.element.degree, mat.E, mat.nu, mat.density, scene.gravity.vector,
                         supports(scene), fluid_settings(scene), cuts(scene),
-                        lumped=scene.element.mass == "lumped")
+                        lumped=scene.element.mass == "lumped", material_model=mat.model)
 
 
 def solver_settings(scene: Scene) -> dict:

@@ -17,7 +17,9 @@ from ..outputs.probes import Probes, SurfaceAverages
 from ..outputs.validity import StrainMeter
 from ..physics import total_force
 from ..scene import Scene
+from ..errors import InputError
 from ..stepping import DynamicStepper, Solves, State, StaticSolver
+from ..stepping.newton import NewtonStatic
 from . import build
 from .plan import make_plan
 
@@ -62,15 +64,20 @@ class Simulation:
         return self._static().solve(t)
 
     def _dynamic(self) -> DynamicStepper:
+        if self.model.nonlinear:
+            raise InputError(f"[material] model = \"{self.model.material_model}\" is solved for settled states "
+                             f"only so far: set [time] mode = \"quasi-static\" (it needs [[fixed]] supports and "
+                             f"no [[remove]])")
         if self.dynamic is None:
             self.dynamic = DynamicStepper(self.model, self.state, build.integrator(self.scene),
                                           (self.scene.damping.a, self.scene.damping.b), self.solves)
             self.dynamic.setup()
         return self.dynamic
 
-    def _static(self) -> StaticSolver:
+    def _static(self) -> StaticSolver | NewtonStatic:
         if self.static is None:
-            self.static = StaticSolver(self.model, self.state, self.solves)
+            solver = NewtonStatic if self.model.nonlinear else StaticSolver
+            self.static = solver(self.model, self.state, self.solves)
             self.static.setup()
         return self.static
 
@@ -101,7 +108,9 @@ class Simulation:
     @property
     def follower_iterations(self) -> int:
         part = self.dynamic if self.is_dynamic else self.static
-        return part.settle.iterations if part is not None else 0
+        if part is None or not hasattr(part, "settle"):
+            return 0  # Newton: the follower load is inside its residual, no separate iteration
+        return part.settle.iterations
 
     def probe_values(self) -> np.ndarray:
         """(n_probes, 3) displacement at the scene's probes (m), on every rank."""

@@ -86,10 +86,15 @@ class MeshSpec:
         return not formats.is_tetra_mesh(self.file)
 
 
+MATERIAL_MODELS = ("linear", "neo-hookean", "saint-venant-kirchhoff")
+
+
 @dataclass(slots=True)
 class Material:
-    """Linear elastic: E and nu, or G (shear modulus) and nu; density in kg/m3. ``E_sd`` or
-    ``G_sd``: the modulus's standard deviation, for the stiffness band in summary.json."""
+    """E and nu, or G (shear modulus) and nu; density in kg/m3. ``model``: "linear" (small
+    strain), "neo-hookean" or "saint-venant-kirchhoff" (finite deformation, the same small-
+    strain limit). ``E_sd`` or ``G_sd``: the modulus's standard deviation, for the stiffness
+    band in summary.json."""
 
     nu: float = 0.45
     density: float = 1000.0
@@ -97,10 +102,12 @@ class Material:
     G: float | None = None
     E_sd: float | None = None
     G_sd: float | None = None
+    model: str = "linear"
 
     def __post_init__(self):
         if (self.E is None) == (self.G is None):
             raise InputError("[material] give exactly one of E (Young's modulus, Pa) or G (shear modulus, Pa)")
+        choice("[material] model", self.model, MATERIAL_MODELS)
         self.nu = number("[material] nu", self.nu)
         if not -1.0 < self.nu < 0.5:
             raise InputError(f"[material] nu must be in (-1, 0.5) (got {self.nu:g}); 0.5 is incompressible, use 0.4999 at most")

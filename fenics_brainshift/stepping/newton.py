@@ -1,0 +1,161 @@
+"""Settled states of a hyperelastic body: Newton's method with a line search, the consistent
+tangent (material by UFL, follower fluid load by physics/load_tangent.py), and load stepping
+where a full step does not converge.
+
+The residual is R(u) = f_int(u) - F_ext(u): the internal force of the stored energy, total
+Lagrangian on the reference mesh, and gravity plus the fluid load on the current surface
+(follower) or the reference one. A step from the last settled state to the loads of time t
+is tried whole; if Newton fails (too many iterations, a line search that finds no descent,
+an element that inverts: NaN), the step is halved — the loads follow the schedule to the
+intermediate time, or, from rest, are scaled by a factor — down to MIN_FRACTION of it.
+"""
+from __future__ import annotations
+
+import dolfinx.la
+import numpy as np
+import ufl
+from dolfinx import fem
+from dolfinx.fem.petsc import assemble_matrix, assemble_vector, set_bc
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from .. import compat
+from ..errors import SolverError
+from ..logs import get_logger
+from ..physics.load_tangent import add_load_tangent
+from .solves import Solves
+from .state import State
+
+log = get_logger("newton")
+MIN_FRACTION = 1.0 / 1024.0
+
+
+def tangent_settings(settings: dict) -> dict:
+    """The tangent is not symmetric with a follower load, and may be indefinite far from rest:
+    a Cholesky factor becomes an LU factor (MUMPS), CG becomes GMRES with the same
+    preconditioner."""
+    settings = dict(settings)
+    if settings["kind"] == "cholesky":
+        settings["kind"] = "lu"
+    elif settings["kind"].startswith("cg-"):
+        settings["options"] = {"ksp_type": "gmres", **settings.get("options", {})}
+    return settings
+
+
+class NewtonStatic:
+    """Settled states of a Model with a hyperelastic material."""
+
+    def __init__(self, model, state: State, solves: Solves, rtol: float = 1e-9, max_iterations: int = 25,
+                 load_tangent: bool = True):
+        self.model, self.state, self.solves = model, state, solves
+        solves.settings = tangent_settings(solves.settings)
+        self.rtol, self.max_iterations = rtol, max_iterations
+        V = model.V
+        v, du = ufl.TestFunction(V), ufl.TrialFunction(V)
+        material = model.hyperelastic
+        self._internal = fem.form(material.internal_force(state.u, v))
+        self._tangent = fem.form(material.tangent(state.u, du, v))
+        self._R = dolfinx.la.create_petsc_vector(V.dofmap.index_map, V.dofmap.index_map_bs)
+        self._F, self._du = self._R.duplicate(), fem.Function(V)
+        self._fixed = np.unique(np.concatenate([bc.dof_indices()[0] for bc in model.bcs])) if model.bcs else \
+            np.zeros(0, dtype=np.int32)
+        self.follower = model.fluid is not None and model.fluid.follower
+        self.load_tangent = load_tangent  # False: the follower load's tangent left out (a baseline)
+        self.iterations = 0  # Newton iterations of the last solve
+        self.history: list[float] = []  # residual norms of the last Newton solve
+        self.cuts = 0  # load steps halved, over the run
+        self._t_settled: float | None = None
+
+    def setup(self) -> None:
+        """Nothing to build ahead: the tangent changes with every iterate."""
+
+    # -- one Newton solve -----------------------------------------------------------------------
+    def _residual(self, t: float, factor: float) -> float:
+        """R = f_int(u) - factor F_ext(t, u) into self._R (zero at fixed dofs); returns |R|."""
+        u = self.state.u
+        try:
+            self.model.load_into(t, self._F, u)
+        except SolverError:  # no fluid level for this shape (a container iterate gone wild)
+            return np.inf
+        with self._R.localForm() as local:
+            local.set(0.0)
+        assemble_vector(self._R, self._internal)
+        self._R.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        self._R.axpy(-factor, self._F)
+        set_bc(self._R, self.model.bcs)
+        self._load_norm = factor * self._F.norm()
+        norm = self._R.norm()
+        return norm if np.isfinite(norm) else np.inf
+
+    def _tangent_matrix(self, factor: float) -> PETSc.Mat:
+        A = assemble_matrix(self._tangent)
+        A.assemble()
+        fluid = self.model.fluid
+        if self.follower and self.load_tangent and fluid.level == fluid.level:  # a level is known (not NaN)
+            add_load_tangent(A, fluid.hydro, fluid.level, self.state.u, -factor)
+        A.zeroRowsColumnsLocal(self._fixed.astype(np.int32), 1.0)
+        return A
+
+    def _newton(self, t: float, factor: float) -> bool:
+        """Newton from the current state to the loads (t, factor); False if it failed (the
+        state is then wherever it stopped: the caller restores it)."""
+        u, du = self.state.u, compat.petsc_vec(self._du)
+        norm = self._residual(t, factor)
+        self.history = [norm]
+        for k in range(1, self.max_iterations + 1):
+            if norm <= self.rtol * max(self._load_norm, 1e-300):
+                self.iterations = k - 1
+                return True
+            A = self._tangent_matrix(factor)
+            self._R.scale(-1.0)
+            du.set(0.0)
+            try:
+                self.solves.reset(A)
+                self.solves(self._R, du, t)
+            except SolverError:  # a factor that fails (the tangent lost definiteness), a diverged solve
+                return False
+            finally:
+                A.destroy()
+            self._du.x.scatter_forward()
+            start = u.x.array.copy()
+            for alpha in 0.5 ** np.arange(8):  # backtracking: the full step first
+                u.x.array[:] = start + alpha * self._du.x.array
+                trial = self._residual(t, factor)
+                if trial < (1.0 - 1e-4 * alpha) * norm:
+                    break
+            else:  # no descent: fine if already at round-off, a failure otherwise
+                if trial > self.rtol * max(self._load_norm, 1e-300):
+                    return False
+            norm = trial
+            self.history.append(norm)
+        self.iterations = self.max_iterations
+        return norm <= self.rtol * max(self._load_norm, 1e-300)
+
+    # -- a settled state, with load stepping ------------------------------------------------------
+    def solve(self, t: float) -> int:
+        """The settled state for the loads at time t, from the last one (or from rest: the loads
+        then grow from zero). Returns the Newton iterations of the last load step."""
+        start, done, step = self._t_settled, 0.0, 1.0
+        while done < 1.0:
+            fraction = min(1.0, done + step)
+            t_k, factor = (t, fraction) if start is None else (start + fraction * (t - start), 1.0)
+            saved = self.state.u.x.array.copy()
+            if self._newton(t_k, factor):
+                done = fraction
+                step = min(2.0 * step, 1.0 - done) if done < 1.0 else step
+                continue
+            self.state.u.x.array[:] = saved
+            step *= 0.5
+            self.cuts += 1
+            if step < MIN_FRACTION:
+                raise SolverError(f"Newton did not converge at t = {t:g} s even with the load step cut to "
+                                  f"{MIN_FRACTION:g} of it (residual {self.history[-1]:.2e}); the body may have "
+                                  f"no equilibrium under these loads (a support missing?), or the material "
+                                  f"lost stability (Saint Venant-Kirchhoff does under strong compression)")
+            log.info("  t=%g s: Newton did not converge; load step cut to %g", t, step)
+        self._t_settled = t
+        self.state.t = t
+        return self.iterations
+
+    def destroy(self) -> None:
+        self.solves.destroy()

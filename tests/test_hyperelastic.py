@@ -1,0 +1,188 @@
+"""Finite-deformation materials and Newton's method, against closed forms and 1-D references
+computed here independently of the code under test."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import ufl
+from dolfinx import fem
+from dolfinx.fem.petsc import assemble_vector
+from mpi4py import MPI
+from scipy.integrate import quad
+from scipy.optimize import brentq
+
+from conftest import COMM, column_dict
+from fenics_brainshift import compat
+from fenics_brainshift.physics.material import Hyperelastic, lame_parameters
+from fenics_brainshift.runner import Simulation, run
+from fenics_brainshift.runner.build import mesh_from_spec
+from fenics_brainshift.scene import MeshSpec, load_scene, scene_from_dict
+
+pytestmark = pytest.mark.mpi
+MU, LMBDA = lame_parameters(3000.0, 0.45)
+
+
+def _neo_hookean_piola(F: np.ndarray) -> np.ndarray:
+    """P = mu (F - F^-T) + lambda ln(J) F^-T, written out by hand."""
+    Finv_T = np.linalg.inv(F).T
+    return MU * (F - Finv_T) + LMBDA * np.log(np.linalg.det(F)) * Finv_T
+
+
+def _face_force(F: np.ndarray, degree: int, axis: int) -> np.ndarray:
+    """Internal nodal forces of u = (F - I) X on a unit block, summed over the nodes of the face
+    X[axis] = 1 (global), and the largest force at a node off the boundary."""
+    mesh = mesh_from_spec(MeshSpec(shape="box", size=(1.0, 1.0, 1.0), cells=(2, 2, 2)), COMM)
+    V = compat.vector_space(mesh, degree)
+    u = fem.Function(V)
+    u.interpolate(lambda x: (F - np.eye(3)) @ x)
+    f = fem.form(Hyperelastic(MU, LMBDA).internal_force(u, ufl.TestFunction(V)))
+    b = assemble_vector(f)
+    b.ghostUpdate(addv=2, mode=1)  # ADD, REVERSE
+    n = V.dofmap.index_map.size_local
+    x = V.tabulate_dof_coordinates()[:n]
+    nodal = b.getArray(readonly=True).reshape(-1, 3)
+    on_face = np.isclose(x[:, axis], 1.0)
+    inside = np.all((x > 1e-9) & (x < 1 - 1e-9), axis=1)
+    interior = COMM.allreduce(float(np.abs(nodal[inside]).max(initial=0.0)), op=MPI.MAX)
+    return COMM.allreduce(nodal[on_face].sum(axis=0), op=MPI.SUM), interior
+
+
+@pytest.mark.parametrize("degree", [1, 2])
+@pytest.mark.parametrize("stretch", [0.7, 1.3, 2.0])
+def test_uniaxial_stress_of_neo_hookean_block(degree, stretch):
+    # the lateral stretch t that leaves the sides free of traction, from the closed form
+    t = brentq(lambda t: _neo_hookean_piola(np.diag([stretch, t, t]))[1, 1], 0.2, 2.0, xtol=1e-15)
+    F = np.diag([stretch, t, t])
+    total, interior = _face_force(F, degree, axis=0)
+    P11 = _neo_hookean_piola(F)[0, 0]
+    assert total == pytest.approx([P11, 0.0, 0.0], abs=1e-10 * abs(P11))  # unit face: force = P11
+    assert interior <= 1e-10 * abs(P11)  # a homogeneous stress has no divergence
+
+
+@pytest.mark.parametrize("degree", [1, 2])
+def test_simple_shear_of_neo_hookean_block(degree):
+    gamma = 0.8
+    F = np.eye(3) + gamma * np.outer([1, 0, 0], [0, 1, 0])
+    total, interior = _face_force(F, degree, axis=1)
+    # J = 1: P = mu (F - F^-T), so the face Y = 1 carries (mu gamma, 0, 0)
+    assert total == pytest.approx([MU * gamma, 0.0, 0.0], abs=1e-10 * MU)
+    assert interior <= 1e-10 * MU
+
+
+def _column_top(E: float, degree: int, layers: int, model: str, g: float = 9.81) -> float:
+    data = column_dict(layers, degree, gravity=(0.0, 0.0, -g),
+                       material={"E": E, "nu": 0.3, "density": 1000.0, "model": model})
+    sim = Simulation(scene_from_dict(data), COMM)
+    sim.solve_to_settled(0.0)
+    return float(sim.probe_values()[0, 2])
+
+
+def test_standing_column_under_its_weight_against_the_1d_equilibrium():
+    """A laterally confined neo-Hookean column sags by a fifth of its height. In 1-D,
+    F = diag(1, 1, lambda(Z)) and P33 = mu (lambda - 1/lambda) + Lambda ln(lambda) / lambda
+    must equal -rho g (H - Z) (free top, weight per reference volume); u(H) = int (lambda - 1)."""
+    E, nu, rho, g, H = 500.0, 0.3, 1000.0, 9.81, 0.1
+    mu, lam = lame_parameters(E, nu)
+
+    def stretch(Z):
+        return brentq(lambda s: mu * (s - 1 / s) + lam * np.log(s) / s + rho * g * (H - Z), 1e-3, 1.0, xtol=1e-15)
+
+    exact = quad(lambda Z: stretch(Z) - 1.0, 0.0, H, epsabs=1e-14, epsrel=1e-12)[0]
+    assert exact < -0.15 * H  # a large deformation: the linear answer is far off
+    linear = -rho * g * H**2 / (2 * (lam + 2 * mu))
+    assert abs(linear - exact) > 0.1 * abs(exact)
+    tops = [_column_top(E, 2, n, "neo-hookean") for n in (8, 16)]
+    errors = [abs(t - exact) for t in tops]
+    assert errors[1] <= 1e-4 * abs(exact)
+    assert np.log2(errors[0] / errors[1]) > 2.5  # P2: third order in the layer height
+
+
+def test_small_loads_give_the_linear_answer_with_a_linear_deviation():
+    ratios = {s: _column_top(5000.0, 1, 4, "neo-hookean", 9.81 * s) / _column_top(5000.0, 1, 4, "linear", 9.81 * s)
+              for s in (0.02, 0.01)}
+    deviation = {s: r - 1.0 for s, r in ratios.items()}
+    assert abs(deviation[0.01]) < 1e-3
+    assert deviation[0.02] / deviation[0.01] == pytest.approx(2.0, rel=0.02)  # first order in the load
+
+
+def _block_in_oil(model: str, degree: int = 1, nu: float = 0.48) -> dict:
+    """The gelatin block of the paper, glued to the floor, oil standing 20 mm high."""
+    return {"mesh": {"shape": "box", "size": [0.05, 0.05, 0.025], "cells": [6, 6, 3]},
+            "material": {"E": 729.0, "nu": nu, "density": 1048.0, "model": model},
+            "fluid": {"density": 975.0, "level": 0.02}, "fixed": [{"where": "z < 1e-9"}],
+            "time": {"mode": "quasi-static"}, "solver": {"kind": "cholesky"}, "element": {"degree": degree},
+            "probes": {"top": [0.025, 0.025, 0.025]}}
+
+
+@pytest.mark.parametrize("model, degree, nu", [("neo-hookean", 1, 0.48), ("saint-venant-kirchhoff", 1, 0.48),
+                                               ("neo-hookean", 2, 0.4999)])
+def test_newton_converges_quadratically_with_the_follower_tangent(model, degree, nu):
+    scene = scene_from_dict(_block_in_oil(model, degree, nu))
+    sim = Simulation(scene, COMM)
+    sim.solve_to_settled(0.0)
+    history = np.array(sim.static.history) / sim.static.history[0]
+    assert history[-1] < 1e-9 and sim.static.cuts == 0
+    # quadratic: once the residual is small, each step squares it (log ratio near 2)
+    small = [k for k in range(len(history) - 1) if 1e-9 < history[k] < 1e-2]
+    assert small and all(np.log(history[k + 1]) / np.log(history[k]) > 1.7 for k in small)
+    # without the load's tangent the same solve converges only linearly: more iterations
+    plain = Simulation(scene, COMM)
+    plain._static().load_tangent = False
+    plain.solve_to_settled(0.0)
+    assert plain.static.iterations > sim.static.iterations + 2
+    assert plain.probe_values() == pytest.approx(sim.probe_values(), abs=1e-9)
+
+
+def test_archimedes_holds_on_the_deformed_surface(shared_tmp):
+    from test_hydrostatics import submerged_volume
+
+    scene = load_scene("cube", ["mesh.cells=[6, 6, 3]", "time.mode=quasi-static", "fluid.volume=100e-6",
+                                "material.model=neo-hookean", "output.pictures=false"])
+    result = run(scene)
+    mesh, u = result.mesh, result.displacement
+    # move the mesh to the deformed shape (P1: the vertices carry the displacement), then clip
+    x = mesh.geometry.x
+    moved = x.copy()
+    V1 = compat.vector_space(mesh, 1)
+    w = fem.Function(V1)
+    w.interpolate(u)
+    coords = V1.tabulate_dof_coordinates()
+    from scipy.spatial import cKDTree
+    nearest = cKDTree(coords).query(x)[1]
+    moved += w.x.array.reshape(-1, 3)[nearest]
+    mesh.geometry.x[:] = moved
+    volume = submerged_volume(mesh, np.array([0.0, 0.0, 1.0]), result.summary["final_level_m"])
+    mesh.geometry.x[:] = x
+    assert result.summary["fluid_force_N"][2] == pytest.approx(975.0 * 9.81 * volume, rel=1e-10)
+
+
+def test_a_rigid_rotation_of_the_scene_rotates_the_answer(shared_tmp):
+    """Mesh, gravity, support and fluid turned by 40 degrees about (1, 1, 1): the displacement
+    turns with them (neo-Hookean, large sag, follower fluid load)."""
+    import meshio
+
+    from fenics_brainshift.meshing.hexgrid import structured_box
+
+    axis = np.ones(3) / np.sqrt(3.0)
+    angle = np.radians(40.0)
+    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    R = np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
+    size, cells = (0.02, 0.02, 0.04), (2, 2, 4)
+    if COMM.rank == 0:
+        points, tets = structured_box(size, cells)
+        meshio.write(shared_tmp / "turned.xdmf", meshio.Mesh(points @ R.T, [("tetra", tets)]))
+    COMM.barrier()
+    top = np.array([0.01, 0.01, 0.04])
+    common = {"material": {"E": 300.0, "nu": 0.4, "density": 1040.0, "model": "neo-hookean"},
+              "time": {"mode": "quasi-static"}, "solver": {"kind": "cholesky"}}
+    upright = scene_from_dict({**common, "mesh": {"shape": "box", "size": list(size), "cells": list(cells)},
+                               "gravity": {"vector": [0.0, 0.0, -9.81]}, "fixed": [{"where": "z < 1e-9"}],
+                               "fluid": {"density": 1000.0, "level": 0.02}, "probes": {"top": list(top)}})
+    up = R @ np.array([0.0, 0.0, 1.0])
+    turned = scene_from_dict({**common, "mesh": {"file": str(shared_tmp / "turned.xdmf")},
+                              "gravity": {"vector": list(-9.81 * up)},
+                              "fixed": [{"where": f"{up[0]!r} * x + {up[1]!r} * y + {up[2]!r} * z < 1e-9"}],
+                              "fluid": {"density": 1000.0, "level": 0.02}, "probes": {"top": list(R @ top)}})
+    a, b = (run(s).probes["top"] for s in (upright, turned))
+    assert np.linalg.norm(a) > 1e-3  # millimetres of sag: a large deformation of a 40 mm block
+    np.testing.assert_allclose(b, R @ np.array(a), atol=1e-8 * np.linalg.norm(a))
