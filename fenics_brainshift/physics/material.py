@@ -47,6 +47,14 @@ class Hyperelastic:
     mu: object
     lmbda: object
     kind: str = "neo-hookean"
+    quadrature_degree: int | None = None  # None: UFL's estimate (high: ln J, det F)
+
+    @classmethod
+    def for_degree(cls, mu, lmbda, kind: str, degree: int) -> "Hyperelastic":
+        """The quadrature a Lagrange degree needs: P1's deformation gradient is constant on a
+        (straight) tetrahedron, so one point integrates the energy exactly; P2's is linear,
+        and four-degree quadrature is the usual choice for the nonlinear energy."""
+        return cls(mu, lmbda, kind, 1 if degree == 1 else 4)
 
     @staticmethod
     def deformation_gradient(u):
@@ -71,7 +79,8 @@ class Hyperelastic:
 
     def internal_force(self, u, v):
         """The residual's internal part: the derivative of the stored energy along v."""
-        return ufl.inner(self.first_piola(u), ufl.grad(v)) * ufl.dx
+        dx = ufl.dx(metadata={"quadrature_degree": self.quadrature_degree}) if self.quadrature_degree else ufl.dx
+        return ufl.inner(self.first_piola(u), ufl.grad(v)) * dx
 
     def tangent(self, u, du, v):
         """The consistent tangent: the derivative of internal_force along du."""

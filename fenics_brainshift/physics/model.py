@@ -79,7 +79,8 @@ class Model:
 
     @property
     def hyperelastic(self) -> Hyperelastic:
-        return Hyperelastic(self._present(self.mu), self._present(self.lmbda), self.material_model)
+        return Hyperelastic.for_degree(self._present(self.mu), self._present(self.lmbda), self.material_model,
+                                       compat.element_degree(self.V))
 
     def mass_form(self):
         u, v = self._trial_test()

@@ -30,16 +30,17 @@ log = get_logger("newton")
 MIN_FRACTION = 1.0 / 1024.0
 
 
+MAX_KRYLOV = 200  # GMRES iterations before the preconditioner is rebuilt on the current tangent
+
+
 def tangent_settings(settings: dict) -> dict:
-    """The tangent is not symmetric with a follower load, and may be indefinite far from rest:
-    a Cholesky factor becomes an LU factor (MUMPS), CG becomes GMRES with the same
-    preconditioner."""
-    settings = dict(settings)
-    if settings["kind"] == "cholesky":
-        settings["kind"] = "lu"
-    elif settings["kind"].startswith("cg-"):
-        settings["options"] = {"ksp_type": "gmres", **settings.get("options", {})}
-    return settings
+    """The tangent is not symmetric with a follower load: the Krylov method is GMRES,
+    preconditioned by the scene's kind (a Cholesky factor, AMG, ...) built once on the linear
+    stiffness K at rest; only if GMRES stalls is it rebuilt, as an LU factor of the current
+    tangent (a compressive prestress can make the tangent indefinite)."""
+    # right preconditioning: GMRES then measures the true residual, which the forcing term
+    # must bound (a preconditioned one can be small while the true one is not)
+    return {**settings, "options": {"ksp_type": "gmres", "ksp_pc_side": "right", **settings.get("options", {})}}
 
 
 class NewtonStatic:
@@ -57,6 +58,7 @@ class NewtonStatic:
         self._tangent = fem.form(material.tangent(state.u, du, v))
         self._R = dolfinx.la.create_petsc_vector(V.dofmap.index_map, V.dofmap.index_map_bs)
         self._F, self._du = self._R.duplicate(), fem.Function(V)
+        self._P = None  # the matrix the factor or preconditioner was built on
         self._fixed = np.unique(np.concatenate([bc.dof_indices()[0] for bc in model.bcs])) if model.bcs else \
             np.zeros(0, dtype=np.int32)
         self.follower = model.fluid is not None and model.fluid.follower
@@ -67,7 +69,9 @@ class NewtonStatic:
         self._t_settled: float | None = None
 
     def setup(self) -> None:
-        """Nothing to build ahead: the tangent changes with every iterate."""
+        """The preconditioner at rest (a factor of K, or AMG), reused by every Newton step."""
+        if self._P is None:
+            self._preconditioner_at_rest()
 
     # -- one Newton solve -----------------------------------------------------------------------
     def _residual(self, t: float, factor: float) -> float:
@@ -87,14 +91,51 @@ class NewtonStatic:
         norm = self._R.norm()
         return norm if np.isfinite(norm) else np.inf
 
-    def _tangent_matrix(self, factor: float) -> PETSc.Mat:
+    def _tangent_matrix(self, factor: float, with_load: bool = True) -> PETSc.Mat:
         A = assemble_matrix(self._tangent)
         A.assemble()
         fluid = self.model.fluid
-        if self.follower and self.load_tangent and fluid.level == fluid.level:  # a level is known (not NaN)
+        if with_load and self.follower and self.load_tangent and fluid.level == fluid.level:  # a level is known
             add_load_tangent(A, fluid.hydro, fluid.level, self.state.u, -factor)
         A.zeroRowsColumnsLocal(self._fixed.astype(np.int32), 1.0)
         return A
+
+    def _preconditioner_at_rest(self) -> None:
+        """The factor (or AMG) of K with supports: positive definite, built once."""
+        self._P = self.model.assemble(self.model.stiffness_form(), with_bcs=True)
+        self.solves.reset(self._P)
+        self.solves.solver.ksp.setTolerances(max_it=MAX_KRYLOV)
+
+    def _preconditioner_now(self, factor: float) -> None:
+        """An LU factor of the current full tangent (GMRES stalled with the one at rest)."""
+        log.info("  Newton: GMRES stalled with the factor at rest; LU factor of the current tangent")
+        self._P.destroy()
+        self.solves.settings = {**self.solves.settings, "kind": "lu"}
+        self._P = self._tangent_matrix(factor)
+        self.solves.reset(self._P)
+        self.solves.solver.ksp.setTolerances(max_it=MAX_KRYLOV)
+
+    def _solve_step(self, factor: float, t: float, forcing: float) -> None:
+        """du = -K_T^-1 R to the relative tolerance ``forcing``, by GMRES on the full tangent."""
+        if self._P is None:
+            self._preconditioner_at_rest()
+        A = self._tangent_matrix(factor)
+        du = compat.petsc_vec(self._du)
+        try:
+            for attempt in range(2):
+                if attempt == 1:
+                    self._preconditioner_now(factor)
+                self.solves.operate_with(A)
+                self.solves.solver.ksp.setTolerances(rtol=forcing)
+                du.set(0.0)
+                try:
+                    self.solves(self._R, du, t)
+                    return
+                except SolverError:
+                    if attempt == 1:
+                        raise
+        finally:
+            A.destroy()
 
     def _newton(self, t: float, factor: float) -> bool:
         """Newton from the current state to the loads (t, factor); False if it failed (the
@@ -106,16 +147,14 @@ class NewtonStatic:
             if norm <= self.rtol * max(self._load_norm, 1e-300):
                 self.iterations = k - 1
                 return True
-            A = self._tangent_matrix(factor)
             self._R.scale(-1.0)
-            du.set(0.0)
+            # Eisenstat-Walker: solve no more exactly than the residual is small, which keeps
+            # the convergence quadratic at a fraction of the Krylov iterations
+            forcing = min(1e-2, max(norm / max(self._load_norm, 1e-300), self.solves.settings["rtol"]))
             try:
-                self.solves.reset(A)
-                self.solves(self._R, du, t)
-            except SolverError:  # a factor that fails (the tangent lost definiteness), a diverged solve
+                self._solve_step(factor, t, forcing)
+            except SolverError:  # a factor that fails, a solve that diverges with both preconditioners
                 return False
-            finally:
-                A.destroy()
             self._du.x.scatter_forward()
             start = u.x.array.copy()
             for alpha in 0.5 ** np.arange(8):  # backtracking: the full step first
@@ -158,4 +197,6 @@ class NewtonStatic:
         return self.iterations
 
     def destroy(self) -> None:
+        if self._P is not None:
+            self._P.destroy()
         self.solves.destroy()

@@ -18,6 +18,7 @@ class Solves:
         self.near_nullspace = near_nullspace
         self.solver: LinearSolver | None = None
         self.count = 0
+        self.factors = 0  # factorisations or preconditioner setups
         self.seconds = 0.0
         self.iterations: list[int] = []
 
@@ -25,6 +26,12 @@ class Solves:
         """A new matrix: its solver is set up now (factor or preconditioner)."""
         self.destroy()
         self.solver = LinearSolver(A, near_nullspace=self.near_nullspace, **self.settings)
+        self.factors += 1
+
+    def operate_with(self, A: PETSc.Mat) -> None:
+        """Solve with A from now on, keeping the factor or preconditioner of the matrix the
+        solver was set up with (a Krylov method then makes up the difference)."""
+        self.solver.ksp.setOperators(A, self.solver.ksp.getOperators()[1])
 
     def __call__(self, rhs: PETSc.Vec, x: PETSc.Vec, t: float) -> int:
         t0 = time.perf_counter()
