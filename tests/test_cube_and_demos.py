@@ -164,3 +164,24 @@ def test_resection_demo_serial_and_mpi(tmp_path):
     for name in ("cavity_roof", "cavity_floor"):
         a, b = np.array(one["probes"][name]), np.array(two["probes"][name])
         assert np.abs(a - b).max() <= 1e-6 * np.abs(a).max()  # the follower iteration tolerance
+
+
+def test_hyperelastic_demo_serial_and_mpi(tmp_path):
+    """Linear against neo-Hookean on a coarse brain: the soft linear brain has no equilibrium,
+    the neo-Hookean one has; the linear runs past 5 % strain are flagged; 1 and 2 ranks agree."""
+    import csv
+
+    tables = {}
+    for ranks in (1, 2):
+        out = tmp_path / f"r{ranks}"
+        _run(out, ranks, str(ROOT / "demos" / "hyperelastic.py"), "--voxel", "0.012", "--out", str(out))
+        assert (out / "comparison.png").stat().st_size > 10_000
+        with open(out / "comparison.csv") as f:
+            tables[ranks] = {(r["case"], r["model"]): r for r in csv.DictReader(f)}
+    one, two = tables[1], tables[2]
+    assert one[("G = 500 Pa", "linear")]["status"] != "ok"
+    assert all(one[(c, "neo-hookean")]["status"] == "ok" for c in ("G = 2370 Pa", "G = 500 Pa", "brain stem only"))
+    assert one[("brain stem only", "linear")]["warning"] == "True"
+    for key, row in one.items():
+        if row["status"] == "ok":
+            assert float(two[key]["max_mm"]) == pytest.approx(float(row["max_mm"]), rel=1e-6), key

@@ -37,6 +37,13 @@ class LinearElastic:
         """The bilinear form of K."""
         return ufl.inner(self.stress(u), self.strain(v)) * ufl.dx
 
+    def internal_force(self, u, v):
+        """K u as a residual form (u a Function): the same interface as Hyperelastic."""
+        return self.stiffness(u, v)
+
+    def tangent(self, u, du, v):
+        return self.stiffness(du, v)
+
 
 @dataclass(frozen=True)
 class Hyperelastic:

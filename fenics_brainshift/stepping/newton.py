@@ -15,7 +15,7 @@ import dolfinx.la
 import numpy as np
 import ufl
 from dolfinx import fem
-from dolfinx.fem.petsc import assemble_matrix, assemble_vector, set_bc
+from dolfinx.fem.petsc import assemble_matrix, assemble_vector, create_matrix, set_bc
 from mpi4py import MPI
 from petsc4py import PETSc
 
@@ -30,7 +30,8 @@ log = get_logger("newton")
 MIN_FRACTION = 1.0 / 1024.0
 
 
-MAX_KRYLOV = 200  # GMRES iterations before the preconditioner is rebuilt on the current tangent
+MAX_KRYLOV = 100  # GMRES iterations before the preconditioner is rebuilt on the current tangent
+STALE_KRYLOV = 30  # more than this in a solve: the next one rebuilds it first
 
 
 def tangent_settings(settings: dict) -> dict:
@@ -53,12 +54,14 @@ class NewtonStatic:
         self.rtol, self.max_iterations = rtol, max_iterations
         V = model.V
         v, du = ufl.TestFunction(V), ufl.TrialFunction(V)
-        material = model.hyperelastic
+        material = model.hyperelastic if model.nonlinear else model.material  # linear: Newton for the follower load
         self._internal = fem.form(material.internal_force(state.u, v))
         self._tangent = fem.form(material.tangent(state.u, du, v))
         self._R = dolfinx.la.create_petsc_vector(V.dofmap.index_map, V.dofmap.index_map_bs)
         self._F, self._du = self._R.duplicate(), fem.Function(V)
+        self._A = None  # the tangent, assembled anew into the same matrix each iteration
         self._P = None  # the matrix the factor or preconditioner was built on
+        self._stale = False  # GMRES needed many iterations with it: rebuild before the next solve
         self._fixed = np.unique(np.concatenate([bc.dof_indices()[0] for bc in model.bcs])) if model.bcs else \
             np.zeros(0, dtype=np.int32)
         self.follower = model.fluid is not None and model.fluid.follower
@@ -92,7 +95,12 @@ class NewtonStatic:
         return norm if np.isfinite(norm) else np.inf
 
     def _tangent_matrix(self, factor: float, with_load: bool = True) -> PETSc.Mat:
-        A = assemble_matrix(self._tangent)
+        """The tangent with supports, into the one matrix kept for it (its sparsity built once)."""
+        if self._A is None:
+            self._A = create_matrix(self._tangent)
+        A = self._A
+        A.zeroEntries()
+        assemble_matrix(A, self._tangent)
         A.assemble()
         fluid = self.model.fluid
         if with_load and self.follower and self.load_tangent and fluid.level == fluid.level:  # a level is known
@@ -106,36 +114,35 @@ class NewtonStatic:
         self.solves.reset(self._P)
         self.solves.solver.ksp.setTolerances(max_it=MAX_KRYLOV)
 
-    def _preconditioner_now(self, factor: float) -> None:
-        """An LU factor of the current full tangent (GMRES stalled with the one at rest)."""
-        log.info("  Newton: GMRES stalled with the factor at rest; LU factor of the current tangent")
-        self._P.destroy()
+    def _preconditioner_now(self, A: PETSc.Mat) -> None:
+        """An LU factor of the current full tangent A (GMRES slowed down with the one it had)."""
+        log.debug("  Newton: LU factor of the current tangent")
         self.solves.settings = {**self.solves.settings, "kind": "lu"}
-        self._P = self._tangent_matrix(factor)
+        A.copy(self._P, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
         self.solves.reset(self._P)
         self.solves.solver.ksp.setTolerances(max_it=MAX_KRYLOV)
+        self._stale = False
 
     def _solve_step(self, factor: float, t: float, forcing: float) -> None:
         """du = -K_T^-1 R to the relative tolerance ``forcing``, by GMRES on the full tangent."""
         if self._P is None:
             self._preconditioner_at_rest()
         A = self._tangent_matrix(factor)
+        if self._stale:
+            self._preconditioner_now(A)
         du = compat.petsc_vec(self._du)
-        try:
-            for attempt in range(2):
+        for attempt in range(2):
+            if attempt == 1:  # GMRES did not converge: a factor of this very tangent
+                self._preconditioner_now(A)
+            self.solves.operate_with(A)
+            self.solves.solver.ksp.setTolerances(rtol=forcing)
+            du.set(0.0)
+            try:
+                self._stale = self.solves(self._R, du, t) > STALE_KRYLOV
+                return
+            except SolverError:
                 if attempt == 1:
-                    self._preconditioner_now(factor)
-                self.solves.operate_with(A)
-                self.solves.solver.ksp.setTolerances(rtol=forcing)
-                du.set(0.0)
-                try:
-                    self.solves(self._R, du, t)
-                    return
-                except SolverError:
-                    if attempt == 1:
-                        raise
-        finally:
-            A.destroy()
+                    raise
 
     def _newton(self, t: float, factor: float) -> bool:
         """Newton from the current state to the loads (t, factor); False if it failed (the
@@ -197,6 +204,7 @@ class NewtonStatic:
         return self.iterations
 
     def destroy(self) -> None:
-        if self._P is not None:
-            self._P.destroy()
+        for matrix in (self._A, self._P):
+            if matrix is not None:
+                matrix.destroy()
         self.solves.destroy()
