@@ -184,7 +184,7 @@ def test_a_rigid_rotation_of_the_scene_rotates_the_answer(shared_tmp):
     up = R @ np.array([0.0, 0.0, 1.0])
     turned = scene_from_dict({**common, "mesh": {"file": str(shared_tmp / "turned.xdmf")},
                               "gravity": {"vector": list(-9.81 * up)},
-                              "fixed": [{"where": f"{up[0]!r} * x + {up[1]!r} * y + {up[2]!r} * z < 1e-9"}],
+                              "fixed": [{"where": f"{float(up[0])!r} * x + {float(up[1])!r} * y + {float(up[2])!r} * z < 1e-9"}],
                               "fluid": {"density": 1000.0, "level": 0.02}, "probes": {"top": list(R @ top)}})
     a, b = (run(s).probes["top"] for s in (upright, turned))
     assert np.linalg.norm(a) > 1e-3  # millimetres of sag: a large deformation of a 40 mm block
