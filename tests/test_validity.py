@@ -46,3 +46,17 @@ def test_a_linear_run_past_the_limit_is_reported_and_a_small_one_is_not(shared_t
     assert "neo-hookean" in summary["warning"]
     stiff = run(scene_from_dict(column_dict(4))).summary["validity"]
     assert 0 < stiff["max_green_lagrange_strain"] < 5e-3 and "warning" not in stiff
+
+
+def test_auto_material_keeps_linear_when_valid_and_switches_when_not():
+    stiff = run(scene_from_dict(column_dict(4, material={"E": 5000.0, "nu": 0.3, "density": 1000.0,
+                                                         "model": "auto"}))).summary
+    assert stiff["validity"]["model"] == "linear" and stiff["plan"]["material"].startswith("linear: ")
+    soft_data = column_dict(4, degree=2, material={"E": 30.0, "nu": 0.3, "density": 1000.0, "model": "auto"})
+    soft = run(scene_from_dict(soft_data)).summary
+    assert soft["validity"]["model"] == "neo-hookean" and "past 5%" in soft["plan"]["material"]
+    assert "warning" not in soft["validity"]
+    # the switched run is the neo-Hookean answer itself
+    soft_data["material"]["model"] = "neo-hookean"
+    direct = run(scene_from_dict(soft_data)).summary
+    assert soft["probes"]["top"] == pytest.approx(direct["probes"]["top"], rel=1e-12)

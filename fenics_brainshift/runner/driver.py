@@ -19,6 +19,7 @@ from ..outputs.xdmf import FieldWriter
 from ..scene import Scene
 from . import build
 from .loop import History, march
+from .material_choice import resolve_material
 from .simulation import Simulation
 from .summary import probe_table, summary
 
@@ -58,7 +59,9 @@ def run(scene: Scene, out: str | Path | None = None, comm=MPI.COMM_WORLD, raise_
     out = Path(out) if out is not None else None
     if out is not None:
         check_writable(out, comm)
+    scene, material_choice = resolve_material(scene, comm)
     sim = Simulation(scene, comm)
+    sim.plan.material = material_choice
     surface = build.fine_surface(scene) if out is not None else None
     embedding = SurfaceEmbedding(sim.model.mesh, *surface) if surface is not None else None
     sim.setup()

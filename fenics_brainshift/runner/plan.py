@@ -40,6 +40,7 @@ class Plan:
     fluid_load: str = ""
     fields: str = ""
     stiffness_band: str = ""
+    material: str = ""  # with [material] model = "auto": which model, and why
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -49,6 +50,8 @@ class Plan:
         lines += [f"plan: reuse {self.reused}", f"plan: fluid load {self.fluid_load}", f"plan: {self.fields}"]
         if self.stiffness_band:
             lines.append(f"plan: {self.stiffness_band}")
+        if self.material:
+            lines.append(f"plan: material {self.material}")
         return lines
 
 

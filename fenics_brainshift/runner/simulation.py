@@ -29,6 +29,9 @@ class Simulation:
 
     def __init__(self, scene: Scene, comm=MPI.COMM_WORLD, model=None):
         """``model``: one built before from this scene (build_model), to share its mesh."""
+        if scene.material.model == "auto":
+            raise InputError("[material] model = \"auto\" is decided by run() (a linear trial run first); "
+                             "a Simulation needs \"linear\", \"neo-hookean\" or \"saint-venant-kirchhoff\"")
         self.scene = scene
         self.model = model if model is not None else build.build_model(scene, comm)
         self.plan = make_plan(scene, self.model.mesh)

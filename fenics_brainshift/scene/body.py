@@ -86,7 +86,7 @@ class MeshSpec:
         return not formats.is_tetra_mesh(self.file)
 
 
-MATERIAL_MODELS = ("linear", "neo-hookean", "saint-venant-kirchhoff")
+MATERIAL_MODELS = ("linear", "neo-hookean", "saint-venant-kirchhoff", "auto")
 
 
 @dataclass(slots=True)
