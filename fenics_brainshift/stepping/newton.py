@@ -44,6 +44,43 @@ def tangent_settings(settings: dict) -> dict:
     return {**settings, "options": {"ksp_type": "gmres", "ksp_pc_side": "right", **settings.get("options", {})}}
 
 
+def newton_iterate(x, dx, residual, solve, scale, rtol: float, krylov_floor: float, max_iterations: int):
+    """Newton's iteration on the Function x with a backtracking line search on |R|.
+
+    residual() evaluates R at x into the caller's vector and returns |R| (inf when R is not
+    finite); solve(forcing) puts the update -J^-1 R into dx's PETSc vector to the relative
+    tolerance ``forcing``; converged when |R| <= rtol scale(), scale() the size of the loads.
+    Eisenstat-Walker: the forcing follows |R| / scale() (at most 1e-2, at least the Krylov
+    floor), so the linear solves are no more exact than needed and the convergence stays
+    quadratic. Returns (converged, the |R| history); on failure x is wherever it stopped."""
+    def target():
+        return rtol * max(scale(), 1e-300)
+
+    norm = residual()
+    history = [norm]
+    for _ in range(max_iterations):
+        if norm <= target():
+            return True, history
+        forcing = min(1e-2, max(norm / max(scale(), 1e-300), krylov_floor))
+        try:
+            solve(forcing)
+        except SolverError:  # a factor that fails, a solve that diverges with both preconditioners
+            return False, history
+        dx.x.scatter_forward()
+        start = x.x.array.copy()
+        for alpha in 0.5 ** np.arange(8):  # backtracking: the full step first
+            x.x.array[:] = start + alpha * dx.x.array
+            trial = residual()
+            if trial < (1.0 - 1e-4 * alpha) * norm:
+                break
+        else:  # no descent: fine if already at round-off, a failure otherwise
+            if trial > target():
+                return False, history
+        norm = trial
+        history.append(norm)
+    return norm <= target(), history
+
+
 class NewtonStatic:
     """Settled states of a Model with a hyperelastic material."""
 
@@ -125,6 +162,7 @@ class NewtonStatic:
 
     def _solve_step(self, factor: float, t: float, forcing: float) -> None:
         """du = -K_T^-1 R to the relative tolerance ``forcing``, by GMRES on the full tangent."""
+        self._R.scale(-1.0)
         if self._P is None:
             self._preconditioner_at_rest()
         A = self._tangent_matrix(factor)
@@ -147,35 +185,12 @@ class NewtonStatic:
     def _newton(self, t: float, factor: float) -> bool:
         """Newton from the current state to the loads (t, factor); False if it failed (the
         state is then wherever it stopped: the caller restores it)."""
-        u, du = self.state.u, compat.petsc_vec(self._du)
-        norm = self._residual(t, factor)
-        self.history = [norm]
-        for k in range(1, self.max_iterations + 1):
-            if norm <= self.rtol * max(self._load_norm, 1e-300):
-                self.iterations = k - 1
-                return True
-            self._R.scale(-1.0)
-            # Eisenstat-Walker: solve no more exactly than the residual is small, which keeps
-            # the convergence quadratic at a fraction of the Krylov iterations
-            forcing = min(1e-2, max(norm / max(self._load_norm, 1e-300), self.solves.settings["rtol"]))
-            try:
-                self._solve_step(factor, t, forcing)
-            except SolverError:  # a factor that fails, a solve that diverges with both preconditioners
-                return False
-            self._du.x.scatter_forward()
-            start = u.x.array.copy()
-            for alpha in 0.5 ** np.arange(8):  # backtracking: the full step first
-                u.x.array[:] = start + alpha * self._du.x.array
-                trial = self._residual(t, factor)
-                if trial < (1.0 - 1e-4 * alpha) * norm:
-                    break
-            else:  # no descent: fine if already at round-off, a failure otherwise
-                if trial > self.rtol * max(self._load_norm, 1e-300):
-                    return False
-            norm = trial
-            self.history.append(norm)
-        self.iterations = self.max_iterations
-        return norm <= self.rtol * max(self._load_norm, 1e-300)
+        converged, self.history = newton_iterate(
+            self.state.u, self._du, lambda: self._residual(t, factor),
+            lambda forcing: self._solve_step(factor, t, forcing), lambda: self._load_norm, self.rtol,
+            self.solves.settings["rtol"], self.max_iterations)
+        self.iterations = len(self.history) - 1
+        return converged
 
     # -- a settled state, with load stepping ------------------------------------------------------
     def solve(self, t: float) -> int:
