@@ -1,9 +1,9 @@
 """[material] model = "auto": the linear model unless it is not valid for the scene.
 
-A linear trial run (cheap: one factor, a few solves) measures the largest principal strain;
-past the limit (outputs/validity.py) the scene is solved with the neo-Hookean model instead.
-Finite deformation is solved for settled states only, so a dynamic scene stays linear (its
-summary then carries the validity warning). The choice and its reason go into the plan.
+A linear trial run (one factor, then a solve per step or settled state: a fraction of a
+hyperelastic run) measures the largest principal strain; past the limit (outputs/validity.py),
+or when the linear run finds no equilibrium, the scene is solved with the neo-Hookean model
+instead. The choice and its reason go into the plan.
 """
 from __future__ import annotations
 
@@ -25,10 +25,6 @@ def resolve_material(scene: Scene, comm) -> tuple[Scene, str]:
     linear = copy.deepcopy(scene)
     linear.material.model = "linear"
     trial = Simulation(linear, comm)
-    if trial.is_dynamic:
-        trial.destroy()
-        return linear, ("linear: the plan is dynamic, and finite deformation is solved for settled states "
-                        "only")
     trial.setup()
     history, stopped = march(trial)
     trial.destroy()

@@ -20,6 +20,7 @@ from ..scene import Scene
 from ..errors import InputError
 from ..stepping import DynamicStepper, Solves, State, StaticSolver
 from ..stepping.newton import NewtonStatic
+from ..stepping.newton_dynamic import NewtonDynamicStepper
 from . import build
 from .plan import make_plan
 
@@ -67,12 +68,9 @@ class Simulation:
         return self._static().solve(t)
 
     def _dynamic(self) -> DynamicStepper:
-        if self.model.nonlinear:
-            raise InputError(f"[material] model = \"{self.model.material_model}\" is solved for settled states "
-                             f"only so far: set [time] mode = \"quasi-static\" (it needs [[fixed]] supports and "
-                             f"no [[remove]])")
         if self.dynamic is None:
-            self.dynamic = DynamicStepper(self.model, self.state, build.integrator(self.scene),
+            stepper = NewtonDynamicStepper if self.model.nonlinear else DynamicStepper
+            self.dynamic = stepper(self.model, self.state, build.integrator(self.scene),
                                           (self.scene.damping.a, self.scene.damping.b), self.solves)
             self.dynamic.setup()
         return self.dynamic

@@ -1,0 +1,165 @@
+"""Time steps of a hyperelastic body: Newmark / generalized-alpha with Newton in every step.
+
+With C = a M + b K0 (Rayleigh, K0 the stiffness at rest) the step's residual in the
+increment du is
+
+    R(du) = cM M du + cb K0 du + M w_m + K0 (w_k - u_n) + (1 - af) f_int(u_n + du) + af f_int(u_n)
+            - (1 - af) F(t_{n+1}, u_n + du) - af F_n,
+
+cM, cb and w_m, w_k from integrators.py (for a linear material it reduces to the linear step),
+and its tangent cM M + cb K0 + (1 - af) (K_T - dF/du). Newton (newton.py: line search, forcing)
+solves it with GMRES preconditioned by the factor of the linear effective matrix, made once.
+The energy guard uses the stored energy of the material in place of u.K u / 2; for a nonlinear
+material Newmark's balance is no longer exact, it holds to O(dt^2) (tests/test_hyperelastic.py).
+"""
+from __future__ import annotations
+
+import numpy as np
+import ufl
+from dolfinx import fem
+from dolfinx.fem.petsc import assemble_matrix, assemble_vector, create_matrix, set_bc
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from .. import compat
+from ..errors import SolverError
+from ..physics.load_tangent import add_load_tangent
+from .dynamic import DynamicStepper
+from .newton import newton_iterate
+
+
+class NewtonDynamicStepper(DynamicStepper):
+    """DynamicStepper for a hyperelastic Model: the same operators (M, K0, the linear
+    effective matrix as preconditioner), a Newton iteration per step."""
+
+    rtol = 1e-9  # |R| relative to the step's loads
+    max_iterations = 25
+
+    def __init__(self, model, state, integrator, damping, solves, follower_tolerance: float = 1e-6):
+        super().__init__(model, state, integrator, damping, solves, follower_tolerance)
+        self.solves.settings = {**solves.settings, "options": {"ksp_type": "gmres", "ksp_pc_side": "right",
+                                                                **solves.settings.get("options", {})}}
+        V = model.V
+        self._x = fem.Function(V)  # u_n + du, the configuration of the current iterate
+        v, w = ufl.TestFunction(V), ufl.TrialFunction(V)
+        material = model.hyperelastic
+        self._internal = fem.form(material.internal_force(self._x, v))
+        self._tangent = fem.form(material.tangent(self._x, w, v))
+        energy = material.energy_density(material.deformation_gradient(state.u))
+        dx = ufl.dx(metadata={"quadrature_degree": material.quadrature_degree}) if material.quadrature_degree else ufl.dx
+        self._stored = fem.form(energy * dx)
+        self._f_int_old, self._f, self._R = (self._F.duplicate() for _ in range(3))
+        self._J = None
+        self._update = fem.Function(V)  # a Newton update of du
+        self._fixed = (np.unique(np.concatenate([bc.dof_indices()[0] for bc in model.bcs])).astype(np.int32)
+                       if model.bcs else np.zeros(0, dtype=np.int32))
+        self.newton_history: list[float] = []
+        # Newmark's balance holds to O(dt^2) here, not exactly: the guard (for a step that blows
+        # up, whose energy grows without bound) allows 10 % of the energy scale
+        self.energy.tolerance = max(self.energy.tolerance, 0.1)
+
+    def _internal_force(self, out: PETSc.Vec) -> PETSc.Vec:
+        with out.localForm() as local:
+            local.set(0.0)
+        assemble_vector(out, self._internal)
+        out.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        return out
+
+    def _build_operators(self) -> None:
+        super()._build_operators()
+        self._x.x.array[:] = self.state.u.x.array
+        self._internal_force(self._f_int_old)
+        self.solves.solver.ksp.setTolerances(max_it=200)
+
+    def step(self) -> int:
+        self._resect()
+        st, ti = self.state, self.integrator
+        t_new = (self.steps_taken + 1) * ti.dt
+        w_new, w_old = ti.load_weights()
+        am_f = w_new  # 1 - alpha_f
+        cM, cK = ti.effective_coefficients(self.damping_a, self.damping_b)
+        cb = cK - am_f  # the K0 part of the damping's effective coefficient
+        self._rhs_vectors()
+        base = self._base  # M w_m + K0 (w_k - u_n) + af f_int(u_n) - af F_n
+        self.M.mult(self._wm, base)
+        self._tmp.array[:] = self._wk.array_r - compat.petsc_vec(st.u).array_r
+        self.K.mult(self._tmp, self._R)
+        base.axpy(1.0, self._R)
+        base.axpy(w_old, self._f_int_old)
+        base.axpy(-w_old, self._F_old)
+        du, fluid = compat.petsc_vec(self.du), self.model.fluid
+        follower = fluid is not None and fluid.follower
+
+        def residual() -> float:
+            self._x.x.array[:] = st.u.x.array + self.du.x.array
+            try:
+                self.model.load_into(t_new, self._F, self._x if follower else st.u)
+            except SolverError:  # no fluid level for this shape
+                return np.inf
+            self._internal_force(self._f)
+            R = self._R
+            base.copy(R)
+            self.M.mult(du, self._tmp)
+            R.axpy(cM, self._tmp)
+            self.K.mult(du, self._tmp)
+            R.axpy(cb, self._tmp)
+            R.axpy(am_f, self._f)
+            R.axpy(-am_f, self._F)
+            set_bc(R, self.model.bcs)
+            norm = R.norm()
+            return norm if np.isfinite(norm) else np.inf
+
+        def solve(forcing: float) -> None:
+            J = self._tangent_matrix(cM, cb, am_f, follower)
+            self._R.scale(-1.0)
+            update = compat.petsc_vec(self._update)
+            update.set(0.0)
+            self.solves.operate_with(J)
+            self.solves.solver.ksp.setTolerances(rtol=forcing)
+            self.solves(self._R, update, t_new)
+
+        converged, self.newton_history = newton_iterate(
+            self.du, self._update, residual, solve, lambda: self._F.norm(), self.rtol,
+            self.solves.settings["rtol"], self.max_iterations)
+        if not converged:
+            raise SolverError(f"Newton did not converge in the time step to t = {t_new:g} s (residual "
+                              f"{self.newton_history[-1]:.2e}); reduce [time] dt")
+        n = st.n_owned
+        ti.update(st.u.x.array[:n], st.v.x.array[:n], st.a.x.array[:n], self.du.x.array[:n])
+        for f in (st.u, st.v, st.a):
+            f.x.scatter_forward()
+        self.energy.add_work(0.5 * (du.dot(self._F) + du.dot(self._F_old)))
+        self._F.copy(self._F_old)
+        self._f.copy(self._f_int_old)
+        st.t = t_new
+        self.steps_taken += 1
+        self._energy_check()
+        return len(self.newton_history) - 1
+
+    def _tangent_matrix(self, cM: float, cb: float, am_f: float, follower: bool) -> PETSc.Mat:
+        if self._J is None:
+            self._J = create_matrix(self._tangent)
+        J = self._J
+        J.zeroEntries()
+        assemble_matrix(J, self._tangent)
+        J.assemble()
+        J.scale(am_f)
+        J.axpy(cM, self.M, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+        if cb != 0.0:
+            J.axpy(cb, self.K, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
+        fluid = self.model.fluid
+        if follower and fluid.level == fluid.level:
+            add_load_tangent(J, fluid.hydro, fluid.level, self._x, -am_f)
+        J.zeroRowsColumnsLocal(self._fixed, 1.0)
+        return J
+
+    def energies(self, K_u=None) -> tuple[float, float]:
+        """(kinetic, stored) energy of the current state (J)."""
+        kinetic, _ = super().energies(K_u)
+        stored = fem.assemble_scalar(self._stored)
+        return kinetic, self.model.comm.allreduce(stored, op=MPI.SUM)
+
+    def destroy(self) -> None:
+        if self._J is not None:
+            self._J.destroy()
+        super().destroy()
