@@ -44,6 +44,24 @@ def tangent_settings(settings: dict) -> dict:
     return {**settings, "options": {"ksp_type": "gmres", "ksp_pc_side": "right", **settings.get("options", {})}}
 
 
+def reassemble(matrix: PETSc.Mat | None, compiled_form) -> PETSc.Mat:
+    """The form's matrix, assembled into ``matrix`` (made on the first call: the sparsity
+    pattern is built once, not every Newton iteration)."""
+    if matrix is None:
+        matrix = create_matrix(compiled_form)
+    matrix.zeroEntries()
+    assemble_matrix(matrix, compiled_form)
+    matrix.assemble()
+    return matrix
+
+
+def fixed_dofs(bcs) -> np.ndarray:
+    """The local (unrolled) indices of every dof the supports hold, for zeroRowsColumnsLocal."""
+    if not bcs:
+        return np.zeros(0, dtype=np.int32)
+    return np.unique(np.concatenate([bc.dof_indices()[0] for bc in bcs])).astype(np.int32)
+
+
 def newton_iterate(x, dx, residual, solve, scale, rtol: float, krylov_floor: float, max_iterations: int):
     """Newton's iteration on the Function x with a backtracking line search on |R|.
 
@@ -99,8 +117,7 @@ class NewtonStatic:
         self._A = None  # the tangent, assembled anew into the same matrix each iteration
         self._P = None  # the matrix the factor or preconditioner was built on
         self._stale = False  # GMRES needed many iterations with it: rebuild before the next solve
-        self._fixed = np.unique(np.concatenate([bc.dof_indices()[0] for bc in model.bcs])) if model.bcs else \
-            np.zeros(0, dtype=np.int32)
+        self._fixed = fixed_dofs(model.bcs)
         self.follower = model.fluid is not None and model.fluid.follower
         self.load_tangent = load_tangent  # False: the follower load's tangent left out (a baseline)
         self.iterations = 0  # Newton iterations of the last solve
@@ -133,16 +150,11 @@ class NewtonStatic:
 
     def _tangent_matrix(self, factor: float, with_load: bool = True) -> PETSc.Mat:
         """The tangent with supports, into the one matrix kept for it (its sparsity built once)."""
-        if self._A is None:
-            self._A = create_matrix(self._tangent)
-        A = self._A
-        A.zeroEntries()
-        assemble_matrix(A, self._tangent)
-        A.assemble()
+        A = self._A = reassemble(self._A, self._tangent)
         fluid = self.model.fluid
         if with_load and self.follower and self.load_tangent and fluid.level == fluid.level:  # a level is known
             add_load_tangent(A, fluid.hydro, fluid.level, self.state.u, -factor)
-        A.zeroRowsColumnsLocal(self._fixed.astype(np.int32), 1.0)
+        A.zeroRowsColumnsLocal(self._fixed, 1.0)
         return A
 
     def _preconditioner_at_rest(self) -> None:

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 import ufl
 from dolfinx import fem
-from dolfinx.fem.petsc import assemble_matrix, assemble_vector, create_matrix, set_bc
+from dolfinx.fem.petsc import assemble_vector, set_bc
 from mpi4py import MPI
 from petsc4py import PETSc
 
@@ -25,7 +25,7 @@ from .. import compat
 from ..errors import SolverError
 from ..physics.load_tangent import add_load_tangent
 from .dynamic import DynamicStepper
-from .newton import newton_iterate
+from .newton import fixed_dofs, newton_iterate, reassemble, tangent_settings
 
 
 class NewtonDynamicStepper(DynamicStepper):
@@ -37,8 +37,7 @@ class NewtonDynamicStepper(DynamicStepper):
 
     def __init__(self, model, state, integrator, damping, solves, follower_tolerance: float = 1e-6):
         super().__init__(model, state, integrator, damping, solves, follower_tolerance)
-        self.solves.settings = {**solves.settings, "options": {"ksp_type": "gmres", "ksp_pc_side": "right",
-                                                                **solves.settings.get("options", {})}}
+        solves.settings = tangent_settings(solves.settings)
         V = model.V
         self._x = fem.Function(V)  # u_n + du, the configuration of the current iterate
         v, w = ufl.TestFunction(V), ufl.TrialFunction(V)
@@ -51,8 +50,7 @@ class NewtonDynamicStepper(DynamicStepper):
         self._f_int_old, self._f, self._R = (self._F.duplicate() for _ in range(3))
         self._J = None
         self._update = fem.Function(V)  # a Newton update of du
-        self._fixed = (np.unique(np.concatenate([bc.dof_indices()[0] for bc in model.bcs])).astype(np.int32)
-                       if model.bcs else np.zeros(0, dtype=np.int32))
+        self._fixed = fixed_dofs(model.bcs)
         self.newton_history: list[float] = []
         # Newmark's balance holds to O(dt^2) here, not exactly: the guard (for a step that blows
         # up, whose energy grows without bound) allows 10 % of the energy scale
@@ -137,12 +135,7 @@ class NewtonDynamicStepper(DynamicStepper):
         return len(self.newton_history) - 1
 
     def _tangent_matrix(self, cM: float, cb: float, am_f: float, follower: bool) -> PETSc.Mat:
-        if self._J is None:
-            self._J = create_matrix(self._tangent)
-        J = self._J
-        J.zeroEntries()
-        assemble_matrix(J, self._tangent)
-        J.assemble()
+        J = self._J = reassemble(self._J, self._tangent)
         J.scale(am_f)
         J.axpy(cM, self.M, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
         if cb != 0.0:
