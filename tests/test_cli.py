@@ -11,7 +11,7 @@ import json
 import numpy as np
 import pytest
 
-from conftest import ROOT, column_dict, subprocess_env
+from conftest import column_dict, subprocess_env
 from fenics_brainshift.data import MESHES
 from fenics_brainshift.data import scene_path
 from fenics_brainshift.cli import main

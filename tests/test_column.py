@@ -13,7 +13,7 @@ from fenics_brainshift import compat
 from fenics_brainshift.physics import forms
 from fenics_brainshift.physics.gravity import assemble_into
 from fenics_brainshift.runner import build_model
-from fenics_brainshift.scene import SolverConfig, scene_from_dict
+from fenics_brainshift.scene import scene_from_dict
 from fenics_brainshift.runner import Simulation
 from fenics_brainshift.linalg import LinearSolver
 

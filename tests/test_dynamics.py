@@ -14,7 +14,7 @@ from dolfinx.fem.petsc import set_bc
 from conftest import COMM, column_dict, decay_per_step
 from fenics_brainshift.stepping.integrators import newmark_discrete_frequency
 from fenics_brainshift.runner import build_model
-from fenics_brainshift.scene import SolverConfig, scene_from_dict
+from fenics_brainshift.scene import scene_from_dict
 from fenics_brainshift.runner import Simulation
 from fenics_brainshift.linalg import LinearSolver
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from dolfinx.fem.petsc import set_bc
 
-from conftest import COMM, ROOT
+from conftest import COMM
 from fenics_brainshift.data import scene_path
 from fenics_brainshift import compat
 from fenics_brainshift.runner import build_model

@@ -15,7 +15,6 @@ import pytest
 from conftest import COMM, column_dict
 from fenics_brainshift.cli import main
 from fenics_brainshift.stepping import DynamicStepper, TimeIntegrator
-from fenics_brainshift.runner import build_model
 from fenics_brainshift.scene import scene_from_dict
 from fenics_brainshift.runner import Simulation
 from fenics_brainshift.errors import SolverError

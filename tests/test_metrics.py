@@ -7,7 +7,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import ROOT
 from fenics_brainshift.data import MESHES
 from fenics_brainshift.cli import main
 from fenics_brainshift.meshing.voxelize import read_surface

@@ -5,7 +5,6 @@ import pytest
 from petsc4py import PETSc
 
 from conftest import COMM, column_dict
-from fenics_brainshift.runner import build_model
 from fenics_brainshift.scene import scene_from_dict
 from fenics_brainshift.runner import Simulation
 from fenics_brainshift.errors import InputError, SolverError

@@ -16,7 +16,6 @@ import numpy as np
 import ufl
 from dolfinx import fem
 from dolfinx.fem.petsc import assemble_matrix, assemble_vector, create_matrix, set_bc
-from mpi4py import MPI
 from petsc4py import PETSc
 
 from .. import compat
