@@ -26,9 +26,13 @@ def test_stretch_then_rotation_by_hand(degree):
     F = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ np.diag([1.1, 1.0, 0.95])
     u = fem.Function(V)
     u.interpolate(lambda x: (F - np.eye(3)) @ x)  # u = (F - I) X: exact in P1 and P2
-    strain, rotation = StrainMeter(u).measure()
+    strain, rotation, inverted = StrainMeter(u).measure()
     assert strain == pytest.approx(0.105, rel=1e-12)
     assert rotation == pytest.approx(30.0, rel=1e-10)
+    assert inverted == 0
+    # a mirror image (det F = -0.5) turns every cell inside out: all 6 x 5 of them are counted
+    u.interpolate(lambda x: (np.diag([-0.5, 1.0, 1.0]) - np.eye(3)) @ x)
+    assert StrainMeter(u).measure()[2] == 30
 
 
 def test_a_linear_run_past_the_limit_is_reported_and_a_small_one_is_not(shared_tmp):
@@ -44,8 +48,10 @@ def test_a_linear_run_past_the_limit_is_reported_and_a_small_one_is_not(shared_t
     assert summary["max_green_lagrange_strain"] == pytest.approx(-e + e * e / 2, rel=1e-6)
     assert summary["max_green_lagrange_strain"] > STRAIN_LIMIT
     assert "neo-hookean" in summary["warning"]
+    # e > 1 means det F = 1 - e < 0: the linear column's lower cells are turned inside out
+    assert summary["inverted_cells"] > 0 and "inside out" in summary["warning"]
     stiff = run(scene_from_dict(column_dict(4))).summary["validity"]
-    assert 0 < stiff["max_green_lagrange_strain"] < 5e-3 and "warning" not in stiff
+    assert 0 < stiff["max_green_lagrange_strain"] < 5e-3 and "warning" not in stiff and stiff["inverted_cells"] == 0
 
 
 def test_auto_material_keeps_linear_when_valid_and_switches_when_not():

@@ -29,13 +29,15 @@ class StrainMeter:
         self._expression = compat.expression(ufl.Identity(3) + ufl.grad(u), space)
         self.n_owned = space.dofmap.index_map.size_local
 
-    def measure(self) -> tuple[float, float]:
-        """(largest principal Green-Lagrange strain, largest rotation in degrees), global."""
+    def measure(self) -> tuple[float, float, int]:
+        """(largest principal Green-Lagrange strain, largest rotation in degrees, cells turned
+        inside out: det F <= 0), global."""
         self.F.interpolate(self._expression)
         F = self.F.x.array.reshape(-1, 3, 3)[: self.n_owned]
         strain, rotation = principal_strain_and_rotation(F)
         local = (float(strain.max(initial=0.0)), float(rotation.max(initial=0.0)))
-        return tuple(self.comm.allreduce(v, op=MPI.MAX) for v in local)
+        inverted = self.comm.allreduce(int(np.count_nonzero(np.linalg.det(F) <= 0.0)), op=MPI.SUM)
+        return (*(self.comm.allreduce(v, op=MPI.MAX) for v in local), inverted)
 
 
 def principal_strain_and_rotation(F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -49,11 +51,16 @@ def principal_strain_and_rotation(F: np.ndarray) -> tuple[np.ndarray, np.ndarray
     return strain, np.degrees(np.arccos(cosine))
 
 
-def assessment(strain: float, rotation_deg: float, model: str = "linear") -> dict:
-    """The summary's `validity` entry, with a warning when a linear run left small strain."""
+def assessment(strain: float, rotation_deg: float, model: str = "linear", inverted: int = 0) -> dict:
+    """The summary's `validity` entry, with a warning when a linear run left small strain or
+    turned cells inside out (a displacement no body can take)."""
     out = {"model": model, "max_green_lagrange_strain": strain, "max_rotation_deg": rotation_deg,
-           "strain_limit": STRAIN_LIMIT}
-    if model == "linear" and strain > STRAIN_LIMIT:
+           "strain_limit": STRAIN_LIMIT, "inverted_cells": inverted}
+    if inverted:
+        out["warning"] = (f"{inverted} cells are turned inside out (det F <= 0): the displacement is not "
+                          f"physical; use a finite-deformation model ([material] model = \"{NONLINEAR_MODEL}\") "
+                          f"or check the loads and supports")
+    elif model == "linear" and strain > STRAIN_LIMIT:
         out["warning"] = (f"the largest principal strain is {strain:.1%}, past the {STRAIN_LIMIT:.0%} a linear "
                           f"(small-strain) model is valid for; its answer may be far off: use a finite-"
                           f"deformation model ([material] model = \"{NONLINEAR_MODEL}\")")

@@ -26,6 +26,7 @@ class History:
     step_seconds: list[float] = field(default_factory=list)
     largest_strain: float = 0.0  # principal Green-Lagrange, over the output times
     largest_rotation_deg: float = 0.0
+    inverted_cells: int = 0  # the most at any output time
 
     def record(self, sim) -> None:
         self.times.append(sim.t)
@@ -36,9 +37,10 @@ class History:
     def measure_strain(self, sim) -> None:
         """The largest strain and rotation of the current state (at output times: a DG0
         interpolation and a small eigenproblem per cell)."""
-        strain, rotation = sim.strain_meter.measure()
+        strain, rotation, inverted = sim.strain_meter.measure()
         self.largest_strain = max(self.largest_strain, strain)
         self.largest_rotation_deg = max(self.largest_rotation_deg, rotation)
+        self.inverted_cells = max(self.inverted_cells, inverted)
 
 
 def events(sim) -> list[tuple[float, bool]]:

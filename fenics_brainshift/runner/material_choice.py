@@ -29,7 +29,7 @@ def resolve_material(scene: Scene, comm) -> tuple[Scene, str]:
     history, stopped = march(trial)
     trial.destroy()
     strain = history.largest_strain
-    if stopped is None and strain <= STRAIN_LIMIT:
+    if stopped is None and strain <= STRAIN_LIMIT and not history.inverted_cells:
         return linear, f"linear: a linear trial run's largest strain is {strain:.1%}, within {STRAIN_LIMIT:.0%}"
     nonlinear = copy.deepcopy(scene)
     nonlinear.material.model = NONLINEAR_MODEL
