@@ -105,6 +105,8 @@ BAD = [
                                "mesh": {"file": str(MESHES / "mni152_brain_mask_2mm.nii.gz"), "unit": "mm",
                                         "voxel": 1e-6}},
      "is the voxel size in the right unit?"),
+    ("follower tolerance not a fraction", {**column_dict(4), "fluid": {"level": 0.05, "follower_tol": 2.0}},
+     "[fluid] follower_tol is a fraction of the displacement and must be below 1"),
     ("container smaller than the body", {**column_dict(4), "fluid": {"volume": 1e-5, "container_area": 1e-4}},
      "[fluid] container_area = 0.0001 m2 is not larger than the body's horizontal cross-section (0.0004 m2)"),
     ("remove with the quadrature rule", {**column_dict(4), "time": DYNAMIC, "remove": [{"at": 0.0, "where": "z > 0.05"}],

@@ -68,6 +68,11 @@ def build_model(scene: Scene, comm) -> Model:
                         lumped=scene.element.mass == "lumped", material_model=mat.model)
 
 
+def follower_tolerance(scene: Scene) -> float:
+    """Where the follower-load fixed-point iteration stops (relative change of u)."""
+    return scene.fluid.follower_tol if scene.fluid is not None else 1e-4
+
+
 def solver_settings(scene: Scene) -> dict:
     """LinearSolver keywords from [solver]."""
     return asdict(scene.solver)

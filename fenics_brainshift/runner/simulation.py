@@ -71,14 +71,15 @@ class Simulation:
         if self.dynamic is None:
             stepper = NewtonDynamicStepper if self.model.nonlinear else DynamicStepper
             self.dynamic = stepper(self.model, self.state, build.integrator(self.scene),
-                                          (self.scene.damping.a, self.scene.damping.b), self.solves)
+                                   (self.scene.damping.a, self.scene.damping.b), self.solves,
+                                   build.follower_tolerance(self.scene))
             self.dynamic.setup()
         return self.dynamic
 
     def _static(self) -> StaticSolver | NewtonStatic:
         if self.static is None:
-            solver = NewtonStatic if self.model.nonlinear else StaticSolver
-            self.static = solver(self.model, self.state, self.solves)
+            self.static = (NewtonStatic(self.model, self.state, self.solves) if self.model.nonlinear else
+                           StaticSolver(self.model, self.state, self.solves, build.follower_tolerance(self.scene)))
             self.static.setup()
         return self.static
 

@@ -30,7 +30,7 @@ class DynamicStepper:
     (Solves); the guard stops a run whose energy grows (energy.py)."""
 
     def __init__(self, model, state: State, integrator: TimeIntegrator, damping: tuple[float, float],
-                 solves: Solves, follower_tolerance: float = 1e-6):
+                 solves: Solves, follower_tolerance: float = 1e-4):
         self.model, self.state, self.integrator = model, state, integrator
         self.damping_a, self.damping_b = damping
         self.solves = solves

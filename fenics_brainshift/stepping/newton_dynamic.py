@@ -35,7 +35,7 @@ class NewtonDynamicStepper(DynamicStepper):
     rtol = 1e-9  # |R| relative to the step's loads
     max_iterations = 25
 
-    def __init__(self, model, state, integrator, damping, solves, follower_tolerance: float = 1e-6):
+    def __init__(self, model, state, integrator, damping, solves, follower_tolerance: float = 1e-4):
         super().__init__(model, state, integrator, damping, solves, follower_tolerance)
         solves.settings = tangent_settings(solves.settings)
         V = model.V
@@ -43,7 +43,13 @@ class NewtonDynamicStepper(DynamicStepper):
         v, w = ufl.TestFunction(V), ufl.TrialFunction(V)
         material = model.hyperelastic
         self._internal = fem.form(material.internal_force(self._x, v))
-        self._tangent = fem.form(material.tangent(self._x, w, v))
+        # the step's tangent as one form: the blocks are assembled once, with no matrix sums
+        self._coefficient = {part: fem.Constant(model.mesh, PETSc.ScalarType(0.0)) for part in ("f", "M", "K0")}
+        tangent = (self._coefficient["f"] * material.tangent(self._x, w, v)
+                   + self._coefficient["K0"] * model.stiffness_form())
+        if not model.lumped:  # a lumped mass is added as its diagonal
+            tangent += self._coefficient["M"] * model.mass_form()
+        self._tangent = fem.form(tangent)
         energy = material.energy_density(material.deformation_gradient(state.u))
         dx = ufl.dx(metadata={"quadrature_degree": material.quadrature_degree}) if material.quadrature_degree else ufl.dx
         self._stored = fem.form(energy * dx)
@@ -135,11 +141,14 @@ class NewtonDynamicStepper(DynamicStepper):
         return len(self.newton_history) - 1
 
     def _tangent_matrix(self, cM: float, cb: float, am_f: float, follower: bool) -> PETSc.Mat:
+        """(1 - af) (K_T - dF/du) + cM M + cb K0 with supports, into the one matrix kept for it."""
+        for part, value in (("f", am_f), ("M", cM), ("K0", cb)):
+            self._coefficient[part].value = value
         J = self._J = reassemble(self._J, self._tangent)
-        J.scale(am_f)
-        J.axpy(cM, self.M, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
-        if cb != 0.0:
-            J.axpy(cb, self.K, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
+        if self._mass_diagonal is not None:
+            self._tmp.array[:] = cM * self._mass_diagonal.array_r
+            J.setDiagonal(self._tmp, addv=PETSc.InsertMode.ADD_VALUES)
+            J.assemble()
         fluid = self.model.fluid
         if follower and fluid.level == fluid.level:
             add_load_tangent(J, fluid.hydro, fluid.level, self._x, -am_f)

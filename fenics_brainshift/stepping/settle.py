@@ -17,11 +17,11 @@ from .anderson import AndersonAcceleration
 class Settle:
     """The fixed-point loop around a solver, for one model's supports and fluid load."""
 
-    def __init__(self, template, bcs, fluid, tolerance: float = 1e-6, max_iterations: int = 100):
+    def __init__(self, template, bcs, fluid, tolerance: float = 1e-4, max_iterations: int = 100):
         self.bcs = bcs
         self.fluid = fluid  # a FluidLoad or None
         self.follower = fluid is not None and fluid.follower
-        self.tolerance = tolerance  # relative to |u|: nanometres on millimetres
+        self.tolerance = tolerance  # relative to |u| ([fluid] follower_tol)
         self.max_iterations = max_iterations
         # depth 8, its pairs kept from one time step to the next: fewest solves per step
         self.acceleration = AndersonAcceleration(template)

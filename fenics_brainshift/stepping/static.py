@@ -12,7 +12,7 @@ class StaticSolver:
     """Settled states of a Model: K (with supports) factored or preconditioned once, then one
     solve per load (iterated with follower loading), each from the previous answer."""
 
-    def __init__(self, model, state: State, solves: Solves, follower_tolerance: float = 1e-6):
+    def __init__(self, model, state: State, solves: Solves, follower_tolerance: float = 1e-4):
         self.model, self.state, self.solves = model, state, solves
         V = model.V
         self._rhs = dolfinx.la.create_petsc_vector(V.dofmap.index_map, V.dofmap.index_map_bs)
