@@ -4,7 +4,11 @@ On the bundled brain (quasi-static, follower CSF load, the settled state after t
 solved from rest), in one process: the linear material with the Anderson-accelerated
 fixed-point iteration (the default) and with Newton's method and the load's tangent; the
 neo-Hookean material with Newton. Time after setup (setup: mesh, forms, the factor of K),
-linear solves, factorisations, Krylov iterations. Writes benchmarks/results/hyperelastic.{csv,md}.
+linear solves, factorisations, Krylov iterations. Then one dynamic step (the median of the
+first STEPS steps of the drain): linear without follower loading (the baseline), linear with
+it (the fixed point), neo-Hookean with it (Newton); and, on the 8 mm brain, the follower
+tolerance against the answer it gives over the whole 16 s demo. Writes
+benchmarks/results/hyperelastic.{csv,md}.
 
     python benchmarks/hyperelastic.py [--voxels 0.008 0.005]
 """
@@ -30,6 +34,51 @@ from fenics_brainshift.runner import Simulation  # noqa: E402
 from fenics_brainshift.stepping.newton import NewtonStatic  # noqa: E402
 
 CONFIGS = [("linear", "fixed point (Anderson)"), ("linear", "Newton"), ("neo-hookean", "Newton")]
+STEP_CONFIGS = [("linear", "fluid.follower=false", "no follower load (baseline)"),
+                ("linear", "fluid.follower=true", "follower, fixed point"),
+                ("neo-hookean", "fluid.follower=true", "follower, Newton")]
+STEPS = 15
+TOLERANCES = (1e-6, 1e-5, 1e-4, 1e-3)
+
+
+def dynamic_step(voxel: float, model: str, follower: str) -> dict:
+    """The median time of the first STEPS steps of the brain demo, with counts per step."""
+    scene = load_scene("brain", [f"mesh.voxel={voxel}", f"material.model={model}", follower])
+    sim = Simulation(scene, MPI.COMM_SELF)
+    sim.setup()
+    solves, factors = sim.solves.count, sim.solves.factors
+    times = []
+    for _ in range(STEPS):
+        t0 = time.perf_counter()
+        sim.step()
+        times.append(time.perf_counter() - t0)
+    row = {"step_ms": round(1e3 * statistics.median(times), 2), "solves_per_step": (sim.solves.count - solves) / STEPS,
+           "factorisations": sim.solves.factors - factors, "cuts": getattr(sim.dynamic, "cuts", 0)}
+    sim.destroy()
+    return row
+
+
+def follower_tolerance_sweep(voxel: float) -> list[dict]:
+    """The whole demo (80 steps) at each follower tolerance: step time, solves, and how far the
+    frontal pole's path strays from the tightest tolerance's."""
+    rows, reference = [], None
+    for tol in TOLERANCES:
+        scene = load_scene("brain", [f"mesh.voxel={voxel}", f"fluid.follower_tol={tol}"])
+        sim = Simulation(scene, MPI.COMM_SELF)
+        sim.setup()
+        times, path = [], []
+        while sim.state.t < scene.time.end - 1e-9:
+            t0 = time.perf_counter()
+            sim.step()
+            times.append(time.perf_counter() - t0)
+            path.append(sim.probe_values()[0].copy())
+        path = np.array(path)
+        reference = path if reference is None else reference
+        rows.append({"follower_tol": tol, "step_ms": round(1e3 * statistics.median(times), 2),
+                     "solves": sim.solves.count, "pole_deviation_um": float(np.abs(path - reference).max() * 1e6),
+                     "pole_final_mm": float(np.linalg.norm(path[-1]) * 1e3)})
+        sim.destroy()
+    return rows
 
 
 def measure(voxel: float, model: str, method: str) -> dict:
@@ -72,6 +121,20 @@ def main(argv=None) -> None:
             row["setup_s"] = statistics.median(r["setup_s"] for r in runs)
             rows.append(row)
             print(row, flush=True)
+    steps = []
+    for voxel in args.voxels:
+        base = None
+        for model, follower, label in STEP_CONFIGS:
+            runs = [dynamic_step(voxel, model, follower) for _ in range(args.repeat)]
+            row = {"voxel_mm": voxel * 1e3, "model": model, "load": label, **runs[-1],
+                   "step_ms": statistics.median(r["step_ms"] for r in runs)}
+            base = base or row["step_ms"]
+            row["ratio"] = round(row["step_ms"] / base, 2)
+            steps.append(row)
+            print(row, flush=True)
+    sweep = follower_tolerance_sweep(args.voxels[0])
+    for row in sweep:
+        print(row, flush=True)
     out = Path(args.out)
     with open(out.with_suffix(".csv"), "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
@@ -79,8 +142,10 @@ def main(argv=None) -> None:
         writer.writerows(rows)
     lines = ["# Newton, hyperelasticity and the fixed-point iteration on the bundled brain\n",
              f"{machine_line()}; DOLFINx {DOLFINX_VERSION}; one rank; `python benchmarks/hyperelastic.py`; "
-             f"median of {args.repeat} runs. Quasi-static, follower CSF load, the settled state after the drain "
-             f"(t = 10 s) solved from rest; setup = mesh, forms, the factor of K.\n",
+             f"median of {args.repeat} runs.\n",
+             "## The settled state\n",
+             "Quasi-static, follower CSF load, the settled state after the drain (t = 10 s) solved from rest; "
+             "setup = mesh, forms, the factor of K.\n",
              "| voxel (mm) | nodes | model | method | setup (s) | final shift (s) | solves | factorisations | "
              "Krylov its | Newton its | largest shift (mm) | frontal pole (mm) |",
              "|---:|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
@@ -89,7 +154,29 @@ def main(argv=None) -> None:
                      f"{r['final_shift_s']:.2f} | {r['linear_solves']} | {r['factorisations']} | "
                      f"{r['krylov_iterations']} | {r['newton_iterations']} | {r['max_shift_mm']:.2f} | "
                      f"{r['frontal_pole_mm']:.2f} |")
+    lines += ["\n## One dynamic step\n",
+              f"The brain demo (Newmark, dt = 0.2 s), the median of its first {STEPS} steps (the drain, when the "
+              f"surface moves most); ratio to the linear step without follower loading at the same voxel size; "
+              f"follower_tol at its default.\n",
+              "| voxel (mm) | model | load | step (ms) | ratio | solves per step | factorisations | steps cut |",
+              "|---:|---|---|---:|---:|---:|---:|---:|"]
+    for r in steps:
+        lines.append(f"| {r['voxel_mm']:g} | {r['model']} | {r['load']} | {r['step_ms']:.1f} | {r['ratio']:.1f} | "
+                     f"{r['solves_per_step']:.1f} | {r['factorisations']} | {r['cuts']} |")
+    lines += ["\n## The follower tolerance\n",
+              f"The linear {args.voxels[0] * 1e3:g} mm brain demo, all 80 steps, at each `[fluid] follower_tol`; "
+              f"deviation: the largest distance between the frontal pole's path and the one at "
+              f"{TOLERANCES[0]:g}, over every step.\n",
+              "| follower_tol | step (ms) | solves | pole deviation (um) | frontal pole at 16 s (mm) |",
+              "|---:|---:|---:|---:|---:|"]
+    for r in sweep:
+        lines.append(f"| {r['follower_tol']:g} | {r['step_ms']:.1f} | {r['solves']} | {r['pole_deviation_um']:.3f} | "
+                     f"{r['pole_final_mm']:.4f} |")
     out.with_suffix(".md").write_text("\n".join(lines) + "\n")
+    with open(out.parent / (out.name + "_steps.csv"), "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(steps[0]))
+        writer.writeheader()
+        writer.writerows(steps)
     print(f"wrote {out}.md and .csv")
 
 

@@ -13,6 +13,7 @@ from scipy.optimize import brentq
 
 from conftest import COMM, column_dict
 from fenics_brainshift import compat
+from fenics_brainshift.errors import SolverError
 from fenics_brainshift.physics.material import Hyperelastic, lame_parameters
 from fenics_brainshift.runner import Simulation, run
 from fenics_brainshift.runner.build import mesh_from_spec
@@ -136,6 +137,26 @@ def test_newton_converges_quadratically_with_the_follower_tangent(model, degree,
     assert plain.probe_values() == pytest.approx(sim.probe_values(), abs=1e-9)
 
 
+def test_newton_on_the_linear_material_finds_the_fixed_point_answer():
+    """The linear material with follower loading, solved by Newton with the load's tangent and
+    by the (default) Anderson fixed point to a tight tolerance: one answer, and Newton's
+    convergence is quadratic."""
+    from fenics_brainshift.stepping.newton import NewtonStatic
+    data = _block_in_oil("linear", 1, 0.48)
+    data["fluid"]["follower_tol"] = 1e-10
+    fixed_point = Simulation(scene_from_dict(data), COMM)
+    fixed_point.solve_to_settled(0.0)
+    newton = Simulation(scene_from_dict(data), COMM)
+    newton.static = NewtonStatic(newton.model, newton.state, newton.solves)
+    newton.static.setup()
+    newton.solve_to_settled(0.0)
+    history = np.array(newton.static.history) / newton.static.history[0]
+    assert history[-1] < 1e-8 and newton.static.iterations <= 4
+    a, b = fixed_point.probe_values(), newton.probe_values()
+    assert np.abs(a).max() > 1e-4  # the block sinks by a fraction of a millimetre
+    np.testing.assert_allclose(b, a, atol=1e-8 * np.abs(a).max())
+
+
 def test_archimedes_holds_on_the_deformed_surface(shared_tmp):
     from test_hydrostatics import submerged_volume
 
@@ -220,3 +241,35 @@ def test_nonlinear_dynamics_tends_to_linear_dynamics_for_small_loads():
     linear, _ = _swinging_column("linear", 0.01, g=9.81e-3)
     assert np.abs(linear).max() > 1e-6
     np.testing.assert_allclose(nonlinear, linear, atol=2e-3 * np.abs(linear).max())
+
+
+def test_a_time_step_newton_cannot_solve_is_cut_in_halves():
+    """Newton refused every whole step (as if it had failed): each is then solved as two
+    half steps, so the run equals one made with dt / 2, state, work and energy alike."""
+    def run_with(dt: float, refuse_whole_steps: bool):
+        data = column_dict(4, gravity=(0.0, 0.0, -9.81), material={"E": 3000.0, "nu": 0.3, "density": 1000.0,
+                                                                  "model": "neo-hookean"},
+                           time={"mode": "dynamic", "dt": dt, "end": 0.2})
+        sim = Simulation(scene_from_dict(data), COMM)
+        sim.setup()
+        stepper = sim.dynamic
+        if refuse_whole_steps:
+            solve_step = stepper._newton_step
+
+            def refusing(t_new):
+                if stepper.integrator.dt > 0.75 * dt:
+                    raise SolverError("refused, for the test")
+                return solve_step(t_new)
+            stepper._newton_step = refusing
+        tops = []
+        for _ in range(int(round(0.2 / dt))):
+            sim.step()
+            tops.append(sim.probe_values()[0, 2])
+        return np.array(tops), stepper.energy.work, stepper.cuts, sim.state.t
+
+    cut, work_cut, cuts, t_end = run_with(0.02, refuse_whole_steps=True)
+    halves, work_halves, _, _ = run_with(0.01, refuse_whole_steps=False)
+    assert cuts == 10 and t_end == pytest.approx(0.2, abs=1e-12)
+    assert np.abs(cut).max() > 1e-3  # a column sagging millimetres
+    np.testing.assert_allclose(cut, halves[1::2], atol=1e-7 * np.abs(halves).max())
+    assert work_cut == pytest.approx(work_halves, rel=1e-6)

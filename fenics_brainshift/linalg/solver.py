@@ -87,7 +87,7 @@ class LinearSolver:
 
 
 def has_package(name: str) -> bool:
-    """Was this PETSc built with the external package (hypre, mumps, suitesparse)?"""
+    """Was this PETSc built with the external package (hypre, mumps, cholmod, ...)?"""
     return bool(PETSc.Sys.hasExternalPackage(name))
 
 
@@ -121,7 +121,9 @@ def _factor_package(kind: str, serial: bool) -> dict[str, str]:
     One rank, Cholesky: CHOLMOD (SuiteSparse), whose solves are about half MUMPS's on the
     brain (benchmarks/results/step_parts.md). Otherwise MUMPS, with workspace to spare
     (ICNTL(14) = 100 %: the default +20 % was seen to fall short in parallel)."""
-    if kind == "cholesky" and serial and has_package("suitesparse"):  # CHOLMOD
+    # PETSc 3.18 (Debian 12) lists SuiteSparse as "suitesparse", 3.22 (Debian 13) by its parts:
+    # asking for "suitesparse" alone sent Debian 13 to MUMPS, 1.6x slower per brain step
+    if kind == "cholesky" and serial and (has_package("cholmod") or has_package("suitesparse")):
         return {"pc_factor_mat_solver_type": "cholmod"}
     if has_package("mumps"):
         return {"pc_factor_mat_solver_type": "mumps", "mat_mumps_icntl_14": "100"}

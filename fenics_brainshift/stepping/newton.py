@@ -161,7 +161,7 @@ class NewtonStatic:
         else:  # the linear material's part never changes: copied, not assembled again
             if self._K0 is None:
                 self._K0 = reassemble(None, self._tangent)
-                self._A = create_matrix(self._tangent, TANGENT_TYPE)  # (a duplicate lacks the local numbering)
+                self._A = reassemble(None, self._tangent)  # (a duplicate lacks the local numbering)
             A = self._A
             self._K0.copy(A, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
         fluid = self.model.fluid

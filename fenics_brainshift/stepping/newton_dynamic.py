@@ -14,6 +14,8 @@ material Newmark's balance is no longer exact, it holds to O(dt^2) (tests/test_h
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import ufl
 from dolfinx import fem
@@ -23,9 +25,13 @@ from petsc4py import PETSc
 
 from .. import compat
 from ..errors import SolverError
+from ..logs import get_logger
 from ..physics.load_tangent import add_load_tangent
 from .dynamic import DynamicStepper
 from .newton import fixed_dofs, newton_iterate, reassemble, tangent_settings
+
+log = get_logger("newton")
+MAX_CUTS = 5  # a failed step is cut in halves, down to dt / 32
 
 
 class NewtonDynamicStepper(DynamicStepper):
@@ -58,6 +64,7 @@ class NewtonDynamicStepper(DynamicStepper):
         self._update = fem.Function(V)  # a Newton update of du
         self._fixed = fixed_dofs(model.bcs)
         self.newton_history: list[float] = []
+        self.cuts = 0  # time steps cut in halves, over the run
         # Newmark's balance holds to O(dt^2) here, not exactly: the guard (for a step that blows
         # up, whose energy grows without bound) allows 10 % of the energy scale
         self.energy.tolerance = max(self.energy.tolerance, 0.1)
@@ -76,9 +83,43 @@ class NewtonDynamicStepper(DynamicStepper):
         self.solves.solver.ksp.setTolerances(max_it=200)
 
     def step(self) -> int:
+        """One time step; if Newton fails in it, the step is cut in halves (down to
+        1/2**MAX_CUTS of dt), each solved the same way. Returns the Newton iterations (of the
+        last sub-step)."""
         self._resect()
+        t_new = (self.steps_taken + 1) * self.integrator.dt  # not a running sum: no drift in t
+        iterations = self._advance(t_new, 0)
+        self.steps_taken += 1
+        self._energy_check()
+        return iterations
+
+    def _advance(self, t_new: float, depth: int) -> int:
+        """From the current state to t_new, halving the interval where Newton fails."""
+        st, full = self.state, self.integrator
+        saved = (st.snapshot(), self.du.x.array.copy(), self._F_old.copy(), self._f_int_old.copy(), self.energy.work)
+        dt = t_new - st.t
+        self.integrator = replace(full, dt=dt)
+        try:
+            return self._newton_step(t_new)
+        except SolverError:
+            if depth == MAX_CUTS:
+                raise
+        finally:
+            self.integrator = full
+        (snapshot, du, F_old, f_int_old, work) = saved  # back to the start, two halves
+        st.restore(snapshot)
+        self.du.x.array[:] = 0.5 * du
+        F_old.copy(self._F_old)
+        f_int_old.copy(self._f_int_old)
+        self.energy.work = work
+        self.cuts += 1
+        log.info("  t=%g s: Newton did not converge in the step of %g s; cut in halves", t_new, dt)
+        self._advance(t_new - 0.5 * dt, depth + 1)
+        return self._advance(t_new, depth + 1)
+
+    def _newton_step(self, t_new: float) -> int:
+        """Newton for the increment du of one step of self.integrator to t_new."""
         st, ti = self.state, self.integrator
-        t_new = (self.steps_taken + 1) * ti.dt
         w_new, w_old = ti.load_weights()
         am_f = w_new  # 1 - alpha_f
         cM, cK = ti.effective_coefficients(self.damping_a, self.damping_b)
@@ -126,8 +167,9 @@ class NewtonDynamicStepper(DynamicStepper):
             self.du, self._update, residual, solve, lambda: self._F.norm(), self.rtol,
             self.solves.settings["rtol"], self.max_iterations)
         if not converged:
-            raise SolverError(f"Newton did not converge in the time step to t = {t_new:g} s (residual "
-                              f"{self.newton_history[-1]:.2e}); reduce [time] dt")
+            raise SolverError(f"Newton did not converge in the time step to t = {t_new:g} s even with the step "
+                              f"cut to 1/{2 ** MAX_CUTS} of dt (residual {self.newton_history[-1]:.2e}); reduce "
+                              f"[time] dt, or check the supports")
         n = st.n_owned
         ti.update(st.u.x.array[:n], st.v.x.array[:n], st.a.x.array[:n], self.du.x.array[:n])
         for f in (st.u, st.v, st.a):
@@ -136,8 +178,6 @@ class NewtonDynamicStepper(DynamicStepper):
         self._F.copy(self._F_old)
         self._f.copy(self._f_int_old)
         st.t = t_new
-        self.steps_taken += 1
-        self._energy_check()
         return len(self.newton_history) - 1
 
     def _tangent_matrix(self, cM: float, cb: float, am_f: float, follower: bool) -> PETSc.Mat:
