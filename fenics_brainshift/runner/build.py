@@ -6,12 +6,19 @@ arrays, numbers, callables and option dicts.
 from __future__ import annotations
 
 from dataclasses import asdict
+from pathlib import Path
+
+from dolfinx import fem
 
 from ..errors import InputError
 from ..meshing import box_mesh, gmsh_shape, read_mesh_file, voxelized_mesh
 from ..meshing.label_volume import labels_at
 from ..outputs.fine_surface import load_fine_surface
+from ..meshing.voxelize import VoxelizeError, read_surface
 from ..physics import Cut, FluidSettings, Model, Support
+from ..physics.contact import SkullContact
+from ..physics.skull import RigidSkull, closed_surface_problem, gathered_outward_surface, outward
+from ..physics.surface import surface_facets
 from ..scene import Scene
 from ..stepping import TimeIntegrator
 
@@ -35,7 +42,38 @@ def mesh_from_spec(spec, comm, degree: int = 1):
 
 
 def supports(scene: Scene) -> list[Support]:
-    return [Support(f"[[fixed]] where = \"{f.where}\"", f.predicate, tuple(f.components)) for f in scene.fixed]
+    held = [Support(f"[[fixed]] where = \"{f.where}\"", f.predicate, tuple(f.components)) for f in scene.fixed]
+    if scene.skull is not None and scene.skull.glue is not None:  # glued to the skull: held in place
+        held.append(Support(f"[skull] fixed_where = \"{scene.skull.fixed_where}\"", scene.skull.glue, (0, 1, 2)))
+    return held
+
+
+def skull_contact(scene: Scene, model):
+    """The [skull] as a SkullContact on the model's surface, or None. A skull file must be a
+    closed surface holding the whole body at t = 0; InputError otherwise."""
+    if scene.skull is None:
+        return None
+    spec = scene.skull
+    facets = surface_facets(model.V)
+    if spec.gap is not None:
+        points, triangles = gathered_outward_surface(facets, model.comm)
+        skull = RigidSkull(points, triangles, gap=spec.gap)
+    else:
+        try:
+            points, triangles = read_surface(Path(spec.file), scene.mesh.scale)
+        except VoxelizeError as exc:
+            raise InputError(f"[skull] file: {exc}") from None
+        problem = closed_surface_problem(triangles)
+        if problem:
+            raise InputError(f"[skull] file '{Path(spec.file).name}' is not a closed surface: {problem}; close it "
+                             f"(e.g. fill holes in 3D Slicer or MeshLab) or use gap = ... instead")
+        skull = RigidSkull(points, outward(points, triangles))
+    contact = SkullContact(model.V, facets, skull, scene.material.E, spec.tolerance)
+    clearance = contact.clearance(fem.Function(model.V))  # at rest
+    if clearance < -spec.tolerance:
+        raise InputError(f"[skull] the body's surface is {-clearance * 1e3:.3g} mm past the skull at t = 0: the "
+                         f"skull must enclose the body (check its unit, [mesh] unit, and its frame)")
+    return contact
 
 
 def fluid_settings(scene: Scene) -> FluidSettings | None:

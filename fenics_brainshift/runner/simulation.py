@@ -36,6 +36,7 @@ class Simulation:
         self.scene = scene
         self.model = model if model is not None else build.build_model(scene, comm)
         self.plan = make_plan(scene, self.model.mesh)
+        self.contact = build.skull_contact(scene, self.model)  # checked now: a bad skull stops before any output
         self.state = State(self.model.V)
         self.probes = Probes(self.model.mesh, scene.probes)
         self.surfaces = SurfaceAverages(self.state.u, scene.surfaces)
@@ -78,8 +79,10 @@ class Simulation:
 
     def _static(self) -> StaticSolver | NewtonStatic:
         if self.static is None:
-            self.static = (NewtonStatic(self.model, self.state, self.solves) if self.model.nonlinear else
-                           StaticSolver(self.model, self.state, self.solves, build.follower_tolerance(self.scene)))
+            if self.model.nonlinear or self.contact is not None:  # Newton: a material or a contact that needs it
+                self.static = NewtonStatic(self.model, self.state, self.solves, contact=self.contact)
+            else:
+                self.static = StaticSolver(self.model, self.state, self.solves, build.follower_tolerance(self.scene))
             self.static.setup()
         return self.static
 

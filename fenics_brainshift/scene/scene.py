@@ -10,6 +10,7 @@ from .checks import vector3
 from .loads import Fluid, Gravity
 from .numerics import Damping, Element, Output, SolverConfig, TimeScheme
 from .predicates import Predicate, PredicateError, parse_predicate
+from .skull import Skull
 
 
 @dataclass(slots=True)
@@ -18,6 +19,7 @@ class Scene:
     material: Material
     gravity: Gravity = field(default_factory=Gravity)
     fluid: Fluid | None = None
+    skull: Skull | None = None
     fixed: tuple[FixedRegion, ...] = ()
     remove: tuple[Removal, ...] = ()
     time: TimeScheme = field(default_factory=TimeScheme)
@@ -34,8 +36,10 @@ class Scene:
             raise InputError("[gravity] vector must be non-zero when a [fluid] is present (it defines 'up')")
         if self.fluid is not None and self.fluid.rule == "paper" and self.element.degree != 1:
             raise InputError("[fluid] rule = \"paper\" shares forces among triangle vertices: degree 1 only; use \"consistent\"")
-        if self.time.mode == "quasi-static" and not self.fixed:
-            raise InputError("[[fixed]] a quasi-static scene needs at least one fixed region (K alone is singular)")
+        glued = self.skull is not None and self.skull.glue is not None
+        if self.time.mode == "quasi-static" and not self.fixed and not glued:
+            raise InputError("[[fixed]] a quasi-static scene needs at least one fixed region (K alone is singular; "
+                             "with a [skull], its fixed_where also holds)")
         for r in self.remove:
             if self.time.mode == "quasi-static":
                 raise InputError("[[remove]] needs [time] mode = \"dynamic\" (or \"auto\"): a freed piece makes K "
@@ -48,6 +52,9 @@ class Scene:
             if r.label is not None and not formats.is_label_volume(self.mesh.file or ""):
                 raise InputError("[[remove]] label needs [mesh] file to be a label volume (.nii, .nii.gz); "
                                  "use where = \"...\" otherwise")
+        if self.skull is not None and self.time.mode != "quasi-static":
+            raise InputError("[skull] contact is solved for settled states in this version: set [time] mode = "
+                             "\"quasi-static\" (time stepping with contact is not there yet, docs/limits.md)")
         self.remove = tuple(sorted(self.remove, key=lambda r: r.at))
         self.probes = {str(k): vector3(f"[probes] {k}", v) for k, v in self.probes.items()}
         surfaces = {}

@@ -11,12 +11,13 @@ from ..errors import InputError
 from .body import FixedRegion, Material, MeshSpec, Removal
 from .loads import Fluid, Gravity
 from .numerics import Damping, Element, Output, SolverConfig, TimeScheme
+from .skull import Skull
 from .scene import Scene
 
 
 # ---------------------------------------------------------------- TOML loading
 _SECTIONS = {
-    "mesh": MeshSpec, "material": Material, "gravity": Gravity, "fluid": Fluid,
+    "mesh": MeshSpec, "material": Material, "gravity": Gravity, "fluid": Fluid, "skull": Skull,
     "time": TimeScheme, "damping": Damping, "solver": SolverConfig, "element": Element,
     "output": Output,
 }
@@ -25,7 +26,7 @@ _SECTIONS = {
 def _build(cls, table: Any, where: str):
     if not isinstance(table, dict):
         raise InputError(f"{where} must be a table")
-    known = [f.name for f in fields(cls) if f.name != "predicate"]
+    known = [f.name for f in fields(cls) if f.repr]  # (parsed forms such as a predicate are not keys)
     for key in table:
         if key not in known:
             raise InputError(f"{where} unknown key '{key}'; known keys: {', '.join(known)}")
@@ -72,6 +73,12 @@ def scene_from_dict(data: dict, base: Path | None = None) -> Scene:
             mesh.file = str((base / mesh.file).resolve())
         if mesh.surface is not None and not Path(mesh.surface).is_absolute():
             mesh.surface = str((base / mesh.surface).resolve())
+        skull = kwargs.get("skull")
+        if skull is not None and skull.file is not None and not Path(skull.file).is_absolute():
+            skull.file = str((base / skull.file).resolve())
+    skull = kwargs.get("skull")
+    if skull is not None and skull.file is not None and not Path(skull.file).is_file():
+        raise InputError(f"[skull] file not found: {skull.file}")
     check_mesh_files(mesh)
     return Scene(**kwargs)
 

@@ -32,6 +32,7 @@ MIN_FRACTION = 1.0 / 1024.0
 # The tangent is stored in 3x3 blocks (PETSc BAIJ): on the 5 mm brain its assembly is 2.7x
 # (neo-Hookean) to 3.6x (linear) faster than into scalar AIJ, a product 2x (docs/performance.md)
 TANGENT_TYPE = "baij"
+MAX_CONTACT_ROUNDS = 30  # augmented-Lagrangian multiplier updates per settled state
 MAX_KRYLOV = 100  # GMRES iterations before the preconditioner is rebuilt on the current tangent
 STALE_KRYLOV = 30  # more than this in a solve: the next one rebuilds it first
 
@@ -108,7 +109,7 @@ class NewtonStatic:
     """Settled states of a Model with a hyperelastic material."""
 
     def __init__(self, model, state: State, solves: Solves, rtol: float = 1e-9, max_iterations: int = 25,
-                 load_tangent: bool = True):
+                 load_tangent: bool = True, contact=None):
         self.model, self.state, self.solves = model, state, solves
         solves.settings = tangent_settings(solves.settings)
         self.rtol, self.max_iterations = rtol, max_iterations
@@ -126,6 +127,8 @@ class NewtonStatic:
         self._fixed = fixed_dofs(model.bcs)
         self.follower = model.fluid is not None and model.fluid.follower
         self.load_tangent = load_tangent  # False: the follower load's tangent left out (a baseline)
+        self.contact = contact  # a SkullContact (physics/contact.py) or None
+        self.contact_rounds = 0  # multiplier updates of the last solve
         self.iterations = 0  # Newton iterations of the last solve
         self.history: list[float] = []  # residual norms of the last Newton solve
         self.cuts = 0  # load steps halved, over the run
@@ -149,6 +152,8 @@ class NewtonStatic:
         assemble_vector(self._R, self._internal)
         self._R.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         self._R.axpy(-factor, self._F)
+        if self.contact is not None:  # the skull's reaction: not scaled with the loads
+            self._R.axpy(-1.0, self.contact.assemble(u))
         set_bc(self._R, self.model.bcs)
         self._load_norm = factor * self._F.norm()
         norm = self._R.norm()
@@ -167,12 +172,17 @@ class NewtonStatic:
         fluid = self.model.fluid
         if with_load and self.follower and self.load_tangent and fluid.level == fluid.level:  # a level is known
             add_load_tangent(A, fluid.hydro, fluid.level, self.state.u, -factor)
+        if self.contact is not None:
+            self.contact.add_tangent(A, self.state.u)
         A.zeroRowsColumnsLocal(self._fixed, 1.0)
         return A
 
     def _preconditioner_at_rest(self) -> None:
         """The factor (or AMG) of K with supports: positive definite, built once."""
         self._P = self.model.assemble(self.model.stiffness_form(), with_bcs=True)
+        if self.contact is not None:  # nodes touching the skull at rest carry the body (K alone may be singular)
+            self.contact.add_tangent(self._P, self.state.u)
+            self._P.zeroRowsColumnsLocal(self._fixed, 1.0)
         self.solves.reset(self._P)
         self.solves.solver.ksp.setTolerances(max_it=MAX_KRYLOV)
 
@@ -221,7 +231,24 @@ class NewtonStatic:
     # -- a settled state, with load stepping ------------------------------------------------------
     def solve(self, t: float) -> int:
         """The settled state for the loads at time t, from the last one (or from rest: the loads
-        then grow from zero). Returns the Newton iterations of the last load step."""
+        then grow from zero). With skull contact, the multipliers are updated after each
+        solve until the deepest node is within the tolerance. Returns the Newton iterations
+        of the last load step."""
+        iterations = self._solve_loads(t)
+        self.contact_rounds = 0
+        while self.contact is not None and self.contact.penetration(self.state.u) > self.contact.tolerance:
+            if self.contact_rounds == MAX_CONTACT_ROUNDS:
+                raise SolverError(f"skull contact at t = {t:g} s: a node is still "
+                                  f"{self.contact.penetration(self.state.u) * 1e3:.3g} mm past the skull after "
+                                  f"{MAX_CONTACT_ROUNDS} multiplier updates; raise [skull] tolerance or check "
+                                  f"that the loads can be carried by the skull")
+            self.contact.update_multipliers(self.state.u)
+            self.contact_rounds += 1
+            iterations = self._solve_loads(t)
+        return iterations
+
+    def _solve_loads(self, t: float) -> int:
+        """Newton with load stepping to the loads at time t (see solve)."""
         start, done, step = self._t_settled, 0.0, 1.0
         while done < 1.0:
             fraction = min(1.0, done + step)

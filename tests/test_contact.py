@@ -1,0 +1,149 @@
+"""Frictionless contact with a rigid skull (physics/skull.py, physics/contact.py): exact
+reactions, sliding supports, nothing past the skull, bad skulls refused."""
+from __future__ import annotations
+
+import meshio
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+from conftest import COMM
+from fenics_brainshift.errors import InputError
+from fenics_brainshift.physics.skull import RigidSkull, closest_points_on_triangles
+from fenics_brainshift.runner import Simulation, run
+from fenics_brainshift.scene import scene_from_dict
+
+pytestmark = pytest.mark.mpi
+
+L, H = 0.05, 0.025  # the paper's gelatin block, m
+E, NU, RHO, RHO_OIL, LEVEL = 729.0, 0.48, 1048.0, 975.0, 0.02
+
+
+def _box_surface(lo, hi, path, drop_face: bool = False) -> str:
+    """A closed box (12 triangles, outward), written by rank 0; every rank gets the path."""
+    (x0, y0, z0), (x1, y1, z1) = lo, hi
+    P = np.array([[x0, y0, z0], [x1, y0, z0], [x1, y1, z0], [x0, y1, z0],
+                  [x0, y0, z1], [x1, y0, z1], [x1, y1, z1], [x0, y1, z1]])
+    quads = [[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [2, 3, 7, 6], [1, 2, 6, 5], [0, 4, 7, 3]]
+    if drop_face:
+        quads = quads[1:]
+    tris = [[q[0], q[1], q[2]] for q in quads] + [[q[0], q[2], q[3]] for q in quads]
+    if COMM.rank == 0:
+        meshio.write(str(path), meshio.Mesh(P, [("triangle", np.array(tris))]))
+    COMM.barrier()
+    return str(path)
+
+
+def _block(bottom: list, skull: dict | None, model: str = "linear", g: float = 9.81) -> dict:
+    data = {"mesh": {"shape": "box", "size": [L, L, H], "cells": [6, 6, 3]},
+            "material": {"E": E, "nu": NU, "density": RHO, "model": model},
+            "gravity": {"vector": [0.0, 0.0, -g]},
+            "fluid": {"density": RHO_OIL, "level": LEVEL, "follower": False},
+            "fixed": [{"where": "x < 1e-9", "axes": "x"}, {"where": "y < 1e-9", "axes": "y"}] + bottom,
+            "time": {"mode": "quasi-static"}, "solver": {"kind": "cholesky"},
+            "probes": {"top": [L, L, H], "bottom": [L, L, 0.0], "centre": [L / 2, L / 2, 0.0]}}
+    if skull is not None:
+        data["skull"] = skull
+    return data
+
+
+@pytest.fixture
+def floor(shared_tmp):
+    """A closed box whose floor is the plane z = 0, where the block stands."""
+    return _box_surface((-0.1, -0.1, 0.0), (0.15, 0.15, 0.2), shared_tmp / "floor.stl")
+
+
+def test_closest_points_on_triangles_against_an_optimiser():
+    from scipy.optimize import minimize
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        a, b, c, p = rng.normal(size=(4, 3))
+        q = closest_points_on_triangles(p, a, b, c)
+        res = minimize(lambda z: np.sum((a + z[0] * (b - a) + z[1] * (c - a) - p) ** 2), [0.3, 0.3],
+                       bounds=[(0, 1), (0, 1)], constraints=[{"type": "ineq", "fun": lambda z: 1 - z[0] - z[1]}],
+                       method="SLSQP", options={"ftol": 1e-15})
+        assert np.linalg.norm(q - p) == pytest.approx(np.linalg.norm(a + res.x[0] * (b - a) + res.x[1] * (c - a) - p),
+                                                      abs=1e-7)
+
+
+def test_distance_field_of_a_cube_inside_and_of_its_dilation():
+    pts = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]], float)
+    quads = [[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [2, 3, 7, 6], [1, 2, 6, 5], [0, 4, 7, 3]]
+    tris = np.array([[q[0], q[1], q[2]] for q in quads] + [[q[0], q[2], q[3]] for q in quads])
+    y = np.array([[0.5, 0.5, 0.1], [0.2, 0.7, 0.5], [0.5, 0.5, -0.05], [1.1, 1.1, 0.5]])
+    phi, grad = RigidSkull(pts, tris).phi(y)
+    np.testing.assert_allclose(phi, [0.1, 0.2, -0.05, -np.sqrt(0.02)], atol=1e-12)
+    np.testing.assert_allclose(grad[0], [0, 0, 1], atol=1e-12)  # away from the floor
+    phi, grad = RigidSkull(pts, tris, gap=0.1).phi(y)  # the skull 0.1 outside the cube
+    np.testing.assert_allclose(phi, [0.2, 0.3, 0.05, 0.1 - np.sqrt(0.02)], atol=1e-12)
+    np.testing.assert_allclose(grad[2], [0, 0, 1], atol=1e-12)  # back towards the cube
+
+
+def test_block_on_a_rigid_floor_carries_weight_minus_buoyancy_and_slides(floor):
+    """Only the floor holds the block up; x and y are held on two faces (no rigid sliding).
+    The floor's force is the weight less Archimedes' buoyancy, and the block deforms as one
+    whose bottom is held vertically but free to slide (the same supports)."""
+    sim = Simulation(scene_from_dict(_block([], {"file": floor, "tolerance": 1e-6})), COMM)
+    sim.solve_to_settled(0.0)
+    report = sim.static.contact.report(sim.state.u)
+    weight, buoyancy = RHO * 9.81 * L * L * H, RHO_OIL * 9.81 * L * L * LEVEL
+    assert report["force_N"][2] == pytest.approx(weight - buoyancy, rel=1e-9)
+    assert abs(report["force_N"][0]) < 1e-9 and abs(report["force_N"][1]) < 1e-9
+    assert report["max_penetration_m"] <= 1e-6
+    sliding = Simulation(scene_from_dict(_block([{"where": "z < 1e-9", "axes": "z"}], None)), COMM)
+    sliding.solve_to_settled(0.0)
+    a, b = sim.probe_values(), sliding.probe_values()
+    assert np.abs(b).max() > 1e-3  # the block sags and bulges by millimetres
+    np.testing.assert_allclose(a, b, atol=2e-6)  # the penetration left, within the tolerance
+    assert abs(a[1, 0] - b[1, 0]) < 2e-6 and abs(a[1, 0]) > 1e-4  # the bottom slid outwards as freely
+
+
+def test_neo_hookean_block_on_the_floor(floor):
+    sim = Simulation(scene_from_dict(_block([], {"file": floor}, model="neo-hookean")), COMM)
+    sim.solve_to_settled(0.0)
+    report = sim.static.contact.report(sim.state.u)
+    assert report["force_N"][2] == pytest.approx(RHO * 9.81 * L * L * H - RHO_OIL * 9.81 * L * L * LEVEL, rel=1e-9)
+    assert report["max_penetration_m"] <= 1e-5
+
+
+def test_nothing_passes_a_skull_made_from_a_gap_under_a_large_load():
+    """The block hangs from its top face in a skull 1 mm outside it; gravity 50 g would pull
+    it centimetres down: the skull stops it within the tolerance, and the summary says so."""
+    data = _block([], {"gap": 0.001, "tolerance": 1e-6}, g=50 * 9.81)
+    data["fixed"] = [{"where": f"z > {H} - 1e-9"}]
+    del data["fluid"]
+    result = run(scene_from_dict(data), comm=COMM)
+    contact = result.summary["skull_contact"]
+    assert contact["max_penetration_m"] <= 1e-6 and contact["pressed_nodes"] > 0
+    free = _block([], None, g=50 * 9.81)
+    free["fixed"] = data["fixed"]
+    del free["fluid"]
+    assert abs(run(scene_from_dict(free), comm=COMM).probes["centre"][2]) > 0.003  # would fall through
+    assert result.probes["centre"][2] == pytest.approx(-0.001, abs=2e-6)  # resting on the skull below
+
+
+@pytest.mark.parametrize("label, skull, message", [
+    ("gap not positive", {"gap": 0.0}, "[skull] gap must be a positive distance"),
+    ("both", {"gap": 0.001, "file": "x.stl"}, "[skull] give exactly one of file"),
+    ("not a surface", {"file": "skull.nii.gz"}, "[skull] file must be a closed triangulated surface"),
+    ("missing", {"file": "/nonexistent/skull.stl"}, "[skull] file not found"),
+])
+def test_bad_skull_sections_are_named(label, skull, message):
+    with pytest.raises(InputError, match=message.replace("[", r"\[").replace("]", r"\]")):
+        scene_from_dict(_block([], skull))
+
+
+def test_dynamic_scenes_with_a_skull_are_refused_for_now():
+    data = _block([], {"gap": 0.001})
+    data["time"] = {"mode": "dynamic", "dt": 0.01, "end": 0.1}
+    with pytest.raises(InputError, match="contact is solved for settled states in this version"):
+        scene_from_dict(data)
+
+
+def test_an_open_skull_or_one_crossing_the_body_is_refused(shared_tmp):
+    open_box = _box_surface((-0.1, -0.1, 0.0), (0.15, 0.15, 0.2), shared_tmp / "open.stl", drop_face=True)
+    with pytest.raises(InputError, match=r"is not a closed surface: it has 4 open edge"):
+        Simulation(scene_from_dict(_block([], {"file": open_box})), COMM)
+    crossing = _box_surface((-0.1, -0.1, 0.005), (0.15, 0.15, 0.2), shared_tmp / "crossing.stl")
+    with pytest.raises(InputError, match=r"the body's surface is 5 mm past the skull at t = 0"):
+        Simulation(scene_from_dict(_block([], {"file": crossing})), COMM)
