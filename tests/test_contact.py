@@ -5,7 +5,6 @@ from __future__ import annotations
 import meshio
 import numpy as np
 import pytest
-from mpi4py import MPI
 
 from conftest import COMM
 from fenics_brainshift.errors import InputError
