@@ -32,9 +32,9 @@ MIN_FRACTION = 1.0 / 1024.0
 # The tangent is stored in 3x3 blocks (PETSc BAIJ): on the 5 mm brain its assembly is 2.7x
 # (neo-Hookean) to 3.6x (linear) faster than into scalar AIJ, a product 2x (docs/performance.md)
 TANGENT_TYPE = "baij"
-MAX_CONTACT_ROUNDS = 30  # augmented-Lagrangian multiplier updates per settled state
 MAX_KRYLOV = 100  # GMRES iterations before the preconditioner is rebuilt on the current tangent
 STALE_KRYLOV = 30  # more than this in a solve: the next one rebuilds it first
+MAX_CONTACT_ROUNDS = 30  # augmented-Lagrangian multiplier updates per settled state
 
 
 def tangent_settings(settings: dict) -> dict:
@@ -73,7 +73,8 @@ def newton_iterate(x, dx, residual, solve, scale, rtol: float, krylov_floor: flo
     tolerance ``forcing``; converged when |R| <= rtol scale(), scale() the size of the loads.
     Eisenstat-Walker: the forcing follows |R| / scale() (at most 1e-2, at least the Krylov
     floor and a tenth of the reduction the target still asks for), so the linear solves are no
-    more exact than needed and the convergence stays quadratic. Returns (converged, the |R| history); on failure x is wherever it stopped."""
+    more exact than needed and the convergence stays quadratic. Returns (converged, the |R|
+    history); on failure x is wherever it stopped."""
     def target():
         return rtol * max(scale(), 1e-300)
 
@@ -106,7 +107,8 @@ def newton_iterate(x, dx, residual, solve, scale, rtol: float, krylov_floor: flo
 
 
 class NewtonStatic:
-    """Settled states of a Model with a hyperelastic material."""
+    """Settled states of a Model with a hyperelastic material, or of any Model in contact with
+    the skull (then also the contact forces' residual and tangent, physics/contact.py)."""
 
     def __init__(self, model, state: State, solves: Solves, rtol: float = 1e-9, max_iterations: int = 25,
                  load_tangent: bool = True, contact=None):
