@@ -132,11 +132,28 @@ def test_bad_skull_sections_are_named(label, skull, message):
         scene_from_dict(_block([], skull))
 
 
-def test_dynamic_scenes_with_a_skull_are_refused_for_now():
+def test_time_stepping_needs_a_dissipative_scheme_with_contact():
     data = _block([], {"gap": 0.001})
-    data["time"] = {"mode": "dynamic", "dt": 0.01, "end": 0.1}
-    with pytest.raises(InputError, match="contact is solved for settled states in this version"):
+    data["time"] = {"mode": "dynamic", "dt": 0.01, "end": 0.1}  # Newmark
+    with pytest.raises(InputError, match="time stepping with contact needs .time. scheme = .generalized-alpha."):
         scene_from_dict(data)
+
+
+def test_a_block_dropped_on_the_floor_settles_where_the_static_contact_puts_it(floor):
+    """Time stepping with contact (generalized-alpha, damped): the block, released at rest
+    touching the floor, sinks, bounces and settles; at the end the floor carries weight
+    less buoyancy and the block has the settled state's shape."""
+    static = Simulation(scene_from_dict(_block([], {"file": floor, "tolerance": 1e-6})), COMM)
+    static.solve_to_settled(0.0)
+    data = _block([], {"file": floor, "tolerance": 1e-6})
+    data["time"] = {"mode": "dynamic", "scheme": "generalized-alpha", "rho_inf": 0.5, "dt": 0.02, "end": 1.5}
+    data["damping"] = {"a": 20.0, "b": 0.0}
+    result = run(scene_from_dict(data), comm=COMM)
+    contact = result.summary["skull_contact"]
+    assert contact["force_N"][2] == pytest.approx(RHO * 9.81 * L * L * H - RHO_OIL * 9.81 * L * L * LEVEL, rel=1e-3)
+    assert contact["max_penetration_m"] <= 1e-6
+    settled = static.probe_values()
+    np.testing.assert_allclose([result.probes["top"], result.probes["bottom"]], settled[:2], atol=1e-3 * np.abs(settled).max())
 
 
 def test_an_open_skull_or_one_crossing_the_body_is_refused(shared_tmp):
@@ -146,3 +163,32 @@ def test_an_open_skull_or_one_crossing_the_body_is_refused(shared_tmp):
     crossing = _box_surface((-0.1, -0.1, 0.005), (0.15, 0.15, 0.2), shared_tmp / "crossing.stl")
     with pytest.raises(InputError, match=r"the body's surface is 5 mm past the skull at t = 0"):
         Simulation(scene_from_dict(_block([], {"file": crossing})), COMM)
+
+
+def test_the_contact_pressure_is_written_with_the_fields(floor, shared_tmp):
+    """displacement.xdmf carries contact_pressure: the floor's pressure on the bottom nodes,
+    nothing on the top; summed over the nodes' areas it gives the floor's force."""
+    import meshio
+    out = shared_tmp / "contact_out"
+    result = run(scene_from_dict(_block([], {"file": floor, "tolerance": 1e-6})), out, COMM)
+    if COMM.rank != 0:
+        return
+    with meshio.xdmf.TimeSeriesReader(str(out / "displacement.xdmf")) as reader:
+        points, cells = reader.read_points_cells()
+        _, point_data, _ = reader.read_data(reader.num_steps - 1)
+    p = point_data["contact_pressure"].ravel()
+    bottom, top = points[:, 2] < 1e-9, points[:, 2] > H - 1e-9
+    assert np.all(p[top] == 0.0) and np.all(p[bottom] > 0.0)
+    force = result.summary["skull_contact"]["force_N"][2]
+    # each node's area: a third of every surface triangle it is a corner of (a node on the
+    # bottom's rim also has its share of the side faces, and presses with all of it)
+    tets = cells[0].data
+    faces = np.sort(np.concatenate([tets[:, [0, 1, 2]], tets[:, [0, 1, 3]], tets[:, [0, 2, 3]], tets[:, [1, 2, 3]]]), axis=1)
+    unique, count = np.unique(faces, axis=0, return_counts=True)
+    faces = unique[count == 1]  # the surface
+    area = 0.5 * np.linalg.norm(np.cross(points[faces[:, 1]] - points[faces[:, 0]],
+                                         points[faces[:, 2]] - points[faces[:, 0]]), axis=1)
+    assert area.sum() == pytest.approx(2 * L * L + 4 * L * H)
+    share = np.zeros(len(points))
+    np.add.at(share, faces.ravel(), np.repeat(area / 3.0, 3))
+    assert np.sum(p * share) == pytest.approx(force, rel=1e-6)

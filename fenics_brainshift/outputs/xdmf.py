@@ -8,6 +8,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+import numpy as np
 from dolfinx import fem
 from dolfinx.io import XDMFFile
 
@@ -21,7 +22,7 @@ class FieldWriter:
     scene has one."""
 
     def __init__(self, folder: Path, mesh, V, fields: tuple[str, ...], mu: float, lmbda: float,
-                 embedding=None, tissue=None):
+                 embedding=None, tissue=None, contact=None):
         self.fields = fields
         self.tissue = tissue  # DG0 1/0 after a resection: threshold on it in ParaView
         self.folder = folder
@@ -35,6 +36,12 @@ class FieldWriter:
         self.P1 = compat.vector_space(mesh, 1)
         self.out = {name: fem.Function(self.P1, name=name) for name in ("displacement", "velocity") if name in fields}
         self._u = fem.Function(V)
+        self.contact = contact  # a SkullContact: its pressure is written too
+        if contact is not None:
+            S, self._to_block = V.sub(0).collapse()  # a scalar space numbered like V's blocks
+            self._to_block = np.asarray(self._to_block) // 3
+            self._pressure = fem.Function(S)
+            self.contact_pressure = fem.Function(compat.scalar_space(mesh, "Lagrange", 1), name="contact_pressure")
         if "von_mises" in fields:
             DG0 = compat.scalar_space(mesh, "DG", 0)
             self.von_mises = fem.Function(DG0, name="von_mises")
@@ -51,6 +58,14 @@ class FieldWriter:
             self.file.write_function(self.von_mises, t)
         if self.tissue is not None:
             self.file.write_function(self.tissue, t)
+        if self.contact is not None:
+            owned = self.contact.nodal_pressure(u)
+            n = len(self._pressure.x.array)
+            blocks = self._to_block[:n]
+            self._pressure.x.array[:] = np.where(blocks < len(owned), owned[np.minimum(blocks, len(owned) - 1)], 0.0)
+            self._pressure.x.scatter_forward()
+            self.contact_pressure.interpolate(self._pressure)
+            self.file.write_function(self.contact_pressure, t)
         if self.embedding is not None:
             self.embedding.write(self.folder, f"surface_{self.count:04d}", u)
         self.count += 1

@@ -23,6 +23,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 PENALTY_FACTOR = 10.0  # k = PENALTY_FACTOR x E / (the surface's median edge length)
+SMOOTHING = 0.1  # the kink of the pressure is rounded over this fraction of the tolerance
 FD_STEP = 1e-7  # the central-difference step of the tangent, relative to the element size
 
 
@@ -37,17 +38,45 @@ class SkullContact:
         self.weights = np.repeat(area[:, None] / 3.0, 3, axis=1)  # (F, 3) m2 per pair
         edges = np.linalg.norm(X - np.roll(X, 1, axis=1), axis=2).ravel()
         h = self.comm.allreduce(float(np.median(edges)) if edges.size else 0.0, op=MPI.MAX)
-        self.penalty = PENALTY_FACTOR * E / max(h, 1e-300)
+        self.h = max(h, 1e-300)
+        self.static_penalty = self.penalty = PENALTY_FACTOR * E / self.h
         self.multipliers = np.zeros(self.dofs.shape)  # Pa, per pair
         self.vector = dolfinx.la.create_petsc_vector(V.dofmap.index_map, V.dofmap.index_map_bs)
         self._n_owned = V.dofmap.index_map.size_local
+        self._area = None  # nodal surface areas, for the pressure output
+
+    def nodal_pressure(self, u) -> np.ndarray:
+        """The contact pressure (Pa) at every owned block dof of V: the node's force over its
+        share of the surface area (0 off the surface)."""
+        if self._area is None:
+            self._area = self.vector.duplicate()
+            with self._area.localForm() as local:
+                local.set(0.0)
+                np.add.at(local.array.reshape(-1, 3)[:, 0], self.dofs.ravel(), self.weights.ravel())
+            self._area.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        force = np.linalg.norm(self.assemble(u).array_r.reshape(-1, 3), axis=1)
+        area = self._area.array_r.reshape(-1, 3)[:, 0]
+        return np.divide(force, area, out=np.zeros_like(force), where=area > 0)
+
+    def for_time_step(self, c_mass: float, density: float) -> None:
+        """In a time step inertia stiffens every node by c_mass M: the penalty follows it (else
+        an impact needs dozens of multiplier updates): PENALTY_FACTOR (E / h + c_mass rho h)."""
+        self.penalty = self.static_penalty + PENALTY_FACTOR * c_mass * density * self.h
 
     def _pressures(self, u) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(phi (F, 3), unit normals (F, 3, 3), pressures (F, 3)) at the displacement u."""
         y = self.X + u.x.array.reshape(-1, 3)[self.dofs]
         phi, normal = self.skull.phi(y.reshape(-1, 3))
         phi, normal = phi.reshape(self.dofs.shape), normal.reshape(self.X.shape)
-        return phi, normal, np.maximum(0.0, self.multipliers - self.penalty * phi)
+        return phi, normal, self._pressure(self.multipliers, phi)
+
+    def _pressure(self, multipliers: np.ndarray, phi: np.ndarray) -> np.ndarray:
+        """max(0, lambda - k phi), its kink rounded over SMOOTHING x tolerance: Newton then
+        does not cycle between a node's two sides of the kink (the rounding's force on a node
+        further off the skull than a few tolerances is below round-off)."""
+        width = SMOOTHING * self.tolerance
+        z = (multipliers / self.penalty - phi) / width
+        return self.penalty * width * (np.maximum(z, 0.0) + np.log1p(np.exp(-np.abs(z))))
 
     def assemble(self, u) -> PETSc.Vec:
         """The contact forces at u into self.vector (owned entries summed over ranks)."""
@@ -62,16 +91,16 @@ class SkullContact:
     def _forces(self, y: np.ndarray, multipliers: np.ndarray, weights: np.ndarray) -> np.ndarray:
         """Contact forces (n, 3) of pairs at positions y (n, 3)."""
         phi, normal = self.skull.phi(y)
-        return (weights * np.maximum(0.0, multipliers - self.penalty * phi))[:, None] * normal
+        return (weights * self._pressure(multipliers, phi))[:, None] * normal
 
-    def add_tangent(self, A: PETSc.Mat, u) -> None:
-        """A += d(-f)/du on the pressed nodes (A assembled after). Each node's force depends on
+    def add_tangent(self, A: PETSc.Mat, u, scale: float = 1.0) -> None:
+        """A += scale d(-f)/du on the pressed nodes (A assembled after). Each node's force depends on
         its own position only, so its 3x3 block is taken by central differences: the pressure
         term w k n n^T and the turning of n around the skull's edges and corners alike."""
         phi, _, _ = self._pressures(u)
-        # a node just touching counts as pressed (semi-smooth Newton's choice at the kink): a
-        # body resting on the skull at rest then has a regular tangent
-        pressed = self.multipliers - self.penalty * phi >= 0.0
+        # a node just touching is pressed with half the penalty (the rounded kink): a body
+        # resting on the skull at rest then has a regular tangent
+        pressed = self.multipliers / self.penalty - phi >= -40.0 * SMOOTHING * self.tolerance
         if np.any(pressed):
             y = (self.X + u.x.array.reshape(-1, 3)[self.dofs])[pressed]
             lam, w = self.multipliers[pressed], self.weights[pressed]
@@ -80,7 +109,7 @@ class SkullContact:
             for j in range(3):
                 step = np.zeros(3)
                 step[j] = h
-                blocks[:, :, j] = -(self._forces(y + step, lam, w) - self._forces(y - step, lam, w)) / (2 * h)
+                blocks[:, :, j] = -scale * (self._forces(y + step, lam, w) - self._forces(y - step, lam, w)) / (2 * h)
             for dof, block in zip(self.dofs[pressed], blocks):
                 A.setValuesBlockedLocal([dof], [dof], block.ravel(), addv=PETSc.InsertMode.ADD_VALUES)
         A.assemble()
@@ -93,6 +122,15 @@ class SkullContact:
         phi = self._pressures(u)[0]
         return self.comm.allreduce(float(max(0.0, -phi.min(initial=np.inf))), op=MPI.MAX)
 
+    def violation(self, u) -> float:
+        """How far the contact conditions are from holding (m): the largest |min(phi, p / k)|
+        over the nodes, which counts a node past the skull (phi < 0) and a node pushed while
+        off it (p > 0 with phi > 0, a stale multiplier) alike. The multipliers are updated
+        until this is within the tolerance."""
+        phi, _, p = self._pressures(u)
+        local = float(np.abs(np.minimum(phi, p / self.penalty)).max(initial=0.0))
+        return self.comm.allreduce(local, op=MPI.MAX)
+
     def clearance(self, u) -> float:
         """The smallest room left between the surface and the skull (m; negative: penetration)."""
         return self.comm.allreduce(float(self._pressures(u)[0].min(initial=np.inf)), op=MPI.MIN)
@@ -102,7 +140,9 @@ class SkullContact:
         self.assemble(u)
         owned = self.vector.array_r.reshape(-1, 3)[: self._n_owned]
         total = self.comm.allreduce(owned.sum(axis=0), op=MPI.SUM)
-        pressed = self.comm.allreduce(int(np.count_nonzero(np.abs(owned).sum(axis=1))), op=MPI.SUM)
+        size = np.linalg.norm(owned, axis=1)
+        largest = self.comm.allreduce(float(size.max(initial=0.0)), op=MPI.MAX)
+        pressed = self.comm.allreduce(int(np.count_nonzero(size > 1e-6 * largest)), op=MPI.SUM)
         return {"force_N": [float(v) for v in total], "pressed_nodes": pressed,
                 "max_penetration_m": self.penetration(u), "clearance_m": self.clearance(u),
                 "penalty_Pa_per_m": self.penalty, "tolerance_m": self.tolerance}

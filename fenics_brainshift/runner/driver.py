@@ -72,7 +72,7 @@ def run(scene: Scene, out: str | Path | None = None, comm=MPI.COMM_WORLD, raise_
         comm.barrier()
         m = sim.model
         writer = FieldWriter(out, m.mesh, m.V, scene.output.fields, m.mu, m.lmbda, embedding,
-                             m.tissue.indicator if m.tissue is not None else None)
+                             m.tissue.indicator if m.tissue is not None else None, sim.contact)
     setup_s = time.perf_counter() - t_start
     _log_start(sim, setup_s)
     h, stopped = march(sim, writer)

@@ -70,10 +70,12 @@ class Simulation:
 
     def _dynamic(self) -> DynamicStepper:
         if self.dynamic is None:
-            stepper = NewtonDynamicStepper if self.model.nonlinear else DynamicStepper
-            self.dynamic = stepper(self.model, self.state, build.integrator(self.scene),
-                                   (self.scene.damping.a, self.scene.damping.b), self.solves,
-                                   build.follower_tolerance(self.scene))
+            common = (self.model, self.state, build.integrator(self.scene),
+                      (self.scene.damping.a, self.scene.damping.b), self.solves, build.follower_tolerance(self.scene))
+            if self.model.nonlinear or self.contact is not None:  # Newton in every step
+                self.dynamic = NewtonDynamicStepper(*common, contact=self.contact)
+            else:
+                self.dynamic = DynamicStepper(*common)
             self.dynamic.setup()
         return self.dynamic
 

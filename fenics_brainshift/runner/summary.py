@@ -60,9 +60,10 @@ def summary(sim, h, stopped, setup_s: float) -> dict:
         out["stiffness_band"] = stiffness_band(scene, plan, max_u, probes)
     if model.fluid is not None:
         out["fluid_assemblies"], out["fluid_reuses"] = model.fluid.assemblies, model.fluid.reuses
-    contact = getattr(sim.static, "contact", None)
-    if contact is not None:
-        out["skull_contact"] = {**contact.report(sim.state.u), "multiplier_updates": sim.static.contact_rounds}
+    if sim.contact is not None:
+        solver = sim.dynamic if dynamic else sim.static
+        out["skull_contact"] = {**sim.contact.report(sim.state.u),
+                                "multiplier_updates": getattr(solver, "contact_rounds", 0)}
     if model.tissue is not None:
         out["removals"] = sim.dynamic.removals if sim.dynamic is not None else []
         out["removed_fraction"] = model.tissue.removed_fraction

@@ -238,10 +238,10 @@ class NewtonStatic:
         of the last load step."""
         iterations = self._solve_loads(t)
         self.contact_rounds = 0
-        while self.contact is not None and self.contact.penetration(self.state.u) > self.contact.tolerance:
+        while self.contact is not None and self.contact.violation(self.state.u) > self.contact.tolerance:
             if self.contact_rounds == MAX_CONTACT_ROUNDS:
-                raise SolverError(f"skull contact at t = {t:g} s: a node is still "
-                                  f"{self.contact.penetration(self.state.u) * 1e3:.3g} mm past the skull after "
+                raise SolverError(f"skull contact at t = {t:g} s: the contact conditions are still off by "
+                                  f"{self.contact.violation(self.state.u) * 1e3:.3g} mm after "
                                   f"{MAX_CONTACT_ROUNDS} multiplier updates; raise [skull] tolerance or check "
                                   f"that the loads can be carried by the skull")
             self.contact.update_multipliers(self.state.u)

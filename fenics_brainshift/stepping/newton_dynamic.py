@@ -28,26 +28,31 @@ from ..errors import SolverError
 from ..logs import get_logger
 from ..physics.load_tangent import add_load_tangent
 from .dynamic import DynamicStepper
-from .newton import fixed_dofs, newton_iterate, reassemble, tangent_settings
+from .newton import MAX_CONTACT_ROUNDS, fixed_dofs, newton_iterate, reassemble, tangent_settings
 
 log = get_logger("newton")
 MAX_CUTS = 5  # a failed step is cut in halves, down to dt / 32
 
 
 class NewtonDynamicStepper(DynamicStepper):
-    """DynamicStepper for a hyperelastic Model: the same operators (M, K0, the linear
-    effective matrix as preconditioner), a Newton iteration per step."""
+    """DynamicStepper for a hyperelastic Model, or any Model in contact with the skull: the
+    same operators (M, K0, the linear effective matrix as preconditioner), a Newton iteration
+    per step. The contact forces (physics/contact.py) join the external loads, at the step's
+    end like them; their multipliers are updated, and the step solved again, until the
+    deepest node is within the tolerance."""
 
     rtol = 1e-9  # |R| relative to the step's loads
     max_iterations = 25
 
-    def __init__(self, model, state, integrator, damping, solves, follower_tolerance: float = 1e-4):
+    def __init__(self, model, state, integrator, damping, solves, follower_tolerance: float = 1e-4,
+                 contact=None):
+        self.contact = contact  # a SkullContact or None (set first: setup uses it)
         super().__init__(model, state, integrator, damping, solves, follower_tolerance)
         solves.settings = tangent_settings(solves.settings)
         V = model.V
         self._x = fem.Function(V)  # u_n + du, the configuration of the current iterate
         v, w = ufl.TestFunction(V), ufl.TrialFunction(V)
-        material = model.hyperelastic
+        material = model.hyperelastic if model.nonlinear else model.material
         self._internal = fem.form(material.internal_force(self._x, v))
         # the step's tangent as one form: the blocks are assembled once, with no matrix sums
         self._coefficient = {part: fem.Constant(model.mesh, PETSc.ScalarType(0.0)) for part in ("f", "M", "K0")}
@@ -56,8 +61,11 @@ class NewtonDynamicStepper(DynamicStepper):
         if not model.lumped:  # a lumped mass is added as its diagonal
             tangent += self._coefficient["M"] * model.mass_form()
         self._tangent = fem.form(tangent)
-        energy = material.energy_density(material.deformation_gradient(state.u))
-        dx = ufl.dx(metadata={"quadrature_degree": material.quadrature_degree}) if material.quadrature_degree else ufl.dx
+        if model.nonlinear:
+            energy = material.energy_density(material.deformation_gradient(state.u))
+            dx = ufl.dx(metadata={"quadrature_degree": material.quadrature_degree})
+        else:
+            energy, dx = 0.5 * ufl.inner(material.stress(state.u), material.strain(state.u)), ufl.dx
         self._stored = fem.form(energy * dx)
         self._f_int_old, self._f, self._R = (self._F.duplicate() for _ in range(3))
         self._J = None
@@ -65,6 +73,7 @@ class NewtonDynamicStepper(DynamicStepper):
         self._fixed = fixed_dofs(model.bcs)
         self.newton_history: list[float] = []
         self.cuts = 0  # time steps cut in halves, over the run
+        self.contact_rounds = 0  # multiplier updates over the run
         # Newmark's balance holds to O(dt^2) here, not exactly: the guard (for a step that blows
         # up, whose energy grows without bound) allows 10 % of the energy scale
         self.energy.tolerance = max(self.energy.tolerance, 0.1)
@@ -75,6 +84,13 @@ class NewtonDynamicStepper(DynamicStepper):
         assemble_vector(out, self._internal)
         out.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         return out
+
+    def _initial_acceleration(self) -> None:
+        if self.contact is not None:  # the skull's reaction is a load like the others
+            cM, _ = self.integrator.effective_coefficients(self.damping_a, self.damping_b)
+            self.contact.for_time_step(cM, self.model.density)
+            self._F_old.axpy(1.0, self.contact.assemble(self.state.u))
+        super()._initial_acceleration()
 
     def _build_operators(self) -> None:
         super()._build_operators()
@@ -124,6 +140,8 @@ class NewtonDynamicStepper(DynamicStepper):
         am_f = w_new  # 1 - alpha_f
         cM, cK = ti.effective_coefficients(self.damping_a, self.damping_b)
         cb = cK - am_f  # the K0 part of the damping's effective coefficient
+        if self.contact is not None:
+            self.contact.for_time_step(cM, self.model.density)
         self._rhs_vectors()
         base = self._base  # M w_m + K0 (w_k - u_n) + af f_int(u_n) - af F_n
         self.M.mult(self._wm, base)
@@ -141,6 +159,8 @@ class NewtonDynamicStepper(DynamicStepper):
                 self.model.load_into(t_new, self._F, self._x if follower else st.u)
             except SolverError:  # no fluid level for this shape
                 return np.inf
+            if self.contact is not None:
+                self._F.axpy(1.0, self.contact.assemble(self._x))
             self._internal_force(self._f)
             R = self._R
             base.copy(R)
@@ -163,9 +183,24 @@ class NewtonDynamicStepper(DynamicStepper):
             self.solves.solver.ksp.setTolerances(rtol=forcing)
             self.solves(self._R, update, t_new)
 
-        converged, self.newton_history = newton_iterate(
-            self.du, self._update, residual, solve, lambda: self._F.norm(), self.rtol,
-            self.solves.settings["rtol"], self.max_iterations)
+        def newton() -> bool:
+            converged, self.newton_history = newton_iterate(
+                self.du, self._update, residual, solve, lambda: self._F.norm(), self.rtol,
+                self.solves.settings["rtol"], self.max_iterations)
+            return converged
+
+        converged, rounds = newton(), 0
+        while converged and self.contact is not None and self.contact.violation(self._x) > self.contact.tolerance:
+            if rounds == MAX_CONTACT_ROUNDS:
+                raise SolverError(f"skull contact at t = {t_new:g} s: the contact conditions are still off by "
+                                  f"{self.contact.violation(self._x) * 1e3:.3g} mm after "
+                                  f"{MAX_CONTACT_ROUNDS} multiplier updates")
+            self.contact.update_multipliers(self._x)
+            rounds += 1
+            log.debug("  contact: conditions off by %.3g mm; multipliers updated (%d)",
+                      self.contact.violation(self._x) * 1e3, rounds)
+            converged = newton()
+        self.contact_rounds += rounds
         if not converged:
             raise SolverError(f"Newton did not converge in the time step to t = {t_new:g} s even with the step "
                               f"cut to 1/{2 ** MAX_CUTS} of dt (residual {self.newton_history[-1]:.2e}); reduce "
@@ -192,6 +227,8 @@ class NewtonDynamicStepper(DynamicStepper):
         fluid = self.model.fluid
         if follower and fluid.level == fluid.level:
             add_load_tangent(J, fluid.hydro, fluid.level, self._x, -am_f)
+        if self.contact is not None:
+            self.contact.add_tangent(J, self._x, am_f)
         J.zeroRowsColumnsLocal(self._fixed, 1.0)
         return J
 
