@@ -1,19 +1,25 @@
 """Frictionless contact of the body's surface nodes with a rigid skull, by an augmented
 Lagrangian (node-wise, Alart-Curnier's form without friction).
 
-Each surface vertex i, with its share w_i of the surface area, carries the contact pressure
+Each surface vertex i, with its share w_i of the surface area (a third of each surface
+triangle it is a corner of), carries the contact pressure
 
     p_i = max(0, lambda_i - k phi(x_i + u_i)),     force  f_i = w_i p_i grad phi,
 
-
 phi the skull's distance field (physics/skull.py: negative past the skull), lambda_i its
-multiplier and k a penalty (Pa/m) set from the stiffness and the mesh size, not by hand:
-Newton solves the equilibrium for fixed multipliers, then lambda <- p, until the deepest
-node is within the scene's tolerance. The pressure pushes along grad phi only, so nodes
-slide freely along the skull. The tangent of -f is w k n n^T on every pressed node plus the
-turning of n where the closest point is an edge or corner of the skull (both taken by
-central differences of the node's force). Pairs are (surface facet, vertex): a node's pressure is the same in all its
-facets, each adding a third of its area; the owning rank of each facet's cell adds it.
+multiplier and k a penalty (Pa/m) set from the stiffness and the mesh size, not by hand
+(and, in a time step, from the inertia too). The kink of max is rounded over a tenth of the
+tolerance, so that Newton does not cycle between a node's two sides of it. Newton solves the
+equilibrium for fixed multipliers, then lambda <- p, until the contact conditions hold to the
+scene's tolerance: no node deeper past the skull, and none pushed while off it. The pressure
+pushes along grad phi only, so nodes slide freely along the skull. The tangent of -f, each
+node's 3x3 block, is taken by central differences of the node's force: the pressure term
+w k n n^T and the turning of n around the skull's edges and corners alike.
+
+Distances are the cost: phi is 1-Lipschitz, so a node whose last exact phi, less how far it
+has moved since, still leaves it far from the skull cannot be pressed, and is not queried
+again (its phi is then that lower bound). On N ranks each rank handles the vertices of the
+surface facets of its cells, with its share of their area; the forces are summed over ranks.
 """
 from __future__ import annotations
 
@@ -24,6 +30,7 @@ from petsc4py import PETSc
 
 PENALTY_FACTOR = 10.0  # k = PENALTY_FACTOR x E / (the surface's median edge length)
 SMOOTHING = 0.1  # the kink of the pressure is rounded over this fraction of the tolerance
+REACH = 40.0  # a node more than REACH rounding widths off the skull (beyond lambda / k) is free
 FD_STEP = 1e-7  # the central-difference step of the tangent, relative to the element size
 
 
@@ -31,19 +38,114 @@ class SkullContact:
     def __init__(self, V, facets, skull, E: float, tolerance: float):
         self.V, self.skull, self.tolerance = V, skull, tolerance
         self.comm = V.mesh.comm
-        self.dofs = facets.vertex_dofs.astype(np.int32)  # (F, 3) block dofs of the facets' vertices
-        self.X = facets.x_vertices  # (F, 3, 3)
-        X = self.X
+        X = facets.x_vertices  # (F, 3, 3)
         area = 0.5 * np.linalg.norm(np.cross(X[:, 1] - X[:, 0], X[:, 2] - X[:, 0]), axis=1)
-        self.weights = np.repeat(area[:, None] / 3.0, 3, axis=1)  # (F, 3) m2 per pair
+        self.nodes, first, pair_node = np.unique(facets.vertex_dofs.ravel(), return_index=True, return_inverse=True)
+        self.nodes = self.nodes.astype(np.int32)  # block dofs of V on the surface, this rank's share
+        self.X = X.reshape(-1, 3)[first]  # their reference positions
+        self.weights = np.bincount(pair_node, weights=np.repeat(area / 3.0, 3), minlength=len(self.nodes))
         edges = np.linalg.norm(X - np.roll(X, 1, axis=1), axis=2).ravel()
         h = self.comm.allreduce(float(np.median(edges)) if edges.size else 0.0, op=MPI.MAX)
         self.h = max(h, 1e-300)
         self.static_penalty = self.penalty = PENALTY_FACTOR * E / self.h
-        self.multipliers = np.zeros(self.dofs.shape)  # Pa, per pair
+        self.multipliers = np.zeros(len(self.nodes))  # Pa
         self.vector = dolfinx.la.create_petsc_vector(V.dofmap.index_map, V.dofmap.index_map_bs)
         self._n_owned = V.dofmap.index_map.size_local
         self._area = None  # nodal surface areas, for the pressure output
+        self._y_exact = np.full(self.X.shape, np.nan)  # where phi was last computed exactly
+        self._phi_exact = np.zeros(len(self.nodes))
+        self._normal_exact = np.zeros(self.X.shape)
+        self.queries = 0  # exact distance queries over the run (points)
+
+    # -- the distance, queried only where a node may be pressed -------------------------------
+    def _width(self) -> float:
+        return SMOOTHING * self.tolerance
+
+    def _phi(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(phi, grad phi) at the nodes' positions y: exact where the node may be pressed, a
+        lower bound (phi at the last exact point less the distance moved) elsewhere."""
+        bound = self._phi_exact - np.linalg.norm(y - self._y_exact, axis=1)
+        reach = self.multipliers / self.penalty + REACH * self._width()
+        need = ~(bound > reach)  # (NaN: never computed)
+        if np.any(need):
+            phi, normal = self.skull.phi(y[need])
+            self._y_exact[need], self._phi_exact[need], self._normal_exact[need] = y[need], phi, normal
+            self.queries += int(need.sum())
+        bound[need] = self._phi_exact[need]
+        return bound, self._normal_exact
+
+    def _pressure(self, multipliers: np.ndarray, phi: np.ndarray) -> np.ndarray:
+        """max(0, lambda - k phi), its kink rounded over the width (softplus)."""
+        width = self._width()
+        z = (multipliers / self.penalty - phi) / width
+        return self.penalty * width * (np.maximum(z, 0.0) + np.log1p(np.exp(-np.abs(z))))
+
+    def _state(self, u) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(positions, phi, unit normals, pressures) of the nodes at the displacement u."""
+        y = self.X + u.x.array.reshape(-1, 3)[self.nodes]
+        phi, normal = self._phi(y)
+        return y, phi, normal, self._pressure(self.multipliers, phi)
+
+    # -- what Newton needs ----------------------------------------------------------------------
+    def assemble(self, u) -> PETSc.Vec:
+        """The contact forces at u into self.vector (owned entries summed over ranks)."""
+        _, _, normal, p = self._state(u)
+        with self.vector.localForm() as local:
+            local.set(0.0)
+            local.array.reshape(-1, 3)[self.nodes] = (self.weights * p)[:, None] * normal
+        self.vector.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        return self.vector
+
+    def add_tangent(self, A: PETSc.Mat, u, scale: float = 1.0) -> None:
+        """A += scale d(-f)/du on the pressed nodes (A assembled after). A node just touching
+        is pressed with half the penalty (the rounded kink): a body resting on the skull at
+        rest then has a regular tangent."""
+        y, phi, _, _ = self._state(u)
+        pressed = self.multipliers / self.penalty - phi >= -REACH * self._width()
+        if np.any(pressed):
+            y, lam, w = y[pressed], self.multipliers[pressed], self.weights[pressed]
+            h = FD_STEP * self.h
+            blocks = np.empty((len(y), 3, 3))
+            for j in range(3):
+                step = np.zeros(3)
+                step[j] = h
+                blocks[:, :, j] = -scale * (self._force(y + step, lam, w) - self._force(y - step, lam, w)) / (2 * h)
+            for dof, block in zip(self.nodes[pressed], blocks):
+                A.setValuesBlockedLocal([dof], [dof], block.ravel(), addv=PETSc.InsertMode.ADD_VALUES)
+        A.assemble()
+
+    def _force(self, y: np.ndarray, multipliers: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        """Forces (n, 3) of nodes at positions y (exact distances)."""
+        phi, normal = self.skull.phi(y)
+        self.queries += len(y)
+        return (weights * self._pressure(multipliers, phi))[:, None] * normal
+
+    def update_multipliers(self, u) -> None:
+        self.multipliers = self._state(u)[3]
+
+    def for_time_step(self, c_mass: float, density: float) -> None:
+        """In a time step inertia stiffens every node by c_mass M: the penalty follows it (else
+        an impact needs dozens of multiplier updates): PENALTY_FACTOR (E / h + c_mass rho h)."""
+        self.penalty = self.static_penalty + PENALTY_FACTOR * c_mass * density * self.h
+
+    # -- measures ---------------------------------------------------------------------------------
+    def violation(self, u) -> float:
+        """How far the contact conditions are from holding (m): the largest |min(phi, p / k)|,
+        which counts a node past the skull (phi < 0) and a node pushed while off it (p > 0
+        with phi > 0: a stale multiplier) alike."""
+        _, phi, _, p = self._state(u)
+        local = float(np.abs(np.minimum(phi, p / self.penalty)).max(initial=0.0))
+        return self.comm.allreduce(local, op=MPI.MAX)
+
+    def penetration(self, u) -> float:
+        """The deepest any surface node is past the skull (m, 0 if none)."""
+        phi = self._state(u)[1]
+        return self.comm.allreduce(float(max(0.0, -phi.min(initial=np.inf))), op=MPI.MAX)
+
+    def clearance(self, u) -> float:
+        """The smallest room left between the surface and the skull (m; negative: penetration;
+        nodes far from the skull count with a lower bound)."""
+        return self.comm.allreduce(float(self._state(u)[1].min(initial=np.inf)), op=MPI.MIN)
 
     def nodal_pressure(self, u) -> np.ndarray:
         """The contact pressure (Pa) at every owned block dof of V: the node's force over its
@@ -52,88 +154,11 @@ class SkullContact:
             self._area = self.vector.duplicate()
             with self._area.localForm() as local:
                 local.set(0.0)
-                np.add.at(local.array.reshape(-1, 3)[:, 0], self.dofs.ravel(), self.weights.ravel())
+                local.array.reshape(-1, 3)[self.nodes, 0] = self.weights
             self._area.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         force = np.linalg.norm(self.assemble(u).array_r.reshape(-1, 3), axis=1)
         area = self._area.array_r.reshape(-1, 3)[:, 0]
         return np.divide(force, area, out=np.zeros_like(force), where=area > 0)
-
-    def for_time_step(self, c_mass: float, density: float) -> None:
-        """In a time step inertia stiffens every node by c_mass M: the penalty follows it (else
-        an impact needs dozens of multiplier updates): PENALTY_FACTOR (E / h + c_mass rho h)."""
-        self.penalty = self.static_penalty + PENALTY_FACTOR * c_mass * density * self.h
-
-    def _pressures(self, u) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(phi (F, 3), unit normals (F, 3, 3), pressures (F, 3)) at the displacement u."""
-        y = self.X + u.x.array.reshape(-1, 3)[self.dofs]
-        phi, normal = self.skull.phi(y.reshape(-1, 3))
-        phi, normal = phi.reshape(self.dofs.shape), normal.reshape(self.X.shape)
-        return phi, normal, self._pressure(self.multipliers, phi)
-
-    def _pressure(self, multipliers: np.ndarray, phi: np.ndarray) -> np.ndarray:
-        """max(0, lambda - k phi), its kink rounded over SMOOTHING x tolerance: Newton then
-        does not cycle between a node's two sides of the kink (the rounding's force on a node
-        further off the skull than a few tolerances is below round-off)."""
-        width = SMOOTHING * self.tolerance
-        z = (multipliers / self.penalty - phi) / width
-        return self.penalty * width * (np.maximum(z, 0.0) + np.log1p(np.exp(-np.abs(z))))
-
-    def assemble(self, u) -> PETSc.Vec:
-        """The contact forces at u into self.vector (owned entries summed over ranks)."""
-        _, normal, p = self._pressures(u)
-        with self.vector.localForm() as local:
-            local.set(0.0)
-            values = local.array.reshape(-1, 3)
-            np.add.at(values, self.dofs.ravel(), ((self.weights * p)[..., None] * normal).reshape(-1, 3))
-        self.vector.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-        return self.vector
-
-    def _forces(self, y: np.ndarray, multipliers: np.ndarray, weights: np.ndarray) -> np.ndarray:
-        """Contact forces (n, 3) of pairs at positions y (n, 3)."""
-        phi, normal = self.skull.phi(y)
-        return (weights * self._pressure(multipliers, phi))[:, None] * normal
-
-    def add_tangent(self, A: PETSc.Mat, u, scale: float = 1.0) -> None:
-        """A += scale d(-f)/du on the pressed nodes (A assembled after). Each node's force depends on
-        its own position only, so its 3x3 block is taken by central differences: the pressure
-        term w k n n^T and the turning of n around the skull's edges and corners alike."""
-        phi, _, _ = self._pressures(u)
-        # a node just touching is pressed with half the penalty (the rounded kink): a body
-        # resting on the skull at rest then has a regular tangent
-        pressed = self.multipliers / self.penalty - phi >= -40.0 * SMOOTHING * self.tolerance
-        if np.any(pressed):
-            y = (self.X + u.x.array.reshape(-1, 3)[self.dofs])[pressed]
-            lam, w = self.multipliers[pressed], self.weights[pressed]
-            h = FD_STEP * np.sqrt(3.0 * w.max())  # of the element size
-            blocks = np.empty((len(y), 3, 3))
-            for j in range(3):
-                step = np.zeros(3)
-                step[j] = h
-                blocks[:, :, j] = -scale * (self._forces(y + step, lam, w) - self._forces(y - step, lam, w)) / (2 * h)
-            for dof, block in zip(self.dofs[pressed], blocks):
-                A.setValuesBlockedLocal([dof], [dof], block.ravel(), addv=PETSc.InsertMode.ADD_VALUES)
-        A.assemble()
-
-    def update_multipliers(self, u) -> None:
-        self.multipliers = self._pressures(u)[2]
-
-    def penetration(self, u) -> float:
-        """The deepest any surface node is past the skull (m, 0 if none)."""
-        phi = self._pressures(u)[0]
-        return self.comm.allreduce(float(max(0.0, -phi.min(initial=np.inf))), op=MPI.MAX)
-
-    def violation(self, u) -> float:
-        """How far the contact conditions are from holding (m): the largest |min(phi, p / k)|
-        over the nodes, which counts a node past the skull (phi < 0) and a node pushed while
-        off it (p > 0 with phi > 0, a stale multiplier) alike. The multipliers are updated
-        until this is within the tolerance."""
-        phi, _, p = self._pressures(u)
-        local = float(np.abs(np.minimum(phi, p / self.penalty)).max(initial=0.0))
-        return self.comm.allreduce(local, op=MPI.MAX)
-
-    def clearance(self, u) -> float:
-        """The smallest room left between the surface and the skull (m; negative: penetration)."""
-        return self.comm.allreduce(float(self._pressures(u)[0].min(initial=np.inf)), op=MPI.MIN)
 
     def report(self, u) -> dict:
         """Total contact force (N), pressed nodes, deepest penetration and clearance (m)."""
@@ -145,4 +170,5 @@ class SkullContact:
         pressed = self.comm.allreduce(int(np.count_nonzero(size > 1e-6 * largest)), op=MPI.SUM)
         return {"force_N": [float(v) for v in total], "pressed_nodes": pressed,
                 "max_penetration_m": self.penetration(u), "clearance_m": self.clearance(u),
-                "penalty_Pa_per_m": self.penalty, "tolerance_m": self.tolerance}
+                "penalty_Pa_per_m": self.penalty, "tolerance_m": self.tolerance,
+                "distance_queries": self.queries}
