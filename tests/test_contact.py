@@ -119,6 +119,23 @@ def test_nothing_passes_a_skull_made_from_a_gap_under_a_large_load():
     del free["fluid"]
     assert abs(run(scene_from_dict(free), comm=COMM).probes["centre"][2]) > 0.003  # would fall through
     assert result.probes["centre"][2] == pytest.approx(-0.001, abs=2e-6)  # resting on the skull below
+    assert contact["contact_from_s"] == 0.0 and contact["states_without_contact"] == 0
+
+
+def test_contact_is_skipped_while_nothing_reaches_the_skull():
+    """A skull 10 mm out of a block that sags a few millimetres: every settled state is solved
+    without contact (the plan says so), and the answer is the contact-free one exactly."""
+    data = _block([], {"gap": 0.010}, g=5 * 9.81)
+    data["fixed"] = [{"where": f"z > {H} - 1e-9"}]
+    data["fluid"]["level"] = [[0.0, 0.03], [1.0, 0.01]]
+    result = run(scene_from_dict(data), comm=COMM)
+    contact = result.summary["skull_contact"]
+    assert contact["states_without_contact"] == 2 and contact["contact_from_s"] is None
+    assert "skipped while the contact-free answer stays clear" in result.summary["plan"]["contact"]
+    del data["skull"]
+    free = run(scene_from_dict(data), comm=COMM)
+    assert abs(free.probes["centre"][2]) > 1e-3  # it does sag
+    np.testing.assert_array_equal(result.probes["centre"], free.probes["centre"])
 
 
 @pytest.mark.parametrize("label, skull, message", [

@@ -41,6 +41,7 @@ class Plan:
     fields: str = ""
     stiffness_band: str = ""
     material: str = ""  # with [material] model = "auto": which model, and why
+    contact: str = ""  # with [skull]: when contact is solved, when skipped
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -52,6 +53,8 @@ class Plan:
             lines.append(f"plan: {self.stiffness_band}")
         if self.material:
             lines.append(f"plan: material {self.material}")
+        if self.contact:
+            lines.append(f"plan: contact {self.contact}")
         return lines
 
 
@@ -122,7 +125,14 @@ def make_plan(scene: Scene, mesh) -> Plan:
         exact = mode == "quasi-static" and (scene.fluid is None or not scene.fluid.follower)
         band = (f"stiffness band E x (1 -/+ {r:.3g}) from 1/E scaling, no extra solve "
                 f"({'exact' if exact else 'an estimate: follower loading or dynamics'})")
-    return Plan(mode, reasons, period, change, fluid_load=fluid, fields=fields, stiffness_band=band)
+    contact = ""
+    if scene.skull is not None:
+        if mode == "quasi-static" and scene.material.model == "linear":
+            contact = ("skipped while the contact-free answer stays clear of the skull (then exact); Newton with "
+                       "contact from the first settled state that would pass it")
+        else:
+            contact = "Newton with the contact forces in every " + ("step" if mode == "dynamic" else "settled state")
+    return Plan(mode, reasons, period, change, fluid_load=fluid, fields=fields, stiffness_band=band, contact=contact)
 
 
 def stiffness_band(scene: Scene, plan: Plan, max_displacement: float, probes: dict) -> dict | None:

@@ -19,6 +19,7 @@ from ..physics import total_force
 from ..scene import Scene
 from ..errors import InputError
 from ..stepping import DynamicStepper, Solves, State, StaticSolver
+from ..stepping.contact_skip import ContactWhenReached
 from ..stepping.newton import NewtonStatic
 from ..stepping.newton_dynamic import NewtonDynamicStepper
 from . import build
@@ -81,8 +82,13 @@ class Simulation:
 
     def _static(self) -> StaticSolver | NewtonStatic:
         if self.static is None:
-            if self.model.nonlinear or self.contact is not None:  # Newton: a material or a contact that needs it
+            if self.model.nonlinear:  # Newton: a material that needs it
                 self.static = NewtonStatic(self.model, self.state, self.solves, contact=self.contact)
+            elif self.contact is not None:  # the fixed point while nothing reaches the skull
+                self.static = ContactWhenReached(
+                    StaticSolver(self.model, self.state, self.solves, build.follower_tolerance(self.scene)),
+                    lambda: NewtonStatic(self.model, self.state, self.solves, contact=self.contact),
+                    self.contact, self.state)
             else:
                 self.static = StaticSolver(self.model, self.state, self.solves, build.follower_tolerance(self.scene))
             self.static.setup()

@@ -63,7 +63,9 @@ def summary(sim, h, stopped, setup_s: float) -> dict:
     if sim.contact is not None:
         solver = sim.dynamic if dynamic else sim.static
         out["skull_contact"] = {**sim.contact.report(sim.state.u),
-                                "multiplier_updates": getattr(solver, "contact_rounds", 0)}
+                                "multiplier_updates": getattr(solver, "contact_rounds", 0),
+                                "states_without_contact": getattr(solver, "skipped", 0),
+                                "contact_from_s": getattr(solver, "engaged_at", None)}
     if model.tissue is not None:
         out["removals"] = sim.dynamic.removals if sim.dynamic is not None else []
         out["removed_fraction"] = model.tissue.removed_fraction
