@@ -135,7 +135,8 @@ def test_contact_is_skipped_while_nothing_reaches_the_skull():
     del data["skull"]
     free = run(scene_from_dict(data), comm=COMM)
     assert abs(free.probes["centre"][2]) > 1e-3  # it does sag
-    np.testing.assert_array_equal(result.probes["centre"], free.probes["centre"])
+    # the same solves (two builds may be partitioned differently on N ranks: round-off)
+    np.testing.assert_allclose(result.probes["centre"], free.probes["centre"], rtol=0, atol=1e-12)
 
 
 @pytest.mark.parametrize("label, skull, message", [

@@ -185,3 +185,24 @@ def test_hyperelastic_demo_serial_and_mpi(tmp_path):
     for key, row in one.items():
         if row["status"] == "ok":
             assert float(two[key]["max_mm"]) == pytest.approx(float(row["max_mm"]), rel=1e-6), key
+
+
+def test_skull_demo_serial_and_mpi(tmp_path):
+    """The brain held by the brain stem alone sags further without the skull than with it;
+    with the skull nothing passes it; 1 and 2 ranks agree."""
+    import csv
+
+    tables = {}
+    for ranks in (1, 2):
+        out = tmp_path / f"r{ranks}"
+        _run(out, ranks, str(ROOT / "demos" / "skull.py"), "--voxel", "0.012", "--out", str(out))
+        assert (out / "comparison.png").stat().st_size > 10_000
+        with open(out / "comparison.csv") as f:
+            tables[ranks] = {r["case"]: r for r in csv.DictReader(f)}
+    one, two = tables[1], tables[2]
+    assert all(r["status"] == "ok" for r in one.values())
+    free, held = one["brain stem only, no skull"], one["brain stem only, skull"]
+    assert float(free["max_mm"]) > 1.3 * float(held["max_mm"])
+    assert int(held["pressed_nodes"]) > 0 and float(held["penetration_um"]) <= 10.0  # the 1e-5 m tolerance
+    for case, row in one.items():
+        assert float(two[case]["max_mm"]) == pytest.approx(float(row["max_mm"]), rel=1e-4), case
