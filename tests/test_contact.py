@@ -28,7 +28,7 @@ def _box_surface(lo, hi, path, drop_face: bool = False) -> str:
         quads = quads[1:]
     tris = [[q[0], q[1], q[2]] for q in quads] + [[q[0], q[2], q[3]] for q in quads]
     if COMM.rank == 0:
-        meshio.write(str(path), meshio.Mesh(P, [("triangle", np.array(tris))]))
+        meshio.write(str(path), meshio.Mesh(P, [("triangle", np.array(tris))]), binary=True)
     COMM.barrier()
     return str(path)
 
