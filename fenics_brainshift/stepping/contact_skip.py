@@ -25,16 +25,17 @@ class ContactWhenReached:
         self._touching = contact.clearance(state.u) <= contact.tolerance  # at rest
 
     def setup(self) -> None:
-        self.free.setup()
+        if self._touching:  # K alone may be singular: never factor it
+            self.engaged, self.engaged_at = self.make_contact_solver(), self.state.t
+            self.engaged.setup()
+        else:
+            self.free.setup()
 
     @property
     def contact_rounds(self) -> int:
         return self.engaged.contact_rounds if self.engaged is not None else 0
 
     def solve(self, t: float) -> int:
-        if self.engaged is None and self._touching:
-            self.engaged, self.engaged_at = self.make_contact_solver(), t
-            self.engaged.setup()
         if self.engaged is None:
             before = self.state.u.x.array.copy()
             its = self.free.solve(t)
@@ -51,6 +52,7 @@ class ContactWhenReached:
         return self.engaged.solve(t)
 
     def destroy(self) -> None:
-        self.free.destroy()
+        if self.free.K is not None:
+            self.free.destroy()
         if self.engaged is not None:
             self.engaged.destroy()

@@ -34,6 +34,7 @@ MIN_FRACTION = 1.0 / 1024.0
 TANGENT_TYPE = "baij"
 MAX_KRYLOV = 100  # GMRES iterations before the preconditioner is rebuilt on the current tangent
 STALE_KRYLOV = 30  # more than this in a solve: the next one rebuilds it first
+STALL_WITH_CONTACT = 1e3  # no descent within 1e-6 of the load counts as converged with contact
 MAX_CONTACT_ROUNDS = 30  # augmented-Lagrangian multiplier updates per settled state
 
 
@@ -65,7 +66,8 @@ def fixed_dofs(bcs) -> np.ndarray:
     return np.unique(np.concatenate([bc.dof_indices()[0] for bc in bcs])).astype(np.int32)
 
 
-def newton_iterate(x, dx, residual, solve, scale, rtol: float, krylov_floor: float, max_iterations: int):
+def newton_iterate(x, dx, residual, solve, scale, rtol: float, krylov_floor: float, max_iterations: int,
+                   stall: float = 1.0):
     """Newton's iteration on the Function x with a backtracking line search on |R|.
 
     residual() evaluates R at x into the caller's vector and returns |R| (inf when R is not
@@ -73,7 +75,9 @@ def newton_iterate(x, dx, residual, solve, scale, rtol: float, krylov_floor: flo
     tolerance ``forcing``; converged when |R| <= rtol scale(), scale() the size of the loads.
     Eisenstat-Walker: the forcing follows |R| / scale() (at most 1e-2, at least the Krylov
     floor and a tenth of the reduction the target still asks for), so the linear solves are no
-    more exact than needed and the convergence stays quadratic. Returns (converged, the |R|
+    more exact than needed and the convergence stays quadratic. A line search that finds no
+    descent within ``stall`` x the target counts as converged (round-off: the contact's rounded
+    kink, narrower than a micrometre, leaves a floor above 1e-9 of small loads). Returns (converged, the |R|
     history); on failure x is wherever it stopped."""
     def target():
         return rtol * max(scale(), 1e-300)
@@ -97,9 +101,10 @@ def newton_iterate(x, dx, residual, solve, scale, rtol: float, krylov_floor: flo
             trial = residual()
             if trial < (1.0 - 1e-4 * alpha) * norm:
                 break
-        else:  # no descent: fine if already at round-off, a failure otherwise
-            if trial > target():
+        else:  # no descent: fine if already at round-off (within ``stall`` targets), a failure otherwise
+            if trial > stall * target():
                 return False, history
+            return True, history + [trial]
         norm = trial
         history.append(norm)
         log.debug("  Newton: |R| %.3e after a step of %g", norm, alpha)
@@ -226,7 +231,7 @@ class NewtonStatic:
         converged, self.history = newton_iterate(
             self.state.u, self._du, lambda: self._residual(t, factor),
             lambda forcing: self._solve_step(factor, t, forcing), lambda: self._load_norm, self.rtol,
-            self.solves.settings["rtol"], self.max_iterations)
+            self.solves.settings["rtol"], self.max_iterations, STALL_WITH_CONTACT if self.contact is not None else 1.0)
         self.iterations = len(self.history) - 1
         return converged
 

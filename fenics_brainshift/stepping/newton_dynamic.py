@@ -28,7 +28,7 @@ from ..errors import SolverError
 from ..logs import get_logger
 from ..physics.load_tangent import add_load_tangent
 from .dynamic import DynamicStepper
-from .newton import MAX_CONTACT_ROUNDS, fixed_dofs, newton_iterate, reassemble, tangent_settings
+from .newton import MAX_CONTACT_ROUNDS, STALL_WITH_CONTACT, fixed_dofs, newton_iterate, reassemble, tangent_settings
 
 log = get_logger("newton")
 MAX_CUTS = 5  # a failed step is cut in halves, down to dt / 32
@@ -186,7 +186,8 @@ class NewtonDynamicStepper(DynamicStepper):
         def newton() -> bool:
             converged, self.newton_history = newton_iterate(
                 self.du, self._update, residual, solve, lambda: self._F.norm(), self.rtol,
-                self.solves.settings["rtol"], self.max_iterations)
+                self.solves.settings["rtol"], self.max_iterations,
+                STALL_WITH_CONTACT if self.contact is not None else 1.0)
             return converged
 
         converged, rounds = newton(), 0
