@@ -6,7 +6,10 @@ import meshio
 import numpy as np
 import pytest
 
+from mpi4py import MPI
+
 from conftest import COMM
+from fenics_brainshift import compat
 from fenics_brainshift.errors import InputError
 from fenics_brainshift.physics.skull import RigidSkull, closest_points_on_triangles
 from fenics_brainshift.runner import Simulation, run
@@ -210,3 +213,27 @@ def test_the_contact_pressure_is_written_with_the_fields(floor, shared_tmp):
     share = np.zeros(len(points))
     np.add.at(share, faces.ravel(), np.repeat(area / 3.0, 3))
     assert np.sum(p * share) == pytest.approx(force, rel=1e-6)
+
+
+def test_a_piece_cut_free_lands_on_its_cut_face(floor):
+    """The block's bottom layer is removed at the start: the rest falls 8 mm onto the floor
+    and lands on the face the cut made, which meets the skull like the original surface
+    (nothing passes the floor), and the floor then carries the rest's weight less buoyancy."""
+    data = _block([], {"file": floor, "tolerance": 1e-6})
+    cut = H / 3  # one layer of cells
+    data["remove"] = [{"at": 0.0, "where": f"z < {cut} - 1e-9"}]
+    data["time"] = {"mode": "dynamic", "scheme": "generalized-alpha", "rho_inf": 0.5, "dt": 0.02, "end": 1.5}
+    data["damping"] = {"a": 20.0, "b": 0.0}
+    sim = Simulation(scene_from_dict(data), COMM)
+    sim.setup()
+    while sim.t < 1.5 - 1e-9:
+        sim.step()
+    x = sim.model.V.tabulate_dof_coordinates() + sim.state.u.x.array.reshape(-1, 3)
+    held = sim.model.tissue.present  # cells left; their nodes:
+    cells = compat.dofmap_array(sim.model.V)
+    nodes = np.unique(cells[held[: len(cells)]])
+    lowest = COMM.allreduce(float(x[nodes, 2].min()), op=MPI.MIN)
+    assert lowest == pytest.approx(0.0, abs=1e-6)  # on the floor, not through it
+    # dead fluid load (follower off): buoyancy of the piece where it was, up to the level
+    weight, buoyancy = RHO * 9.81 * L * L * (H - cut), RHO_OIL * 9.81 * L * L * (LEVEL - cut)
+    assert sim.contact.report(sim.state.u)["force_N"][2] == pytest.approx(weight - buoyancy, rel=1e-3)

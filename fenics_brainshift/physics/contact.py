@@ -39,23 +39,35 @@ class SkullContact:
         self.V, self.skull, self.tolerance = V, skull, tolerance
         self.comm = V.mesh.comm
         X = facets.x_vertices  # (F, 3, 3)
-        area = 0.5 * np.linalg.norm(np.cross(X[:, 1] - X[:, 0], X[:, 2] - X[:, 0]), axis=1)
-        self.nodes, first, pair_node = np.unique(facets.vertex_dofs.ravel(), return_index=True, return_inverse=True)
-        self.nodes = self.nodes.astype(np.int32)  # block dofs of V on the surface, this rank's share
-        self.X = X.reshape(-1, 3)[first]  # their reference positions
-        self.weights = np.bincount(pair_node, weights=np.repeat(area / 3.0, 3), minlength=len(self.nodes))
         edges = np.linalg.norm(X - np.roll(X, 1, axis=1), axis=2).ravel()
         h = self.comm.allreduce(float(np.median(edges)) if edges.size else 0.0, op=MPI.MAX)
         self.h = max(h, 1e-300)
         self.static_penalty = self.penalty = PENALTY_FACTOR * E / self.h
-        self.multipliers = np.zeros(len(self.nodes))  # Pa
         self.vector = dolfinx.la.create_petsc_vector(V.dofmap.index_map, V.dofmap.index_map_bs)
         self._n_owned = V.dofmap.index_map.size_local
+        self.queries = 0  # exact distance queries over the run (points)
+        self.nodes = np.zeros(0, dtype=np.int32)
+        self.set_surface(facets)
+
+    def set_surface(self, facets) -> None:
+        """The surface in contact: its vertices and their areas (again after a resection, when
+        the cut faces join it); a node kept keeps its multiplier."""
+        X = facets.x_vertices  # (F, 3, 3)
+        area = 0.5 * np.linalg.norm(np.cross(X[:, 1] - X[:, 0], X[:, 2] - X[:, 0]), axis=1)
+        nodes, first, pair_node = np.unique(facets.vertex_dofs.ravel(), return_index=True, return_inverse=True)
+        nodes = nodes.astype(np.int32)  # block dofs of V on the surface, this rank's share
+        kept = np.zeros(len(nodes))
+        if len(self.nodes):
+            where = np.searchsorted(self.nodes, nodes).clip(max=len(self.nodes) - 1)
+            found = self.nodes[where] == nodes
+            kept[found] = self.multipliers[where[found]]
+        self.nodes, self.multipliers = nodes, kept  # multipliers in Pa
+        self.X = X.reshape(-1, 3)[first]  # their reference positions
+        self.weights = np.bincount(pair_node, weights=np.repeat(area / 3.0, 3), minlength=len(nodes))
         self._area = None  # nodal surface areas, for the pressure output
         self._y_exact = np.full(self.X.shape, np.nan)  # where phi was last computed exactly
-        self._phi_exact = np.zeros(len(self.nodes))
+        self._phi_exact = np.zeros(len(nodes))
         self._normal_exact = np.zeros(self.X.shape)
-        self.queries = 0  # exact distance queries over the run (points)
 
     # -- the distance, queried only where a node may be pressed -------------------------------
     def _width(self) -> float:

@@ -27,6 +27,7 @@ from .. import compat
 from ..errors import SolverError
 from ..logs import get_logger
 from ..physics.load_tangent import add_load_tangent
+from ..physics.surface import surface_facets
 from .dynamic import DynamicStepper
 from .newton import MAX_CONTACT_ROUNDS, STALL_WITH_CONTACT, fixed_dofs, newton_iterate, reassemble, tangent_settings
 
@@ -84,6 +85,12 @@ class NewtonDynamicStepper(DynamicStepper):
         assemble_vector(out, self._internal)
         out.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         return out
+
+    def _remove_due_cells(self) -> bool:
+        removed = super()._remove_due_cells()
+        if removed and self.contact is not None:  # the cut faces meet the skull too
+            self.contact.set_surface(surface_facets(self.model.V, self.model.tissue.present))
+        return removed
 
     def _initial_acceleration(self) -> None:
         if self.contact is not None:  # the skull's reaction is a load like the others
