@@ -30,7 +30,8 @@ MIN_FRACTION = 1.0 / 1024.0
 
 
 # The tangent is stored in 3x3 blocks (PETSc BAIJ): on the 5 mm brain its assembly is 2.7x
-# (neo-Hookean) to 3.6x (linear) faster than into scalar AIJ, a product 2x (docs/performance.md)
+# (neo-Hookean) to 3.5x (linear) faster than into scalar AIJ, a product about 2x
+# (benchmarks/results/tangent_storage.md)
 TANGENT_TYPE = "baij"
 MAX_KRYLOV = 100  # GMRES iterations before the preconditioner is rebuilt on the current tangent
 STALE_KRYLOV = 30  # more than this in a solve: the next one rebuilds it first
