@@ -86,6 +86,38 @@ class LinearSolver:
         self.ksp.destroy()
 
 
+class _PreconditionerOf:
+    """A python PC that applies another solver's preconditioner (its factor, or its AMG cycle)."""
+
+    def __init__(self, pc: PETSc.PC):
+        self.pc = pc
+
+    def apply(self, _pc, x: PETSc.Vec, y: PETSc.Vec) -> None:
+        self.pc.apply(x, y)
+
+
+def solve_preconditioned_by(A: PETSc.Mat, donor: LinearSolver, b: PETSc.Vec, x: PETSc.Vec,
+                            rtol: float = 1e-12, max_it: int = 1000, name: str = "") -> int:
+    """CG on A x = b, preconditioned by ``donor``'s preconditioner (no new factor or AMG setup).
+    Pays when A is spectrally close to the donor's matrix, e.g. M + w K against c M + K."""
+    ksp = PETSc.KSP().create(A.getComm())
+    try:
+        ksp.setOperators(A)
+        ksp.setType("cg")
+        pc = ksp.getPC()
+        pc.setType("python")
+        pc.setPythonContext(_PreconditionerOf(donor.ksp.getPC()))
+        ksp.setTolerances(rtol=rtol, atol=1e-300, max_it=max_it)
+        ksp.solve(b, x)
+        reason, its = ksp.getConvergedReason(), ksp.getIterationNumber()
+        if reason < 0:
+            raise SolverError(f"{name} solve diverged: {_reason_name(reason)} after {its} iterations "
+                              f"(CG preconditioned by the step solver '{donor.kind}')")
+        return its
+    finally:
+        ksp.destroy()
+
+
 def has_package(name: str) -> bool:
     """Was this PETSc built with the external package (hypre, mumps, cholmod, ...)?"""
     return bool(PETSc.Sys.hasExternalPackage(name))

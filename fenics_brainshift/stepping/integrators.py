@@ -107,6 +107,12 @@ class TimeIntegrator:
         return float(np.max(np.abs(np.linalg.eigvals(self.amplification_matrix(omega, xi)))))
 
 
+def initial_stiffness_weight(dt: float, b_rayleigh: float) -> float:
+    """w in (M + w K) a0 = F(0) - C v0 - K u0: the initial acceleration averaged over the first
+    half step, dt/2 times the stiffness-proportional damping (why: DynamicStepper)."""
+    return 0.5 * dt * b_rayleigh
+
+
 def newmark_discrete_frequency(omega: float, dt: float) -> float:
     """Average acceleration is exactly energy-conserving with frequency 2/dt arctan(omega dt/2):
     the period grows by the factor omega / this (period elongation)."""
