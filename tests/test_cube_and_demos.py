@@ -166,6 +166,29 @@ def test_resection_demo_serial_and_mpi(tmp_path):
         assert np.abs(a - b).max() <= 1e-6 * np.abs(a).max()  # the follower iteration tolerance
 
 
+def test_resection_demo_with_skull_serial_and_mpi(tmp_path):
+    """--skull 3: the skull, not the occipital pin, holds the brain through the drain and the
+    resection (generalized-alpha); nothing passes it by more than the tolerance, it carries part
+    of the net weight (the brain stem the rest) and 1 and 2 ranks agree."""
+    quick = ("--skull", "3", "--set", "mesh.voxel=0.01", "--set", "time.dt=1.0")
+    summaries = {}
+    for ranks in (1, 2):
+        out = tmp_path / f"r{ranks}"
+        stdout = _run(out, ranks, str(ROOT / "demos" / "resection.py"), "--out", str(out), *quick)
+        assert "skull: carries" in stdout
+        summaries[ranks] = json.loads((out / "summary.json").read_text())
+    one, two = summaries[1], summaries[2]
+    assert one["status"] == "ok" and one["scheme"].startswith("generalized-alpha")
+    assert one["removals"][0]["cells"] == two["removals"][0]["cells"] > 0
+    for s in (one, two):
+        contact = s["skull_contact"]
+        assert 0 <= contact["max_penetration_m"] <= contact["tolerance_m"] and contact["pressed_nodes"] > 20
+        net_weight = -(s["gravity_force_N"][1] + s["fluid_force_N"][1])  # along -y, N
+        assert 0.2 * net_weight < contact["force_N"][1] < net_weight  # the skull pushes up (+y)
+    a, b = (np.array(s["probes"]["cavity_roof"]) for s in (one, two))
+    assert np.abs(a - b).max() <= 1e-5 * np.abs(a).max()
+
+
 def test_hyperelastic_demo_serial_and_mpi(tmp_path):
     """Linear against neo-Hookean on a coarse brain: the soft linear brain has no equilibrium,
     the neo-Hookean one has; the linear runs past 5 % strain are flagged; 1 and 2 ranks agree."""

@@ -48,7 +48,8 @@ class ContactWhenReached:
             self.state.u.x.array[:] = before
             self.engaged, self.engaged_at = self.make_contact_solver(), t
             self.engaged._t_settled = self._t_settled  # load steps from the last settled state
-            self.engaged.setup()
+            self.engaged.adopt_preconditioner(self.free.K)  # K's factor, made for the free solves
+            self.free.K = None
         return self.engaged.solve(t)
 
     def destroy(self) -> None:
