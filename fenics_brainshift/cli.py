@@ -20,7 +20,7 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--no-progress", action="store_true",
                         help="no progress bar (it shows on rank 0 only when stderr is a terminal)")
     sub = parser.add_subparsers(dest="command", required=True)
-    for add in (_add_run, _add_mesh, _add_compare, _add_bench):
+    for add in (_add_run, _add_mesh, _add_warp, _add_compare, _add_bench):
         add(sub)
     sub.add_parser("info", help="versions of DOLFINx, PETSc, MPI, the scalar type and optional extras")
     sub.add_parser("scenes", help="the bundled scenes (run one by name: brainshift run cube)")
@@ -45,14 +45,36 @@ def _add_mesh(sub) -> None:
                                       "box, those the object fills kept, floating parts dropped, five "
                                       "conforming tetrahedra per voxel. Output in metres.",
                           formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    mesh.add_argument("input", help="label volume (.nii, .nii.gz) or surface (.stl, .obj, .ply, .vtk, .vtp, .gii)")
+    mesh.add_argument("input", help="label volume (.nii, .nii.gz, .nrrd, .seg.nrrd) or surface (.stl, .obj, .ply, "
+                                    ".vtk, .vtp, .gii)")
     mesh.add_argument("--voxel", type=float, default=5.0, help="voxel size, in the input's units")
     mesh.add_argument("--scale", type=float, default=1e-3, help="input units to metres (1e-3: input in mm)")
     mesh.add_argument("--fill", type=float, default=0.5,
                       help="keep voxels the object fills at least this much (0: any it touches, the paper's rule)")
     mesh.add_argument("--parts", type=int, default=1, help="keep this many largest face-connected parts")
-    mesh.add_argument("--labels", type=int, nargs="+", help="labels of a label volume to mesh (default: all > 0)")
+    mesh.add_argument("--labels", nargs="+", help="labels of a label volume to mesh, as values or a .seg.nrrd's "
+                                                 "segment names (default: all > 0)")
     mesh.add_argument("-o", "--output", default="mesh.xdmf", help="output XDMF file")
+
+
+def _add_warp(sub) -> None:
+    warp = sub.add_parser("warp", help="the predicted intra-operative image: warp a pre-operative volume by a run",
+                          description="Every voxel y of the output (the input's grid, affine and header) takes the "
+                                      "input's value at the pre-operative point x with x + u(x) = y, u the run's "
+                                      "last displacement (exact inversion of the P1 field); outside the brain the "
+                                      "shift blends to zero over --blend mm. Optionally the same map as an ITK "
+                                      "displacement-field transform for 3D Slicer (docs/slicer.md).",
+                          formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    warp.add_argument("run_dir", metavar="RUN_DIR", help="a run's output folder (its displacement.xdmf)")
+    warp.add_argument("--image", required=True, help="pre-operative volume (.nii, .nii.gz, .nrrd, .seg.nrrd), "
+                                                     "in the frame of the run's mesh (mm)")
+    warp.add_argument("-o", "--output", required=True, help="warped volume (.nii.gz or .nrrd)")
+    warp.add_argument("--labels", action="store_true", help="a label volume: nearest voxel, labels stay labels "
+                                                            "(default: linear interpolation of intensities)")
+    warp.add_argument("--transform", help="also write the map as an ITK transform file (.h5) 3D Slicer loads")
+    warp.add_argument("--blend", type=float, default=10.0, help="mm over which the shift fades outside the brain")
+    warp.add_argument("--mesh-frame", choices=["RAS", "LPS"], default="RAS",
+                      help="the frame of the run's mesh coordinates (RAS: meshes from NIfTI, this project's)")
 
 
 def _add_compare(sub) -> None:
@@ -150,7 +172,7 @@ def main(argv: list[str] | None = None) -> int:
         progress.ENABLED = False
     comm = MPI.COMM_WORLD
     commands = {"info": _info_command, "scenes": _scenes, "mesh": _mesh, "compare": _compare, "bench": _bench,
-                "run": _run}
+                "run": _run, "warp": _warp}
     try:
         return commands[args.command](args, comm)
     except InputError as exc:  # bad input: nothing was written
@@ -260,6 +282,40 @@ def _compare(args, comm) -> int:
     return 0
 
 
+def _warp(args, comm) -> int:
+    import numpy as np
+
+    from .errors import InputError
+    from .images import DeformedMesh, Warp, is_volume, read_volume, write_itk_transform, write_like
+    from .outputs.files import check_writable
+
+    output = Path(args.output)
+    if not is_volume(output):
+        raise InputError(f"warp: -o '{output.name}': use a .nii.gz or .nrrd file name")
+    if args.transform and not args.transform.lower().endswith((".h5", ".hdf5")):
+        raise InputError(f"warp: --transform '{args.transform}': use an ITK transform file name ending in .h5")
+    for path in [output] + ([Path(args.transform)] if args.transform else []):
+        check_writable(path.parent, comm, "folder of " + ("-o" if path == output else "--transform"), "-o")
+    volume = read_volume(args.image, "warp: --image")
+    body = DeformedMesh.from_run(args.run_dir, args.mesh_frame)
+    warp = Warp.compute(volume, body, args.blend, comm)
+    if not warp.inside.any():
+        raise InputError(f"warp: the run's brain does not overlap '{Path(args.image).name}' (mesh {body.points.min(0)} "
+                         f"to {body.points.max(0)} mm RAS); is the image in the mesh's frame? (--mesh-frame)")
+    if comm.rank == 0:
+        warped = warp.apply(labels=args.labels)
+        write_like(volume, warped, output)
+        if args.transform:
+            write_itk_transform(warp, args.transform)
+        moved = warp.moved()
+        print(f"warp: {int(moved.sum())} of {moved.size} voxels moved (largest {warp.largest_mm():.2f} mm, "
+              f"{int(warp.inside.sum())} inside the deformed brain); {'nearest' if args.labels else 'linear'} "
+              f"sampling; wrote {output}" + (f" and {args.transform}" if args.transform else "")
+              + (f"; labels {sorted(np.unique(warped).tolist())[:12]}" if args.labels else ""))
+    comm.barrier()
+    return 0
+
+
 def _mesh(args, comm) -> int:
     from . import formats
     from .errors import InputError
@@ -269,7 +325,7 @@ def _mesh(args, comm) -> int:
     if not Path(args.input).is_file():
         raise InputError(f"mesh: input '{args.input}' not found")
     if not formats.is_voxelizable(args.input):
-        raise InputError(f"mesh: input '{Path(args.input).name}': use a label volume (.nii, .nii.gz) or a surface "
+        raise InputError(f"mesh: input '{Path(args.input).name}': use a label volume (.nii, .nii.gz, .nrrd) or a surface "
                          f"(.stl, .obj, .ply, .vtk, .vtp, .gii)")
     if args.voxel <= 0 or args.scale <= 0:
         raise InputError(f"mesh: --voxel and --scale must be > 0 (got {args.voxel:g}, {args.scale:g})")

@@ -4,10 +4,10 @@ from __future__ import annotations
 from pathlib import Path
 
 TETRA_SUFFIXES = (".msh", ".xdmf")  # tetrahedral meshes, read as they are
-LABEL_SUFFIXES = (".nii", ".nii.gz")  # label volumes, voxel-meshed
+LABEL_SUFFIXES = (".nii", ".nii.gz", ".nrrd")  # label volumes (NIfTI, NRRD, Slicer .seg.nrrd), voxel-meshed
 SURFACE_SUFFIXES = (".stl", ".obj", ".ply", ".vtk", ".vtp", ".vtu", ".off", ".gii")  # surfaces, voxel-meshed
 
-MESH_HELP = ("use .msh, .xdmf, a label volume (.nii, .nii.gz) or a surface "
+MESH_HELP = ("use .msh, .xdmf, a label volume (.nii, .nii.gz, .nrrd, .seg.nrrd) or a surface "
              "(.stl, .obj, .ply, .vtk, .vtp, .gii)")
 
 

@@ -17,34 +17,22 @@ from __future__ import annotations
 import argparse
 import gzip
 import io
-import subprocess
 import sys
-import tempfile
-import zipfile
 from pathlib import Path
 
 import nibabel as nib
 import numpy as np
 from scipy import ndimage
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from fenics_brainshift.data.templates import template_bytes  # noqa: E402
+
 OUT = Path(__file__).resolve().parents[1] / "fenics_brainshift" / "data" / "meshes"
-MEMBERS = {
-    "gm": "nilearn/datasets/data/mni_icbm152_gm_tal_nlin_sym_09a_converted.nii.gz",
-    "wm": "nilearn/datasets/data/mni_icbm152_wm_tal_nlin_sym_09a_converted.nii.gz",
-}
 
 
 def fetch(version: str) -> dict[str, nib.Nifti1Image]:
-    with tempfile.TemporaryDirectory() as tmp:
-        subprocess.run([sys.executable, "-m", "pip", "download", "-q", "--no-deps", "--only-binary=:all:",
-                        f"nilearn=={version}", "-d", tmp], check=True)
-        wheel = next(Path(tmp).glob("nilearn-*.whl"))
-        images = {}
-        with zipfile.ZipFile(wheel) as zf:
-            for key, member in MEMBERS.items():
-                raw = gzip.decompress(zf.read(member))
-                images[key] = nib.Nifti1Image.from_bytes(raw)
-    return images
+    raw = template_bytes(["gm", "wm"], version)
+    return {key: nib.Nifti1Image.from_bytes(gzip.decompress(data)) for key, data in raw.items()}
 
 
 def largest_part(mask: np.ndarray) -> np.ndarray:

@@ -148,21 +148,22 @@ def close_pinches(mask: np.ndarray, max_rounds: int = 50) -> np.ndarray:
 
 # ----------------------------------------------------------------- label volumes
 def label_occupancy(path: Path, voxel: float, scale: float, labels=None):
-    """Fill fraction of coarse voxels by the object's image voxels (any affine)."""
-    import nibabel as nib
+    """Fill fraction of coarse voxels by the object's image voxels (any affine); labels:
+    values or segment names (a Slicer .seg.nrrd), default every label > 0."""
+    from ..errors import InputError
+    from ..images.volumes import label_values, read_volume
 
     try:
-        image = nib.load(str(path))
-        data = np.asanyarray(image.dataobj)
-    except Exception as exc:  # nibabel's own message says what is wrong with the file
-        raise VoxelizeError(f"'{path.name}' could not be read as NIfTI: {exc}") from None
-    if data.ndim != 3:
-        raise VoxelizeError(f"'{path.name}' has {data.ndim} dimensions; a 3-D label volume is needed")
-    inside = np.isin(data, labels) if labels else data > 0
+        volume = read_volume(path, "label volume")
+        values = label_values(volume, labels, "labels") if labels else None
+    except InputError as exc:
+        raise VoxelizeError(str(exc)) from None
+    data = volume.data
+    inside = np.isin(data, values) if values else data > 0
     ijk = np.argwhere(inside)
     if len(ijk) == 0:
         raise VoxelizeError(f"'{path.name}' has no voxel with label {labels or '> 0'}")
-    A = image.affine
+    A = volume.affine
     centres = (ijk @ A[:3, :3].T + A[:3, 3]) * scale
     fine_volume = abs(np.linalg.det(A[:3, :3])) * scale**3
     half = 0.5 * np.abs(A[:3, :3]).sum(axis=1) * scale  # half an image voxel's extent

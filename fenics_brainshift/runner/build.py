@@ -92,7 +92,7 @@ def cuts(scene: Scene) -> list[Cut]:
         if r.predicate is not None:
             select = (lambda predicate: lambda centroids: predicate(centroids.T))(r.predicate)
         else:
-            select = (lambda label: lambda centroids: labels_at(scene.mesh.file, centroids, scene.mesh.scale) == label)(r.label)
+            select = (lambda label: lambda centroids: labels_at(scene.mesh.file, centroids, scene.mesh.scale, label))(r.label)
         out.append(Cut(r.at, r.describe(), select))
     return out
 

@@ -9,6 +9,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
 from mpi4py import MPI
 
 from ..errors import SolverError
@@ -82,6 +83,11 @@ def run(scene: Scene, out: str | Path | None = None, comm=MPI.COMM_WORLD, raise_
     if out is not None:
         writer.close()
         write_csv(out / "probes.csv", *probe_table(sim, h), comm)
+        if scene.probes and comm.rank == 0:  # where the probes went, as a Slicer point list (RAS mm)
+            from ..images.frames import write_markups
+
+            moved = [1e3 * (np.asarray(p) + result.summary["probes"][k]) for k, p in scene.probes.items()]
+            write_markups(out / "probes_final.mrk.json", list(scene.probes), np.array(moved))
         write_json(out / "summary.json", result.summary, comm)
         if scene.output.pictures and stopped is None and comm.rank == 0:
             from ..outputs.pictures import render_in_subprocess

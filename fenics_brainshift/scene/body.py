@@ -23,7 +23,7 @@ class MeshSpec:
     ``h`` gives an unstructured gmsh mesh of that element size.
     ellipsoid: ``size`` = semi-axes, ``origin`` = centre, ``h`` = element size.
     file: .msh (gmsh) or .xdmf (DOLFINx/meshio) tetrahedral mesh, or a segmentation to be
-    voxel-meshed (the paper's embedding method): a label volume (.nii, .nii.gz) or a surface
+    voxel-meshed (the paper's embedding method): a label volume (.nii, .nii.gz, .nrrd, .seg.nrrd) or a surface
     (.stl, .obj, .ply, .vtk, .vtp, .gii, ...) with ``voxel`` (m), ``fill``, ``parts`` and
     ``labels``; coordinates in ``unit``. ``surface``: a fine surface (same unit) that follows
     the coarse model and is written deformed; a surface input is its own by default.
@@ -39,7 +39,7 @@ class MeshSpec:
     voxel: float | None = None
     fill: float = 0.5
     parts: int = 1
-    labels: tuple[int, ...] | None = None
+    labels: tuple[int | str, ...] | None = None  # values, or a .seg.nrrd's segment names
     surface: str | None = None
 
     def __post_init__(self):
@@ -69,8 +69,9 @@ class MeshSpec:
             raise InputError(f"[mesh] fill must be in [0, 1] (got {self.fill:g}); 0 keeps every voxel the object touches")
         self.parts = integer("[mesh] parts", self.parts, 1)
         if self.labels is not None:
-            if not isinstance(self.labels, (list, tuple)) or not all(isinstance(v, int) and not isinstance(v, bool) for v in self.labels):
-                raise InputError(f"[mesh] labels must be a list of integers (got {self.labels!r})")
+            if not isinstance(self.labels, (list, tuple)) or not all(
+                    isinstance(v, (int, str)) and not isinstance(v, bool) for v in self.labels):
+                raise InputError(f"[mesh] labels must be a list of label values or segment names (got {self.labels!r})")
             self.labels = tuple(self.labels)
         if self.file is not None and self.needs_voxels and self.voxel is None:
             raise InputError(f"[mesh] file '{Path(self.file).name}' is a segmentation: give voxel = size in m (e.g. 0.005)")
@@ -173,7 +174,7 @@ class Removal:
 
     at: float = 0.0
     where: str | None = None
-    label: int | None = None
+    label: int | str | None = None  # a value, or a .seg.nrrd's segment name
     predicate: Predicate | None = field(default=None, repr=False)
 
     def __post_init__(self):
@@ -187,7 +188,7 @@ class Removal:
                 self.predicate = parse_predicate(self.where)
             except PredicateError as exc:
                 raise InputError(f"[[remove]] where: {exc}") from None
-        else:
+        elif not isinstance(self.label, str):
             self.label = integer("[[remove]] label", self.label, 1)
 
     def describe(self) -> str:

@@ -52,7 +52,7 @@ class Scene:
                 raise InputError("[[remove]] needs the fluid load on the surface left after the cut: use [fluid] "
                                  "rule = \"consistent\" (\"quadrature\" acts on the original surface only)")
             if r.label is not None and not formats.is_label_volume(self.mesh.file or ""):
-                raise InputError("[[remove]] label needs [mesh] file to be a label volume (.nii, .nii.gz); "
+                raise InputError("[[remove]] label needs [mesh] file to be a label volume (.nii, .nii.gz, .nrrd); "
                                  "use where = \"...\" otherwise")
         if self.skull is not None and self.time.mode != "quasi-static" and (
                 self.time.scheme != "generalized-alpha" or self.time.rho_inf > MAX_RHO_INF_WITH_CONTACT):

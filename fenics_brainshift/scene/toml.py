@@ -58,7 +58,7 @@ def scene_from_dict(data: dict, base: Path | None = None) -> Scene:
     probes = data.get("probes", {})
     if not isinstance(probes, dict):
         raise InputError("[probes] must be a table of name = [x, y, z]")
-    kwargs["probes"] = probes
+    kwargs["probes"] = _with_markups(dict(probes), base)
     surfaces = data.get("surfaces", {})
     if not isinstance(surfaces, dict):
         raise InputError("[surfaces] must be a table of name = \"condition on x, y, z\"")
@@ -134,6 +134,26 @@ def load_scene(path: str | Path, overrides: list[str] = ()) -> Scene:
     for assignment in overrides:
         apply_override(data, assignment)
     return scene_from_dict(data, base=path.parent)
+
+
+def _with_markups(probes: dict, base: Path | None) -> dict:
+    """``[probes] markups = "points.mrk.json"``: every control point of a 3D Slicer point list
+    becomes a probe named by its label, at its RAS position (mm in the file, m in the scene)."""
+    if "markups" not in probes:
+        return probes
+    name = probes.pop("markups")
+    if not isinstance(name, str):
+        raise InputError("[probes] markups must be the name of a Slicer point list (.mrk.json)")
+    path = Path(name) if base is None or Path(name).is_absolute() else (base / name).resolve()
+    from ..images.frames import read_markups
+
+    labels, points = read_markups(path, "[probes] markups")
+    for label, point in zip(labels, points):
+        key = label
+        while key in probes:  # two points of one name keep both
+            key += "'"
+        probes[key] = [float(c) * 1e-3 for c in point]
+    return probes
 
 
 def check_mesh_files(mesh: MeshSpec) -> None:

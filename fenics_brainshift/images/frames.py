@@ -1,0 +1,77 @@
+"""The two frames of the Slicer world, and Slicer's markups files.
+
+3D Slicer's scene, NIfTI and this project's meshes use RAS (x to the right, y anterior, z
+superior); ITK, DICOM, Slicer's markups files (since Slicer 4.11) and its transform files use
+LPS (left, posterior, superior). The two differ by the sign of x and y, nothing else.
+
+Markups (.mrk.json, Slicer's point lists) are read with the json module; their
+``coordinateSystem`` says the frame of the positions. Points go out in LPS, as Slicer writes
+them, so a point read from one file and written to another comes back where it was.
+"""
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+
+LPS_TO_RAS = np.diag([-1.0, -1.0, 1.0])  # its own inverse
+MARKUPS_SCHEMA = ("https://raw.githubusercontent.com/slicer/slicer/master/Modules/Loadable/Markups/"
+                  "Resources/Schema/markups-schema-v1.0.3.json#")
+
+
+def lps_to_ras(points: np.ndarray) -> np.ndarray:
+    return np.asarray(points, dtype=float) @ LPS_TO_RAS
+
+
+ras_to_lps = lps_to_ras  # the same sign flip
+
+
+def read_markups(path: str | Path, what: str = "markups") -> tuple[list[str], np.ndarray]:
+    """(labels, RAS points in mm, shape (n, 3)) of every control point in a .mrk.json file."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{what}: no file '{path}'")
+    try:
+        document = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"{what}: '{path.name}' is not a Slicer markups file (JSON: {exc})") from None
+    markups = document.get("markups") if isinstance(document, dict) else None
+    if not isinstance(markups, list) or not markups:
+        raise InputError(f"{what}: '{path.name}' has no \"markups\" list; save a point list from 3D Slicer "
+                         f"(Markups module) as .mrk.json")
+    labels, points = [], []
+    for markup in markups:
+        frame = str(markup.get("coordinateSystem", "LPS")).upper()
+        if frame not in ("LPS", "RAS"):
+            raise InputError(f"{what}: '{path.name}': coordinateSystem '{frame}' is neither LPS nor RAS")
+        units = str(markup.get("coordinateUnits", "mm"))
+        if units != "mm":
+            raise InputError(f"{what}: '{path.name}': coordinateUnits '{units}'; millimetres are expected")
+        for n, point in enumerate(markup.get("controlPoints") or []):
+            position = point.get("position")
+            if position is None or len(position) != 3:
+                raise InputError(f"{what}: '{path.name}': control point {n} has no 3D position")
+            xyz = np.asarray(position, dtype=float)
+            points.append(lps_to_ras(xyz) if frame == "LPS" else xyz)
+            labels.append(str(point.get("label") or f"P-{len(labels) + 1}"))
+    if not points:
+        raise InputError(f"{what}: '{path.name}' holds no control points")
+    return labels, np.array(points)
+
+
+def write_markups(path: str | Path, labels: list[str], ras_mm: np.ndarray) -> Path:
+    """A Slicer point list (.mrk.json, positions in LPS mm) of RAS points, written atomically."""
+    path = Path(path)
+    points = [{"id": str(n + 1), "label": label, "position": [float(c) for c in ras_to_lps(p)],
+               "positionStatus": "defined"} for n, (label, p) in enumerate(zip(labels, np.asarray(ras_mm)))]
+    document = {"@schema": MARKUPS_SCHEMA,
+                "markups": [{"type": "Fiducial", "coordinateSystem": "LPS", "coordinateUnits": "mm",
+                             "controlPoints": points}]}
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(json.dumps(document, indent=2) + "\n")
+    os.replace(tmp, path)
+    return path

@@ -1,0 +1,176 @@
+"""Image volumes as 3D Slicer writes them: NIfTI (nibabel) and NRRD (pynrrd), one view of both.
+
+A Volume is the voxel array indexed [i, j, k] and the affine that takes the index (i, j, k)
+to RAS millimetres (right, anterior, superior: NIfTI's and Slicer's scene frame). NRRD files
+say their frame in the ``space`` field; an LPS file ("left-posterior-superior", what ITK and
+Slicer write) is turned to RAS by negating the first two rows. ``write_like`` writes a new
+array on the grid of a volume read before, with that file's own header (nibabel's or
+pynrrd's), through a temporary file and a rename: never half a file.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from .frames import LPS_TO_RAS
+
+NIFTI_SUFFIXES = (".nii", ".nii.gz")
+NRRD_SUFFIXES = (".nrrd", ".nhdr")  # .seg.nrrd included
+VOLUME_HELP = "use a NIfTI (.nii, .nii.gz) or NRRD (.nrrd, .seg.nrrd) volume"
+
+# the NRRD ``space`` values and the sign flips that take them to RAS
+_NRRD_SPACES = {"right-anterior-superior": np.eye(3), "ras": np.eye(3),
+                "left-posterior-superior": LPS_TO_RAS, "lps": LPS_TO_RAS}
+
+
+def is_volume(path: str | Path) -> bool:
+    return str(path).lower().endswith(NIFTI_SUFFIXES + NRRD_SUFFIXES)
+
+
+@dataclass
+class Volume:
+    path: Path
+    data: np.ndarray  # [i, j, k] (3D); a label or intensity per voxel
+    affine: np.ndarray  # 4x4: (i, j, k, 1) -> RAS mm
+    header: object = field(repr=False, default=None)  # the reader's header, for write_like
+    segments: dict[int, str] = field(default_factory=dict)  # .seg.nrrd: label value -> segment name
+
+    @property
+    def kind(self) -> str:
+        return "nifti" if str(self.path).lower().endswith(NIFTI_SUFFIXES) else "nrrd"
+
+    @property
+    def spacing(self) -> np.ndarray:
+        """The voxel size along i, j, k (mm)."""
+        return np.linalg.norm(self.affine[:3, :3], axis=0)
+
+    def index_to_ras(self, ijk: np.ndarray) -> np.ndarray:
+        return ijk @ self.affine[:3, :3].T + self.affine[:3, 3]
+
+    def ras_to_index(self, ras: np.ndarray) -> np.ndarray:
+        inverse = np.linalg.inv(self.affine)
+        return ras @ inverse[:3, :3].T + inverse[:3, 3]
+
+
+def read_volume(path: str | Path, what: str = "--image") -> Volume:
+    """A 3D NIfTI or NRRD volume (a 4D file with one volume is squeezed); InputError names
+    ``what`` for a missing, unreadable or non-3D file."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{what}: no file '{path}'")
+    if not is_volume(path):
+        raise InputError(f"{what}: '{path.name}' is not a volume; {VOLUME_HELP}")
+    try:
+        volume = _read_nifti(path) if path.name.lower().endswith(NIFTI_SUFFIXES) else _read_nrrd(path)
+    except InputError:
+        raise
+    except Exception as exc:  # a damaged file: the reader's own words
+        raise InputError(f"{what}: '{path.name}' could not be read ({exc})") from None
+    data = volume.data
+    while data.ndim > 3 and data.shape[-1] == 1:
+        data = data[..., 0]
+    if data.ndim != 3:
+        raise InputError(f"{what}: '{path.name}' has {data.ndim} dimensions {data.shape}; a 3D volume is needed "
+                         f"(a segmentation with overlapping layers: export it as a labelmap in Slicer)")
+    volume.data = data
+    return volume
+
+
+def _read_nifti(path: Path) -> Volume:
+    import nibabel as nib
+
+    image = nib.load(str(path))
+    return Volume(path, np.asanyarray(image.dataobj), np.array(image.affine, dtype=float), image.header)
+
+
+def _read_nrrd(path: Path) -> Volume:
+    import nrrd
+
+    data, header = nrrd.read(str(path))  # pynrrd: data[i, j, k], the file's axis order
+    space = str(header.get("space", "")).lower()
+    if space not in _NRRD_SPACES:
+        raise InputError(f"'{path.name}': NRRD space '{header.get('space')}' is not supported; "
+                         f"save it from 3D Slicer (space RAS or LPS)")
+    directions = np.asarray(header["space directions"], dtype=float)
+    directions = directions[~np.isnan(directions).any(axis=1)]  # a .seg.nrrd's layer axis has none
+    if data.ndim == 4 and directions.shape[0] == 3 and data.shape[0] == 1:  # one layer first
+        data = data[0]
+    flip = _NRRD_SPACES[space]
+    affine = np.eye(4)
+    affine[:3, :3] = flip @ directions.T  # columns: the i, j, k steps
+    affine[:3, 3] = flip @ np.asarray(header["space origin"], dtype=float)
+    return Volume(path, data, affine, header, _segments(header))
+
+
+def _segments(header: dict) -> dict[int, str]:
+    """Slicer's .seg.nrrd metadata: SegmentN_Name and SegmentN_LabelValue."""
+    segments, n = {}, 0
+    while f"Segment{n}_Name" in header:
+        value = int(header.get(f"Segment{n}_LabelValue", n + 1))
+        segments[value] = str(header[f"Segment{n}_Name"])
+        n += 1
+    return segments
+
+
+def label_values(volume: Volume, labels, what: str = "labels") -> list[int]:
+    """Label values from integers or segment names (a Slicer .seg.nrrd's SegmentN_Name)."""
+    by_name = {name: value for value, name in volume.segments.items()}
+    values = []
+    for label in labels:
+        if isinstance(label, str) and not label.isdigit():
+            if label not in by_name:
+                known = ", ".join(f"'{n}'" for n in by_name) or "none (the file names no segments)"
+                raise InputError(f"{what}: no segment '{label}' in '{volume.path.name}'; its segments: {known}")
+            values.append(by_name[label])
+        else:
+            values.append(int(label))
+    return values
+
+
+def write_like(reference: Volume, data: np.ndarray, path: str | Path) -> Path:
+    """``data`` (the reference's shape) on the reference's grid, with its header, to ``path``
+    (NIfTI or NRRD by suffix; a NIfTI reference may be written as NRRD and back)."""
+    path = Path(path)
+    if data.shape != reference.data.shape:
+        raise ValueError(f"data of shape {data.shape} on a grid of {reference.data.shape}")
+    if not is_volume(path):
+        raise InputError(f"-o: '{path.name}' is not a volume file name; {VOLUME_HELP}")
+    suffix = ".nii.gz" if path.name.lower().endswith(".nii.gz") else path.suffix
+    tmp = path.with_name(f".{path.name}.tmp{suffix}")
+    try:
+        if path.name.lower().endswith(NIFTI_SUFFIXES):
+            _write_nifti(reference, data, tmp)
+        else:
+            _write_nrrd(reference, data, tmp)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return path
+
+
+def _write_nifti(reference: Volume, data: np.ndarray, path: Path) -> None:
+    import nibabel as nib
+
+    header = reference.header.copy() if reference.kind == "nifti" else None
+    image = nib.Nifti1Image(data, reference.affine, header)
+    if header is not None:
+        image.set_data_dtype(data.dtype)
+    nib.save(image, str(path))
+
+
+def _write_nrrd(reference: Volume, data: np.ndarray, path: Path) -> None:
+    import nrrd
+
+    if reference.kind == "nrrd" and len(np.asarray(reference.header["space directions"])) == 3:
+        header = {k: v for k, v in reference.header.items() if k not in ("type", "dimension", "sizes")}
+    else:  # from NIfTI (or a layered .seg.nrrd): the grid in LPS, as Slicer writes it
+        header = {"space": "left-posterior-superior",
+                  "space directions": (LPS_TO_RAS @ reference.affine[:3, :3]).T,
+                  "space origin": LPS_TO_RAS @ reference.affine[:3, 3],
+                  "kinds": ["domain"] * 3, "encoding": "gzip"}
+    nrrd.write(str(path), data, header, index_order="F")

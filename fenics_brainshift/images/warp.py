@@ -1,0 +1,188 @@
+"""The predicted intra-operative image: the pre-operative one, moved by the computed shift.
+
+For every voxel centre y of the output grid (the input's grid) we need the pre-operative
+point x with x + u(x) = y, then sample the input there. For the P1 displacement this inverse
+is exact without iterating: u is affine on every tetrahedron, so x + u(x) maps each
+tetrahedron onto its deformed image, and x(y) is the interpolation of the reference vertex
+positions over the *deformed* mesh. So the deformed mesh is laid on the grid (rasterize.py),
+and inside it x = sum_i lambda_i(y) X_i, exact to round-off. Outside the deformed brain the
+inverse displacement v = x - y of the nearest voxel inside is carried over and blended to
+zero over ``blend_mm`` (Euclidean distance transform; the CSF space and the skull beyond do
+not move). Removed tissue (a resection) is not part of the mesh: its cavity is outside.
+
+The same v, in LPS millimetres on the input's grid, is an ITK displacement-field transform
+(output point -> input point, what resampling needs): 3D Slicer applies it to any volume,
+segmentation or model; SimpleITK's Resample with it reproduces this warp.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy import ndimage
+
+from ..errors import InputError
+from ..logs import get_logger
+from .frames import LPS_TO_RAS
+from .rasterize import rasterize
+from .volumes import Volume
+
+log = get_logger("warp")
+
+SAMPLES_PER_CHUNK = 2_000_000  # voxels interpolated at a time
+
+
+@dataclass
+class DeformedMesh:
+    """A run's mesh and final displacement in the image's RAS millimetres."""
+    points: np.ndarray  # (n, 3) reference positions, RAS mm
+    tets: np.ndarray  # (m, 4), the tissue still present
+    displacement: np.ndarray  # (n, 3), RAS mm
+
+    @classmethod
+    def from_run(cls, run_dir: str | Path, mesh_frame: str = "RAS") -> "DeformedMesh":
+        """The last state a run wrote (RUN_DIR/displacement.xdmf; metres, the scene's frame)."""
+        from ..outputs.pictures import read_last_state
+
+        xdmf = Path(run_dir) / "displacement.xdmf"
+        if not xdmf.is_file():
+            raise InputError(f"RUN_DIR: no displacement.xdmf in '{run_dir}'; run a scene with --out and "
+                             f"[output] fields including \"displacement\" first")
+        try:
+            points, tets, u, tissue = read_last_state(xdmf)
+        except (KeyError, StopIteration):
+            raise InputError(f"RUN_DIR: '{xdmf}' has no displacement field; add \"displacement\" to [output] "
+                             f"fields and run again") from None
+        if tissue is not None:  # a resection: the removed cells are not there any more
+            tets = tets[np.asarray(tissue) >= 0.5]
+        flip = LPS_TO_RAS if mesh_frame.upper() == "LPS" else np.eye(3)
+        return cls(1e3 * points[:, :3] @ flip, np.asarray(tets, dtype=np.int64), 1e3 * u[:, :3] @ flip)
+
+
+@dataclass
+class Warp:
+    """The inverse displacement on an image's grid: x(y) = y + v(y), v in voxel-index units."""
+    volume: Volume
+    v: np.ndarray  # (ni, nj, nk, 3), index units
+    inside: np.ndarray  # (ni, nj, nk) bool: y in the deformed tissue (v exact there)
+    seconds: float = 0.0
+
+    @classmethod
+    def compute(cls, volume: Volume, body: DeformedMesh, blend_mm: float = 10.0, comm=None) -> "Warp":
+        """Lay the deformed mesh on the volume's grid; comm: ranks share the tetrahedra."""
+        if not blend_mm > 0:
+            raise InputError(f"--blend must be > 0 mm (got {blend_mm:g})")
+        t0 = time.perf_counter()
+        shape = volume.data.shape
+        X = volume.ras_to_index(body.points)  # reference positions, index coordinates
+        Y = volume.ras_to_index(body.points + body.displacement)  # deformed
+        part, parts = (comm.rank, comm.size) if comm is not None else (0, 1)
+        voxel, tet, lam = rasterize(Y, body.tets, shape, part, parts)
+        x = np.einsum("ni,nij->nj", lam, X[body.tets[tet]])  # the pre-operative point of each
+        if comm is not None and comm.size > 1:
+            voxel = np.concatenate(comm.allgather(voxel))
+            x = np.concatenate(comm.allgather(x))
+        v = np.zeros(shape + (3,))
+        inside = np.zeros(shape, dtype=bool)
+        if len(voxel):
+            y = np.stack(np.unravel_index(voxel, shape), axis=1)
+            v.reshape(-1, 3)[voxel] = x - y
+            inside.reshape(-1)[voxel] = True
+            _blend_outside(v, inside, volume.spacing, blend_mm)
+        return cls(volume, v, inside, time.perf_counter() - t0)
+
+    def moved(self) -> np.ndarray:
+        """Voxels whose source point is not themselves."""
+        return np.any(self.v != 0.0, axis=-1)
+
+    def largest_mm(self) -> float:
+        return float(np.linalg.norm(self.v @ self.volume.affine[:3, :3].T, axis=-1).max(initial=0.0))
+
+    def apply(self, data: np.ndarray | None = None, labels: bool = False) -> np.ndarray:
+        """The warped volume: linear interpolation (intensities) or nearest voxel (labels) of the
+        input at x = y + v(y); voxels that do not move keep their value exactly."""
+        data = self.volume.data if data is None else data
+        out = np.array(data, copy=True, order="C")  # reshape(-1) below must be a view
+        moved = np.flatnonzero(self.moved())
+        shape = data.shape
+        source = np.asarray(data, dtype=np.float64) if not labels else data
+        for start in range(0, len(moved), SAMPLES_PER_CHUNK):
+            flat = moved[start:start + SAMPLES_PER_CHUNK]
+            y = np.stack(np.unravel_index(flat, shape), axis=0).astype(float)
+            x = y + self.v.reshape(-1, 3)[flat].T
+            if labels:
+                index = np.floor(x + 0.5).astype(np.int64)  # ITK's nearest neighbour: ties go up
+                for a in range(3):
+                    np.clip(index[a], 0, shape[a] - 1, out=index[a])
+                out.reshape(-1)[flat] = data[tuple(index)]
+            else:
+                values = ndimage.map_coordinates(source, x, order=1, mode="nearest")
+                out.reshape(-1)[flat] = _cast(values, data.dtype)
+        return out
+
+    def displacement_lps_mm(self) -> np.ndarray:
+        """v as millimetres in LPS, (ni, nj, nk, 3): the field of the ITK transform."""
+        return self.v @ (LPS_TO_RAS @ self.volume.affine[:3, :3]).T
+
+
+def _blend_outside(v: np.ndarray, inside: np.ndarray, spacing: np.ndarray, blend_mm: float) -> None:
+    """Outside the deformed tissue: v of the nearest voxel inside, times max(0, 1 - d / blend),
+    in the box around the tissue that the blend reaches (the rest stays 0)."""
+    margin = np.ceil(blend_mm / spacing).astype(int) + 1
+    where = np.argwhere(inside)
+    lo = np.maximum(where.min(axis=0) - margin, 0)
+    hi = np.minimum(where.max(axis=0) + margin + 1, inside.shape)
+    box = tuple(slice(a, b) for a, b in zip(lo, hi))
+    distance, nearest = ndimage.distance_transform_edt(~inside[box], sampling=spacing, return_indices=True)
+    weight = np.clip(1.0 - distance / blend_mm, 0.0, 1.0)
+    sub = v[box]
+    carried = sub[tuple(nearest)] * weight[..., None]
+    outside = ~inside[box]
+    sub[outside] = carried[outside]
+
+
+def _cast(values: np.ndarray, dtype) -> np.ndarray:
+    """Interpolated values back in the input's type (integers rounded and clipped to its range)."""
+    if np.issubdtype(dtype, np.integer):
+        info = np.iinfo(dtype)
+        return np.clip(np.rint(values), info.min, info.max).astype(dtype)
+    return values.astype(dtype)
+
+
+def write_itk_transform(warp: Warp, path: str | Path) -> Path:
+    """The warp as an ITK displacement-field transform file (.h5 or .tfm-free formats ITK reads:
+    .h5 / .hdf5), on the input's grid as SimpleITK reads it, LPS mm."""
+    import SimpleITK as sitk
+
+    path = Path(path)
+    if not path.name.lower().endswith((".h5", ".hdf5")):
+        raise InputError(f"--transform: '{path.name}': use an ITK HDF5 transform file name (.h5), which 3D Slicer "
+                         f"loads as a transform")
+    reference = sitk.ReadImage(str(warp.volume.path))
+    _check_same_grid(reference, warp.volume)
+    field = sitk.GetImageFromArray(np.ascontiguousarray(warp.displacement_lps_mm().transpose(2, 1, 0, 3)),
+                                   isVector=True)
+    field.CopyInformation(reference)
+    transform = sitk.DisplacementFieldTransform(sitk.Cast(field, sitk.sitkVectorFloat64))
+    tmp = path.with_name(f".{path.name}.tmp.h5")
+    try:
+        sitk.WriteTransform(transform, str(tmp))
+        tmp.replace(path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return path
+
+
+def _check_same_grid(image, volume: Volume) -> None:
+    """ITK's view of the file's grid (LPS) must be ours (RAS): else the transform would be
+    written on another grid than the warp (a NIfTI whose qform and sform disagree, say)."""
+    corners = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=float) * (np.array(volume.data.shape) - 1)
+    ours = volume.index_to_ras(corners) @ LPS_TO_RAS
+    theirs = np.array([image.TransformContinuousIndexToPhysicalPoint(c.tolist()) for c in corners])
+    if np.abs(ours - theirs).max() > 1e-3 * volume.spacing.min():
+        raise InputError(f"--image: ITK and nibabel/pynrrd read different grids from '{volume.path.name}' (corners "
+                         f"{np.abs(ours - theirs).max():.3g} mm apart; a NIfTI with disagreeing qform and sform?); "
+                         f"re-save it from 3D Slicer")

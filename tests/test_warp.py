@@ -1,0 +1,161 @@
+"""The warp of an image by a run's displacement, and its ITK transform.
+
+Independent references: SimpleITK's resampling with the written transform; scipy's
+map_coordinates with the closed-form inverse of an affine map; DOLFINx's point evaluation of
+the run's displacement."""
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import nibabel as nib
+import numpy as np
+import pytest
+import SimpleITK
+from scipy import ndimage
+
+from conftest import mpirun, subprocess_env
+from fenics_brainshift.images import DeformedMesh, Warp, read_volume, write_itk_transform
+
+
+def _oblique_affine(spacing=(1.0, 1.2, 0.9), angle=0.3, origin=(-20.0, 15.0, -8.0)) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    rotation = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ np.array(
+        [[1.0, 0.0, 0.0], [0.0, np.cos(0.2), -np.sin(0.2)], [0.0, np.sin(0.2), np.cos(0.2)]])
+    affine = np.eye(4)
+    affine[:3, :3] = rotation * np.array(spacing)
+    affine[:3, 3] = origin
+    return affine
+
+
+def _smooth_image(shape, seed=0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return ndimage.gaussian_filter(rng.normal(size=shape), 2.0) * 1000.0 + 500.0
+
+
+# -- the warp -------------------------------------------------------------------------------------
+
+def _box_mesh(lo, hi, n):
+    """A structured tetrahedral mesh of a box (six tetrahedra per cube)."""
+    axes = [np.linspace(a, b, n + 1) for a, b in zip(lo, hi)]
+    points = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    index = np.arange((n + 1) ** 3).reshape((n + 1,) * 3)
+    tets = []
+    for i in range(n):
+        for j in range(n):
+            for k in range(n):
+                v = [index[i + a, j + b, k + c] for a in (0, 1) for b in (0, 1) for c in (0, 1)]
+                for path in ((1, 3), (1, 5), (2, 3), (2, 6), (4, 5), (4, 6)):  # around the 0-7 diagonal
+                    a, b = path
+                    tets.append([v[0], v[a], v[a | b], v[7]])
+    return points, np.array(tets)
+
+
+def test_an_affine_displacement_warps_as_the_affine_resampling_does(tmp_path):
+    """u(x) = B x + c is exact in P1: inside the deformed box the warp equals linear sampling
+    at the closed-form inverse x = (I + B)^-1 (y - c) (scipy), and SimpleITK's resampling
+    with the written transform reproduces the warp everywhere away from the image border."""
+    affine = _oblique_affine(spacing=(1.0, 1.0, 1.0), origin=(-30.0, -30.0, -30.0))
+    data = _smooth_image((60, 60, 60)).astype(np.float32)
+    nib.save(nib.Nifti1Image(data, affine), str(tmp_path / "pre.nii.gz"))
+    volume = read_volume(tmp_path / "pre.nii.gz")
+    B = np.array([[0.02, 0.05, 0.0], [-0.03, 0.01, 0.04], [0.01, -0.02, -0.06]])
+    c = np.array([1.3, -2.1, 0.7])
+    centre = volume.index_to_ras(np.array([30.0, 30.0, 30.0]))
+    points, tets = _box_mesh(centre - 15.0, centre + 15.0, 6)
+    body = DeformedMesh(points, tets, points @ B.T + c)
+    warp = Warp.compute(volume, body, blend_mm=8.0)
+    warped = warp.apply()
+
+    y_index = np.argwhere(warp.inside)
+    assert len(y_index) > 20000
+    x_ras = (volume.index_to_ras(y_index.astype(float)) - c) @ np.linalg.inv(np.eye(3) + B).T
+    expected = ndimage.map_coordinates(data.astype(np.float64), volume.ras_to_index(x_ras).T, order=1, mode="nearest")
+    np.testing.assert_allclose(warped[tuple(y_index.T)], expected, rtol=1e-5, atol=1e-3)
+
+    write_itk_transform(warp, tmp_path / "warp.h5")
+    image = SimpleITK.ReadImage(str(tmp_path / "pre.nii.gz"), SimpleITK.sitkFloat64)
+    transform = SimpleITK.ReadTransform(str(tmp_path / "warp.h5"))
+    resampled = SimpleITK.GetArrayFromImage(SimpleITK.Resample(image, image, transform, SimpleITK.sitkLinear, 0.0))
+    core = (slice(3, -3),) * 3  # ITK and scipy treat the last half voxel differently
+    np.testing.assert_allclose(resampled.transpose(2, 1, 0)[core], warped[core], rtol=1e-5, atol=1e-3)
+    # outside the brain the shift fades: zero beyond the blend distance
+    assert not warp.moved()[0, 0, 0] and warp.largest_mm() > 1.0
+
+
+def test_labels_stay_labels_and_the_run_inverse_is_exact(tmp_path, cube_run):
+    """On a real run (the cube, settled): x + u(x) = y to 1e-6 of a voxel at random voxels in
+    the deformed body, u evaluated by DOLFINx at x; a warped label volume holds only its labels."""
+    from fenics_brainshift.outputs.points import PointEvaluator
+
+    result, out = cube_run
+    body = DeformedMesh.from_run(out)
+    lo, hi = body.points.min(axis=0), body.points.max(axis=0)
+    affine = np.diag([0.7, 0.7, 0.7, 1.0])
+    affine[:3, 3] = lo - 6.0
+    shape = tuple(int(s) for s in np.ceil((hi - lo + 12.0) / 0.7))
+    labels = np.zeros(shape, dtype=np.int16)
+    labels[: shape[0] // 2] = 3
+    labels[shape[0] // 2:, : shape[1] // 3] = 7
+    nib.save(nib.Nifti1Image(labels, affine), str(tmp_path / "labels.nii.gz"))
+    volume = read_volume(tmp_path / "labels.nii.gz")
+    warp = Warp.compute(volume, body)
+    warped = warp.apply(labels=True)
+    assert warped.dtype == np.int16 and set(np.unique(warped)) <= {0, 3, 7}
+    assert (warped != labels).sum() > 100  # the body moved by millimetres
+
+    rng = np.random.default_rng(1)
+    inside = np.argwhere(warp.inside)
+    y = inside[rng.choice(len(inside), 200, replace=False)].astype(float)
+    x = y + warp.v[tuple(y.astype(int).T)]
+    x_m = volume.index_to_ras(x) * 1e-3
+    u = PointEvaluator(result.mesh, x_m).values(result.displacement) * 1e3  # mm
+    residual = volume.ras_to_index(volume.index_to_ras(x) + u) - y  # in voxels
+    assert np.abs(residual).max() < 1e-6
+
+
+@pytest.fixture(scope="module")
+def cube_run(tmp_path_factory):
+    from fenics_brainshift import load_scene, run
+
+    out = tmp_path_factory.mktemp("cube")
+    scene = load_scene("cube", ["time.mode=quasi-static", "mesh.cells=[10,10,5]", "output.pictures=false"])
+    return run(scene, out), out
+
+
+def test_warp_command_serial_and_two_ranks_agree_and_bad_input_is_one_line(tmp_path, cube_run):
+    _, out = cube_run
+    body = DeformedMesh.from_run(out)
+    affine = np.diag([1.0, 1.0, 1.0, 1.0])
+    affine[:3, 3] = body.points.min(axis=0) - 5.0
+    image = _smooth_image(tuple(int(s) for s in np.ptp(body.points, axis=0) + 10)).astype(np.float32)
+    nib.save(nib.Nifti1Image(image, affine), str(tmp_path / "pre.nii.gz"))
+    results = {}
+    for ranks in (1, 2):
+        target = tmp_path / f"warped{ranks}.nrrd"
+        command = [sys.executable, "-m", "fenics_brainshift.cli", "warp", str(out), "--image",
+                   str(tmp_path / "pre.nii.gz"), "-o", str(target), "--transform", str(tmp_path / f"t{ranks}.h5")]
+        if ranks > 1:
+            command = mpirun() + ["-n", "2"] + command
+        done = subprocess.run(command, capture_output=True, text=True, env=subprocess_env(), timeout=300)
+        assert done.returncode == 0, done.stderr
+        assert "voxels moved" in done.stdout
+        results[ranks] = read_volume(target)
+    np.testing.assert_allclose(results[1].affine, affine, atol=1e-6)
+    assert np.array_equal(results[1].data, results[2].data)
+
+    bad = [(["--image", str(tmp_path / "none.nii.gz"), "-o", str(tmp_path / "x.nii.gz")], "--image: no file"),
+           (["--image", str(tmp_path / "pre.nii.gz"), "-o", str(tmp_path / "x.png")], "-o 'x.png'"),
+           (["--image", str(tmp_path / "pre.nii.gz"), "-o", str(tmp_path / "x.nii.gz"), "--blend", "0"], "--blend"),
+           (["--image", str(tmp_path / "pre.nii.gz"), "-o", str(tmp_path / "x.nii.gz"), "--transform",
+             str(tmp_path / "t.txt")], "--transform")]
+    for args, words in bad:
+        done = subprocess.run([sys.executable, "-m", "fenics_brainshift.cli", "warp", str(out)] + args,
+                              capture_output=True, text=True, env=subprocess_env(), timeout=120)
+        assert done.returncode == 2 and words in done.stderr and "Traceback" not in done.stderr, done.stderr
+        assert len(done.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "x.nii.gz").exists()
+    done = subprocess.run([sys.executable, "-m", "fenics_brainshift.cli", "warp", str(tmp_path), "--image",
+                           str(tmp_path / "pre.nii.gz"), "-o", str(tmp_path / "x.nii.gz")],
+                          capture_output=True, text=True, env=subprocess_env(), timeout=120)
+    assert done.returncode == 2 and "no displacement.xdmf" in done.stderr
