@@ -229,3 +229,33 @@ def test_skull_demo_serial_and_mpi(tmp_path):
     assert int(held["pressed_nodes"]) > 0 and float(held["penetration_um"]) <= 10.0  # the 1e-5 m tolerance
     for case, row in one.items():
         assert float(two[case]["max_mm"]) == pytest.approx(float(row["max_mm"]), rel=1e-4), case
+
+
+def test_warp_demo_serial_and_mpi(tmp_path):
+    """demos/warp.py on a coarse brain (10 mm voxels): the ICBM152 T1 (fetched from nilearn's
+    wheel, or the cache) lies on the bundled brain (brighter inside its mask than around it),
+    the predicted image has the T1's grid and differs where the brain moved, 1 and 2 ranks
+    write the same image, and the picture is written."""
+    import nibabel as nib
+
+    from fenics_brainshift.data import MESHES
+    from fenics_brainshift.data.templates import mni_t1
+
+    t1 = nib.load(str(mni_t1()))
+    mask = nib.load(str(MESHES / "mni152_brain_mask_2mm.nii.gz"))
+    centres = np.argwhere(np.asarray(mask.dataobj) > 0) @ mask.affine[:3, :3].T + mask.affine[:3, 3]
+    ijk = np.rint(centres @ np.linalg.inv(t1.affine)[:3, :3].T + np.linalg.inv(t1.affine)[:3, 3]).astype(int)
+    data = np.asarray(t1.dataobj, dtype=float)
+    assert data[tuple(ijk.T)].mean() > 3 * data.mean()  # the brain of the mask is the brain of the T1
+
+    images = {}
+    for ranks in (1, 2):
+        out = tmp_path / f"r{ranks}"
+        stdout = _run(out, ranks, str(ROOT / "demos" / "warp.py"), "--out", str(out), "--set", "mesh.voxel=0.01")
+        assert "voxels moved" in stdout and (out / "warp.png").stat().st_size > 50_000
+        assert (out / "warp.h5").stat().st_size > 1_000_000
+        images[ranks] = nib.load(str(out / "t1_intra.nii.gz"))
+    one, two = (np.asarray(images[r].dataobj) for r in (1, 2))
+    assert np.array_equal(images[1].affine, t1.affine) and one.shape == data.shape
+    assert np.array_equal(one, two)
+    assert (one != np.asarray(t1.dataobj)).sum() > 100_000

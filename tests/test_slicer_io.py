@@ -92,6 +92,18 @@ def test_a_segmentation_is_meshed_by_segment_name(tmp_path, serial_only):
     assert points[:, 0].max() == pytest.approx(-0.034 + 0.001, abs=1e-9)
 
 
+def test_a_removal_finds_its_segment_by_name(tmp_path):
+    """[[remove]] label = "tumour": the points in that segment's voxels (RAS m), not others."""
+    from fenics_brainshift.meshing.label_volume import labels_at
+
+    _segmentation(tmp_path / "head.seg.nrrd")
+    # voxel (i, j, k) has its centre at LPS (10 + 2i, 20 + 2j, -5 + 2k) mm, RAS (-L, -P, S)
+    centre = lambda i, j, k: np.array([-(10 + 2 * i), -(20 + 2 * j), -5 + 2 * k]) * 1e-3  # noqa: E731
+    points = np.array([centre(14, 6, 5), centre(5, 5, 5), centre(0, 0, 0)])
+    assert labels_at(tmp_path / "head.seg.nrrd", points, 1e-3, "tumour").tolist() == [True, False, False]
+    assert labels_at(tmp_path / "head.seg.nrrd", points, 1e-3).tolist() == [2, 1, 0]
+
+
 def test_an_unknown_segment_name_is_one_line(tmp_path, capsys, serial_only):
     from fenics_brainshift.cli import main
 
