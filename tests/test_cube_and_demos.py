@@ -37,6 +37,7 @@ def test_cube_scene_same_probe_on_one_and_two_ranks(tmp_path):
     two = _run_scene(tmp_path / "two", 2, *overrides)
     assert (one["ranks"], two["ranks"]) == (1, 2)
     assert one["nodes"] == two["nodes"] == 11 * 11 * 6
+    assert one["frame"] is None  # a box: no anatomy to mark in the pictures
     # the follower iteration stops at 1e-6 of |u| each step; one and two ranks (CHOLMOD and
     # MUMPS, other sums) stop at different iterates within that
     tol = 1e-6

@@ -242,6 +242,7 @@ def test_brain_demo_serial_and_mpi(tmp_path, serial_only):
 
     surface = meshio.read(tmp_path / "r1" / "surface_final.vtk")
     assert len(surface.points) == 14828 and "displacement" in surface.point_data
+    assert results[1]["frame"] == "RAS"  # a mesh from an image: pictures mark the anatomy
 
 
 @pytest.mark.mpi

@@ -2,7 +2,10 @@
 
 - deformed.png: the body at the last output time, warped by its displacement and coloured
   by |u| (mm), the undeformed body as a translucent grey ghost, the fluid level as a translucent
-  plane (the paper's Figs. 14 and 18); removed cells (tissue = 0) are left out.
+  plane (the paper's Figs. 14 and 18), gravity as an arrow; removed cells (tissue = 0) are left
+  out. Where the run wrote a fine surface (surface_final.vtk) that smooth surface is drawn
+  instead of the voxel mesh's staircase; a mesh made from an image (RAS) gets its anatomical
+  directions marked (R/L, A/P, S/I).
 - probes.png: each probe's displacement along gravity against time, the fluid level on a
   second axis (Fig. 16).
 
@@ -37,7 +40,8 @@ def read_last_state(xdmf: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.
     return points, tets, point_data["displacement"], (np.asarray(tissue[0]).ravel() if tissue else None)
 
 
-def deformed_picture(out: Path, gravity, level: float | None, path: Path | None = None) -> Path | None:
+def deformed_picture(out: Path, gravity, level: float | None, path: Path | None = None,
+                     anatomical: bool = False) -> Path | None:
     """deformed.png of a run folder; None when pyvista is not installed."""
     try:
         import pyvista as pv
@@ -56,28 +60,63 @@ def deformed_picture(out: Path, gravity, level: float | None, path: Path | None 
     g = np.asarray(gravity, dtype=float)
     up = -g / np.linalg.norm(g) if np.linalg.norm(g) > 0 else np.array([0.0, 0.0, 1.0])
 
+    fine = out / "surface_final.vtk"
+    if fine.is_file():  # the smooth fine surface that followed the model
+        import meshio
+
+        mesh = meshio.read(fine)  # legacy VTK is big-endian: to native floats, or VTK reads garbage
+        d = np.asarray(mesh.point_data["displacement"], dtype=np.float64)
+        fine_points = np.asarray(mesh.points, dtype=np.float64)
+        triangles = np.asarray(mesh.cells_dict["triangle"], dtype=np.int64)
+        # drawn smooth: Taubin smoothing (volume-keeping) of the picture only, same for both
+        deformed = pv.PolyData.from_regular_faces(fine_points, triangles).smooth_taubin(n_iter=40, pass_band=0.05)
+        deformed.point_data["displacement (mm)"] = np.linalg.norm(d, axis=1) * 1e3
+        surface = pv.PolyData.from_regular_faces(fine_points - d, triangles).smooth_taubin(n_iter=40, pass_band=0.05)
+    else:
+        deformed = moved.extract_surface(algorithm="dataset_surface")
     plotter = pv.Plotter(off_screen=True, window_size=(1000, 750))
     plotter.set_background("white")
-    plotter.add_mesh(moved.extract_surface(algorithm="dataset_surface"), scalars="displacement (mm)", cmap="viridis", smooth_shading=True,
+    plotter.add_mesh(deformed, scalars="displacement (mm)", cmap="viridis", smooth_shading=True,
                      scalar_bar_args={"title": "displacement magnitude (mm)", "color": "black"})
     plotter.add_mesh(surface, color="lightgray", opacity=0.3)  # the undeformed body, as a ghost
-    if level is not None and np.isfinite(level):
-        lo, hi = points.min(axis=0), points.max(axis=0)
-        centre = 0.5 * (lo + hi)
-        centre = centre + (level - centre @ up) * up
-        size = 1.4 * float(np.linalg.norm(hi - lo))
-        plane = pv.Plane(center=centre, direction=up, i_size=size, j_size=size)
-        plotter.add_mesh(plane, color="#3a7bd5", opacity=0.25)
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    centre, extent = 0.5 * (lo + hi), float(np.linalg.norm(hi - lo))
     # look horizontally along the first axis across gravity (x: from the side for a supine
     # head in RAS and for the cube), from a slightly raised viewpoint
     axis = next(a for a in np.eye(3) if abs(a @ up) < 0.9)
     side = axis - (axis @ up) * up
     side /= np.linalg.norm(side)
+    across = np.cross(up, side)  # left to right on the screen
+    if np.linalg.norm(g) > 0:  # gravity: an arrow beside the body
+        start = centre + 0.55 * extent * across + 0.3 * extent * up
+        plotter.add_mesh(pv.Arrow(start=start, direction=-up, scale=0.25 * extent), color="black")
+        plotter.add_point_labels([start + 0.04 * extent * up], ["gravity"], font_size=14, text_color="black",
+                                 shape=None, show_points=False, always_visible=True)
+    if anatomical:  # RAS: a letter beyond the body on each axis not along the line of sight
+        labels, where = [], []
+        for a, (minus, plus) in enumerate((("L", "R"), ("P", "A"), ("I", "S"))):
+            if abs(np.eye(3)[a] @ side) > 0.9:
+                continue
+            for sign, letter in ((-1, minus), (1, plus)):
+                p = centre.copy()
+                p[a] = (hi if sign > 0 else lo)[a] + sign * 0.1 * extent
+                labels.append(letter)
+                where.append(p)
+        plotter.add_point_labels(np.array(where), labels, font_size=26, text_color="firebrick", bold=True,
+                                 shape=None, show_points=False, always_visible=True)
+    if level is not None and np.isfinite(level):
+        on_level = centre + (level - centre @ up) * up
+        size = 1.4 * float(np.linalg.norm(hi - lo))
+        plane = pv.Plane(center=on_level, direction=up, i_size=size, j_size=size)
+        plotter.add_mesh(plane, color="#3a7bd5", opacity=0.25)
     focus = points.mean(axis=0)
     distance = 2.5 * float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
     plotter.camera_position = [tuple(focus + distance * (0.85 * side + 0.35 * up)), tuple(focus), tuple(up)]
-    plotter.add_text("deformed body coloured by displacement; undeformed body in grey; fluid level (blue plane)", font_size=9,
-                     color="black")
+    a = int(np.argmax(np.abs(side)))
+    seen = f"seen from {'LRPAIS'[2 * a + (side[a] > 0)]}; " if anatomical else ""
+    plotter.add_text(seen + ("fine surface" if fine.is_file() else "deformed body") + " coloured by displacement; "
+                     "undeformed in grey; fluid level (blue plane)" + ("; the fluid drains towards the top "
+                     "(the craniotomy)" if level is not None else ""), font_size=9, color="black")
     path = path or out / "deformed.png"
     plotter.screenshot(str(path))
     plotter.close()
@@ -153,7 +192,8 @@ def pictures(out: Path) -> list[Path]:
     """Every picture of a finished run folder (rank 0 only)."""
     summary = json.loads((out / "summary.json").read_text())
     gravity = summary.get("gravity_vector", [0.0, 0.0, -9.81])
-    made = [probe_plot(out, gravity), deformed_picture(out, gravity, summary.get("final_level_m"))]
+    made = [probe_plot(out, gravity),
+            deformed_picture(out, gravity, summary.get("final_level_m"), anatomical=summary.get("frame") == "RAS")]
     return [p for p in made if p is not None]
 
 

@@ -5,7 +5,7 @@ import statistics
 
 import numpy as np
 
-from .. import compat
+from .. import compat, formats
 from ..outputs.validity import assessment
 from .plan import stiffness_band
 
@@ -27,6 +27,8 @@ def summary(sim, h, stopped, setup_s: float) -> dict:
     max_u = sim.state.max_displacement()
     out = {
         "scene": scene.name,
+        # a mesh from an image (NIfTI / NRRD) is in its RAS frame: pictures label the anatomy
+        "frame": "RAS" if scene.mesh.file and formats.is_label_volume(scene.mesh.file) else None,
         "status": "ok" if stopped is None else f"stopped: {stopped}",
         "dolfinx_version": compat.DOLFINX_VERSION,
         "ranks": model.comm.size,
