@@ -20,7 +20,7 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--no-progress", action="store_true",
                         help="no progress bar (it shows on rank 0 only when stderr is a terminal)")
     sub = parser.add_subparsers(dest="command", required=True)
-    for add in (_add_run, _add_mesh, _add_warp, _add_compare, _add_bench):
+    for add in (_add_run, _add_mesh, _add_warp, _add_fit, _add_compare, _add_bench):
         add(sub)
     sub.add_parser("info", help="versions of DOLFINx, PETSc, MPI, the scalar type and optional extras")
     sub.add_parser("scenes", help="the bundled scenes (run one by name: brainshift run cube)")
@@ -75,6 +75,25 @@ def _add_warp(sub) -> None:
     warp.add_argument("--blend", type=float, default=10.0, help="mm over which the shift fades outside the brain")
     warp.add_argument("--mesh-frame", choices=["RAS", "LPS"], default="RAS",
                       help="the frame of the run's mesh coordinates (RAS: meshes from NIfTI, this project's)")
+
+
+def _add_fit(sub) -> None:
+    fit = sub.add_parser("fit", help="calibrate: fit the CSF level, G and the head pose to intra-operative points",
+                         description="Robust least squares of the measured points against the scene's settled state "
+                                     "after the drain (point to point with --pre, else point to the predicted "
+                                     "surface); one factorisation for every evaluation. Writes OUT/fitted.toml, "
+                                     "OUT/fit.json (values, uncertainties, residuals) and the fitted scene's run.",
+                         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    fit.add_argument("scene", help="scene file or bundled scene name")
+    fit.add_argument("--target", required=True, help="measured intra-operative points (mm): .mrk.json, .csv or a "
+                                                     "surface (.vtk, .stl, ...)")
+    fit.add_argument("--pre", help="the same points before the shift (.mrk.json, matched by label): point to point")
+    fit.add_argument("--params", required=True, help="comma-separated: fluid.level, material.G, gravity.angle_x, "
+                                                     "gravity.angle_y, gravity.angle_z")
+    fit.add_argument("--noise", type=float, default=1.0, help="measurement noise (mm): the robust loss's scale")
+    fit.add_argument("--out", default="out_fit", help="output folder")
+    fit.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", help="scene overrides")
+    fit.add_argument("--no-run", action="store_true", help="fit only; do not run the fitted scene")
 
 
 def _add_compare(sub) -> None:
@@ -172,7 +191,7 @@ def main(argv: list[str] | None = None) -> int:
         progress.ENABLED = False
     comm = MPI.COMM_WORLD
     commands = {"info": _info_command, "scenes": _scenes, "mesh": _mesh, "compare": _compare, "bench": _bench,
-                "run": _run, "warp": _warp}
+                "run": _run, "warp": _warp, "fit": _fit}
     try:
         return commands[args.command](args, comm)
     except InputError as exc:  # bad input: nothing was written
@@ -313,6 +332,49 @@ def _warp(args, comm) -> int:
               f"sampling; wrote {output}" + (f" and {args.transform}" if args.transform else "")
               + (f"; labels {sorted(np.unique(warped).tolist())[:12]}" if args.labels else ""))
     comm.barrier()
+    return 0
+
+
+def _fit(args, comm) -> int:
+    from .fit import ForwardModel, fit, parameters, read_target, scene_changes
+    from .fit.report import write_fit_json, write_fitted_scene
+    from .outputs.files import check_writable
+    from .runner import run
+    from .scene import load_scene
+
+    from .fit.parameters import check_names
+    from .errors import InputError
+
+    out = Path(args.out)
+    check_writable(out, comm)
+    names = [n.strip() for n in args.params.split(",") if n.strip()]
+    check_names(names)
+    if not args.noise > 0:
+        raise InputError(f"--noise must be > 0 mm (got {args.noise:g})")
+    target = read_target(args.target, args.pre)
+    scene = load_scene(args.scene, args.set)
+    forward = ForwardModel(load_scene(args.scene, args.set + ["time.mode=quasi-static"]), comm)
+    params = parameters(scene, names, forward.heights())
+    result = fit(forward, target, params, args.noise * 1e-3)
+    forward.destroy()
+    if comm.rank == 0:
+        out.mkdir(parents=True, exist_ok=True)
+    comm.barrier()
+    values = dict(zip(names, (float(v) for v in result.values)))
+    fitted = write_fitted_scene(args.scene, args.set, scene_changes(scene, values), out) if comm.rank == 0 else None
+    fitted = comm.bcast(fitted, root=0)
+    write_fit_json(out, result, target, comm)
+    if comm.rank == 0:
+        print(f"fit: {target.kind}, {len(target.measured)} points; {result.solves} settled states in "
+              f"{result.seconds:.1f} s; residual RMS {result.as_dict()['prior_residual_rms_mm']:.2f} mm (scene) -> "
+              f"{result.as_dict()['residual_rms_mm']:.2f} mm (fitted)")
+        for p, v, sd, ok in zip(params, result.values, result.std, result.constrained):
+            spread = f"+- {sd:.3g}" if ok else "NOT CONSTRAINED by these points (the value is not a measurement)"
+            print(f"  {p.name:16s} {p.prior:10.4g} -> {v:10.4g} {p.unit:4s} {spread}")
+    if not args.no_run:
+        run(load_scene(fitted), out, comm)
+    if comm.rank == 0:
+        print(f"wrote {out}/fitted.toml, fit.json" + ("" if args.no_run else " and the fitted run"))
     return 0
 
 

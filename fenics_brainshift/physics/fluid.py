@@ -3,7 +3,7 @@ container (then it depends on how much of the body is under water), assembled ex
 (hydrostatic.py) and reassembled only when something changed."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable
 
 import numpy as np
@@ -79,6 +79,19 @@ class FluidLoad:
         self._assembled_key = None
         self._surface_dofs = None
         self._assembled_surface = None
+
+    def set_gravity(self, gravity) -> None:
+        """Another gravity vector (a head pose): the level is a height along the new up."""
+        self.settings = replace(self.settings, gravity=tuple(float(c) for c in gravity))
+        self.hydro.set_gravity(gravity)
+        self._assembled_key = None
+
+    def set_level(self, level: float) -> None:
+        """A constant level (m along up) from now on, whatever the schedule said."""
+        if self.settings.level is None:
+            raise ValueError("a fluid given by its volume has no level to set")
+        self.settings = replace(self.settings, level=lambda t, h=float(level): h)
+        self._assembled_key = None
 
     def level_at(self, t: float, u=None) -> float:
         s = self.settings

@@ -32,10 +32,15 @@ class GravityLoad:
     def __init__(self, V, density, gravity):
         mesh = V.mesh
         v = ufl.TestFunction(V)
-        g = fem.Constant(mesh, np.array(gravity, dtype=PETSc.ScalarType))
+        self.g = fem.Constant(mesh, np.array(gravity, dtype=PETSc.ScalarType))
         rho = PETSc.ScalarType(density) if isinstance(density, (int, float)) else density
-        self.form = fem.form(body_force(v, rho, g))
+        self.form = fem.form(body_force(v, rho, self.g))
         self.vector = assemble_into(create_vector(self.form), self.form)
+
+    def set_gravity(self, gravity) -> None:
+        """Another gravity vector (a head pose), reassembled."""
+        self.g.value[:] = np.asarray(gravity, dtype=float)
+        self.refresh()
 
     def refresh(self) -> None:
         assemble_into(self.vector, self.form)

@@ -57,6 +57,15 @@ class HydrostaticLoad:
         self.submerged_volume = 0.0
         self.wet_facets = 0
 
+    def set_gravity(self, gravity) -> None:
+        """Another gravity vector (a head pose): up and |g| change, the reference heights too."""
+        if self._quadrature is not None:
+            raise ValueError("the quadrature rule keeps its gravity; use rule = \"consistent\"")
+        g = np.asarray(gravity, dtype=float)
+        self.g_magnitude = float(np.linalg.norm(g))
+        self.up = -g / self.g_magnitude
+        self._reference = None
+
     def set_present(self, present: np.ndarray) -> None:
         """After a resection: the load acts on the surface of the cells still present."""
         self.facets = surface_facets(self.V, present)

@@ -35,6 +35,10 @@ class Model:
     fluid: FluidLoad | None = None
     tissue: Tissue | None = None  # only when cells can be removed
     material_model: str = "linear"  # or "neo-hookean", "saint-venant-kirchhoff"
+    # every external load times this: with nu fixed the internal force is proportional to G,
+    # so the body at G solves as the body at G0 with the loads times G0 / G, on the same
+    # factor (the calibration's stiffness, fit/forward.py); 1 otherwise
+    load_scale: float = 1.0
 
     @classmethod
     def create(cls, mesh, degree: int, E: float, nu: float, density: float, gravity, supports=(),
@@ -134,4 +138,6 @@ class Model:
         load is evaluated on x + u (a Function on V)."""
         grav, fluid = self.external_load(t, u)
         out.array[:] = grav.array_r if fluid is None else grav.array_r + fluid.array_r
+        if self.load_scale != 1.0:
+            out.scale(self.load_scale)
         return out

@@ -114,13 +114,16 @@ def outward(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     return triangles if volume > 0 else triangles[:, ::-1]
 
 
-def gathered_outward_surface(facets, comm) -> tuple[np.ndarray, np.ndarray]:
+def gathered_outward_surface(facets, comm, u=None) -> tuple[np.ndarray, np.ndarray]:
     """The whole body surface on every rank, as (points, triangles) with outward normals:
     each facet's vertex order is turned so that its normal points away from the cell's
-    opposite vertex."""
-    X = facets.x_vertices
+    opposite vertex. u: a displacement Function on the facets' space (the deformed surface)."""
+    X, opposite = facets.x_vertices, facets.x_opposite
+    if u is not None:
+        values = u.x.array.reshape(-1, 3)
+        X, opposite = X + values[facets.vertex_dofs], opposite + values[facets.opposite_dofs]
     normal = np.cross(X[:, 1] - X[:, 0], X[:, 2] - X[:, 0])
-    inward = np.einsum("ni,ni->n", normal, facets.x_opposite - X[:, 0]) > 0
+    inward = np.einsum("ni,ni->n", normal, opposite - X[:, 0]) > 0
     X = np.where(inward[:, None, None], X[:, ::-1], X)
     X = np.concatenate(comm.allgather(X))
     return X.reshape(-1, 3), np.arange(3 * len(X)).reshape(-1, 3)

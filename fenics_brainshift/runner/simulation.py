@@ -94,6 +94,15 @@ class Simulation:
             self.static.setup()
         return self.static
 
+    def back_to_rest(self) -> None:
+        """u = v = a = 0, and the next settled state is solved from there with its loads grown
+        from zero (Newton's load steps), not continued from the last one."""
+        for f in (self.state.u, self.state.v, self.state.a):
+            f.x.array[:] = 0.0
+        forget = getattr(self.static, "forget_settled", None)
+        if forget is not None:
+            forget()
+
     def restore(self, snapshot: tuple) -> None:
         """Back to a state taken with state.snapshot() (after a guard fired)."""
         (self.dynamic.restore if self.dynamic is not None else self.state.restore)(snapshot)

@@ -119,6 +119,13 @@ def load_scene(path: str | Path, overrides: list[str] = ()) -> Scene:
     """Read and validate a scene file, or a bundled scene by name ("cube", "brain", ...: see
     ``brainshift scenes``); every problem is a one-line InputError. ``overrides`` are
     ``section.key=value`` strings applied before validation."""
+    data, base = scene_data(path, overrides)
+    return scene_from_dict(data, base=base)
+
+
+def scene_data(path: str | Path, overrides: list[str] = ()) -> tuple[dict, Path]:
+    """(the scene file's TOML as a dict with the overrides applied, the folder its relative
+    paths start from), not yet validated."""
     from ..data import bundled_scene
 
     path = Path(path)
@@ -133,7 +140,7 @@ def load_scene(path: str | Path, overrides: list[str] = ()) -> Scene:
         raise InputError(f"{path.name}: not valid TOML ({exc})") from None
     for assignment in overrides:
         apply_override(data, assignment)
-    return scene_from_dict(data, base=path.parent)
+    return data, path.parent
 
 
 def _with_markups(probes: dict, base: Path | None) -> dict:

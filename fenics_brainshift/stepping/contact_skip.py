@@ -52,6 +52,11 @@ class ContactWhenReached:
             self.free.K = None
         return self.engaged.solve(t)
 
+    def forget_settled(self) -> None:
+        self._t_settled = None
+        if self.engaged is not None:
+            self.engaged.forget_settled()
+
     def destroy(self) -> None:
         if self.free.K is not None:
             self.free.destroy()

@@ -179,7 +179,7 @@ class NewtonStatic:
             self._K0.copy(A, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
         fluid = self.model.fluid
         if with_load and self.follower and self.load_tangent and fluid.level == fluid.level:  # a level is known
-            add_load_tangent(A, fluid.hydro, fluid.level, self.state.u, -factor)
+            add_load_tangent(A, fluid.hydro, fluid.level, self.state.u, -factor * self.model.load_scale)
         if self.contact is not None:
             self.contact.add_tangent(A, self.state.u)
         A.zeroRowsColumnsLocal(self._fixed, 1.0)
@@ -248,6 +248,22 @@ class NewtonStatic:
         return converged
 
     # -- a settled state, with load stepping ------------------------------------------------------
+    def forget_settled(self) -> None:
+        """The next settled state grows its loads from zero (the state must be at rest): for
+        loads that changed otherwise than in time (a calibration's parameters)."""
+        self._t_settled = None
+
+    def solve_from_here(self, t: float) -> bool:
+        """Newton from the current state to the loads at time t, no load steps and no multiplier
+        updates; False if it fails (the state restored). For a caller that steps the loads
+        itself (a calibration's parameter continuation: fit/forward.py)."""
+        saved = self.state.u.x.array.copy()
+        if self._newton(t, 1.0):
+            self._t_settled, self.state.t = t, t
+            return True
+        self.state.u.x.array[:] = saved
+        return False
+
     def solve(self, t: float) -> int:
         """The settled state for the loads at time t, from the last one (or from rest: the loads
         then grow from zero). With skull contact, the multipliers are updated after each

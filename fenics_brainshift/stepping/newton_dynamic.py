@@ -251,7 +251,7 @@ class NewtonDynamicStepper(DynamicStepper):
                 self._J_fixed, self._J_fixed_key = J.copy(), key
         fluid = self.model.fluid
         if follower and fluid.level == fluid.level:
-            add_load_tangent(J, fluid.hydro, fluid.level, self._x, -am_f)
+            add_load_tangent(J, fluid.hydro, fluid.level, self._x, -am_f * self.model.load_scale)
         if self.contact is not None:
             self.contact.add_tangent(J, self._x, am_f)
         J.zeroRowsColumnsLocal(self._fixed, 1.0)

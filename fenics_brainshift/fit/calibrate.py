@@ -1,0 +1,126 @@
+"""Fit the parameters to the measured points: robust nonlinear least squares on the forward model.
+
+scipy's trust-region reflective least squares within the parameters' bounds, the residuals
+point to point (3 per point) or point to surface (1 per point), with a soft-l1 loss whose
+scale is the measurement noise (points far off count linearly, not squared: a few outliers
+do not pull the fit). The Jacobian is by forward differences, one settled state per parameter
+(each re-solve reuses the one factor and starts from the last answer).
+
+Uncertainty from the Jacobian at the solution: cov = s^2 (J^T J)^-1 with s^2 the residuals'
+mean square (least_squares' robust weights applied). A parameter the points do not constrain
+(its column of J near zero, or a combination of columns near dependence) shows as a standard
+deviation comparable to its bounds and is reported as "not constrained", not as a number.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from ..errors import InputError, SolverError
+from .forward import ForwardModel
+from .parameters import Parameter
+from .targets import Target
+
+# relative step of the finite differences, on the scaled parameters (x / Parameter.scale)
+DIFFERENCE_STEP = 1e-3
+# a standard deviation above this fraction of the bound range: the points do not constrain it
+UNCONSTRAINED = 0.25
+# the residual (m) of parameters with no settled state: far worse than any fit, so the trust
+# region shrinks away from them
+NO_EQUILIBRIUM = 1.0
+
+
+@dataclass
+class FitResult:
+    parameters: list[Parameter]
+    values: np.ndarray
+    std: np.ndarray
+    constrained: list[bool]
+    residuals: np.ndarray  # per point, m (norm of the 3 components, or the distance)
+    prior_residuals: np.ndarray
+    solves: int
+    seconds: float
+    message: str
+    singular_values: list[float] = field(default_factory=list)
+    without_equilibrium: int = 0  # evaluations whose parameters gave no settled state
+
+    def as_dict(self) -> dict:
+        return {
+            "parameters": {p.name: {"prior": p.prior, "fitted": float(v), "std": (float(s) if c else None),
+                                    "constrained": c, "bounds": [p.lower, p.upper], "unit": p.unit}
+                           for p, v, s, c in zip(self.parameters, self.values, self.std, self.constrained)},
+            "residual_rms_mm": float(np.sqrt(np.mean(self.residuals**2)) * 1e3),
+            "residual_max_mm": float(np.abs(self.residuals).max() * 1e3),
+            "prior_residual_rms_mm": float(np.sqrt(np.mean(self.prior_residuals**2)) * 1e3),
+            "residuals_mm": [float(r * 1e3) for r in self.residuals],
+            "settled_states_solved": self.solves,
+            "seconds": self.seconds,
+            "optimiser": self.message,
+            "evaluations_without_equilibrium": self.without_equilibrium,
+            "scaled_jacobian_singular_values": self.singular_values,
+        }
+
+
+def fit(forward: ForwardModel, target: Target, parameters: list[Parameter], noise: float = 1e-3) -> FitResult:
+    """The parameters that best explain the target; noise (m): the measurement's size, the
+    robust loss's scale."""
+    if not noise > 0:
+        raise InputError(f"--noise must be > 0 mm (got {noise * 1e3:g})")
+    names = [p.name for p in parameters]
+    scale = np.array([p.scale for p in parameters])
+    lower = np.array([p.lower for p in parameters]) / scale
+    upper = np.array([p.upper for p in parameters]) / scale
+    t0, solves0 = time.perf_counter(), forward.solves
+
+    no_equilibrium: list[np.ndarray] = []  # parameters tried that have no settled state
+
+    def residuals(x: np.ndarray) -> np.ndarray:
+        try:
+            forward.solve(dict(zip(names, x * scale)))
+        except SolverError:  # a finite-deformation body too soft there: a bad step, not the end
+            if prior is None:
+                raise
+            no_equilibrium.append(x * scale)
+            return np.full_like(prior, NO_EQUILIBRIUM)
+        if target.pre is not None:
+            return (forward.positions(target.pre) - target.measured).ravel()
+        return forward.signed_distances(target.measured)
+
+    x0 = np.array([p.prior for p in parameters]) / scale
+    prior = None
+    prior = residuals(x0)  # the scene itself must have a settled state
+    if target.pre is None and len(target.measured) < len(parameters):
+        raise InputError(f"--target: {len(target.measured)} points cannot fit {len(parameters)} parameters")
+    result = least_squares(residuals, x0, bounds=(lower, upper), loss="soft_l1", f_scale=noise, method="trf",
+                           diff_step=DIFFERENCE_STEP, x_scale=1.0)
+    final = residuals(result.x)  # the state left behind is the fitted one
+    values = result.x * scale
+    std, constrained, singular = _uncertainty(result, final, scale, upper - lower, noise)
+    per_point = _per_point(final, target)
+    return FitResult(parameters, values, std, constrained, per_point, _per_point(prior, target),
+                     forward.solves - solves0, time.perf_counter() - t0, result.message, singular,
+                     len(no_equilibrium))
+
+
+def _per_point(r: np.ndarray, target: Target) -> np.ndarray:
+    return np.linalg.norm(r.reshape(-1, 3), axis=1) if target.pre is not None else np.abs(r)
+
+
+def _uncertainty(result, r: np.ndarray, scale: np.ndarray, span: np.ndarray, noise: float):
+    """(std of each parameter, whether it is constrained, singular values of the scaled J)."""
+    J = result.jac  # d r / d (x / scale), robust weights not applied: the linearised model
+    m, n = J.shape
+    dof = max(m - n, 1)
+    s2 = max(float(r @ r) / dof, noise**2 / 9.0)  # at least the noise (a perfect fit is not a certainty)
+    _, sv, vt = np.linalg.svd(J, full_matrices=False)
+    tiny = sv <= 1e-12 * sv.max(initial=0.0)
+    inverse = np.where(tiny, 0.0, 1.0 / np.where(tiny, 1.0, sv) ** 2)
+    cov = (vt.T * inverse) @ vt * s2
+    std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    # a direction with (near-)zero singular value leaves the parameters along it free
+    free = np.abs(vt[tiny]).max(axis=0) > 0.1 if tiny.any() else np.zeros(n, dtype=bool)
+    constrained = [bool((not f) and s < UNCONSTRAINED * w) for f, s, w in zip(free, std, span)]
+    return std * scale, constrained, [float(v) for v in sv]

@@ -1,0 +1,109 @@
+"""The scene's settled state after the drain as a function of the fitted parameters, built
+once and re-solved in place.
+
+The mesh, the supports and the factor of K are made once. A new level or head pose changes
+only the loads (gravity reassembled, the fluid's up and level); a new G changes no matrix:
+with nu fixed the internal force is proportional to G, so the body at G is the body at the
+scene's G0 with every load times G0 / G (Model.load_scale) — exact for the linear and the
+hyperelastic materials and with skull contact. Each evaluation starts from the last answer
+(the follower fixed point or Newton then needs few iterations).
+"""
+from __future__ import annotations
+
+import numpy as np
+from mpi4py import MPI
+
+from ..errors import SolverError
+from ..outputs.points import PointEvaluator
+from ..physics.skull import RigidSkull, gathered_outward_surface
+from ..physics.surface import surface_facets
+from .parameters import rotated_gravity
+
+MAX_HALVINGS = 6  # of a parameter change that Newton cannot take at once
+
+
+class ForwardModel:
+    def __init__(self, scene, comm=MPI.COMM_WORLD):
+        from ..runner import Simulation
+
+        self.scene = scene
+        self.sim = Simulation(scene, comm)
+        self.sim.setup()
+        self.model = self.sim.model
+        self.t = scene.time.end
+        self.g0 = np.asarray(scene.gravity.vector, dtype=float)
+        self.G0 = scene.material.G
+        # the linear material's fixed point starts from the last answer; Newton for finite
+        # deformation continues from the last answer through the parameters (it steps loads
+        # only in time); with skull contact each evaluation grows its loads from rest
+        self.continued = self.model.nonlinear
+        self.from_rest = self.sim.contact is not None
+        self._last: dict | None = None
+        self._scene_level = scene.fluid.level(scene.time.end) if scene.fluid is not None and scene.fluid.level else 0.0
+        self.solves = 0  # settled states computed
+        self._evaluators: dict[int, PointEvaluator] = {}
+        fluid = self.model.fluid
+        self._facets = fluid.hydro.facets if fluid is not None else surface_facets(self.model.V)
+
+    def heights(self) -> tuple[float, float]:
+        """The lowest and highest surface point along up (m): the level's bounds."""
+        points, _ = gathered_outward_surface(self._facets, self.model.comm)
+        height = points @ (-self.g0 / np.linalg.norm(self.g0))
+        return float(height.min()), float(height.max())
+
+    def solve(self, values: dict[str, float]) -> None:
+        """The settled state for these parameter values (the others at the scene's)."""
+        if self.continued and self._last is not None:  # (on failure the state stays at self._last's)
+            self._continue(self._last, dict(values), depth=0)
+        else:
+            if self.from_rest:
+                self.sim.back_to_rest()
+            self._apply(values)
+            self.sim.solve_to_settled(self.t)
+        self._last = dict(values)
+        self.solves += 1
+
+    def _apply(self, values: dict[str, float]) -> None:
+        model = self.model
+        g = rotated_gravity(self.g0, values)
+        model.gravity.set_gravity(g)
+        if model.fluid is not None:
+            model.fluid.set_gravity(g)
+            if "fluid.level" in values:
+                model.fluid.set_level(values["fluid.level"])
+        model.load_scale = self.G0 / values.get("material.G", self.G0)
+
+    def _continue(self, start: dict, end: dict, depth: int) -> None:
+        """Newton from the state of ``start`` to that of ``end``; if it fails, through the
+        parameters' midpoint first (a finite-deformation body: large changes at once may not
+        converge, small ones do)."""
+        self._apply(end)
+        if self.sim.static.solve_from_here(self.t):
+            self._last = dict(end)
+            return
+        if depth == MAX_HALVINGS:
+            raise SolverError(f"no settled state was found for {end} on the way from {start} (in "
+                              f"{2 ** MAX_HALVINGS} steps): the body may have no equilibrium there")
+        keys = set(start) | set(end)
+        middle = {k: 0.5 * (start.get(k, self._default(k)) + end.get(k, self._default(k))) for k in keys}
+        self._continue(start, middle, depth + 1)
+        self._continue(middle, end, depth + 1)
+
+    def _default(self, name: str) -> float:
+        return {"material.G": self.G0, "fluid.level": self._scene_level}.get(name, 0.0)
+
+    def positions(self, points: np.ndarray) -> np.ndarray:
+        """Where pre-operative points (n, 3; m) are in the current state."""
+        key = id(points)
+        if key not in self._evaluators:
+            self._evaluators = {key: PointEvaluator(self.model.mesh, points)}
+        return points + self._evaluators[key].values(self.sim.u)
+
+    def signed_distances(self, points: np.ndarray) -> np.ndarray:
+        """Signed distance (m, + outside) of points to the current deformed surface."""
+        surface, triangles = gathered_outward_surface(self._facets, self.model.comm, self.sim.u)
+        distance, side, _ = RigidSkull(surface, triangles).distance(points)
+        return side * distance
+
+    def destroy(self) -> None:
+        self.sim.destroy()

@@ -1,0 +1,88 @@
+"""What was measured in the operating room, as points in the scene's frame (RAS, m).
+
+- point to point: the intra-operative positions of points whose pre-operative positions are
+  known: ``--target intra.mrk.json --pre pre.mrk.json`` (matched by label), or a CSV with
+  columns ``x_pre, y_pre, z_pre, x, y, z`` (and optionally ``label``);
+- point to surface: positions on the exposed cortex with no correspondence (a tracked pointer,
+  a laser scan): ``--target points.mrk.json`` or a CSV with ``x, y, z``, or a surface file
+  (.vtk, .stl, .ply, ...: its vertices); the residual is the signed distance to the predicted
+  surface of the brain.
+
+Millimetres in every file (what Slicer and trackers write), RAS (markups in LPS are turned).
+"""
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .. import formats
+from ..errors import InputError
+from ..images.frames import read_markups
+
+MAX_SURFACE_POINTS = 2000  # a scanned surface is thinned to about this many points
+
+
+@dataclass
+class Target:
+    measured: np.ndarray  # (n, 3) intra-operative positions, m
+    pre: np.ndarray | None  # (n, 3) the same points before (point to point), or None (to the surface)
+    labels: list[str]
+
+    @property
+    def kind(self) -> str:
+        return "point-to-point" if self.pre is not None else "point-to-surface"
+
+
+def read_target(target: str | Path, pre: str | Path | None = None) -> Target:
+    target = Path(target)
+    if not target.is_file():
+        raise InputError(f"--target: no file '{target}'")
+    name = target.name.lower()
+    if name.endswith(".mrk.json"):
+        labels, points = read_markups(target, "--target")
+        if pre is None:
+            return Target(points * 1e-3, None, labels)
+        pre_labels, pre_points = read_markups(pre, "--pre")
+        where = {label: i for i, label in enumerate(pre_labels)}
+        missing = [label for label in labels if label not in where]
+        if missing:
+            raise InputError(f"--target: points {', '.join(missing[:5])} have no namesake in --pre '{Path(pre).name}'; "
+                             f"label each intra-operative point as its pre-operative one")
+        return Target(points * 1e-3, pre_points[[where[label] for label in labels]] * 1e-3, labels)
+    if pre is not None:
+        raise InputError("--pre goes with a .mrk.json --target (points matched by label); a CSV target carries "
+                         "x_pre, y_pre, z_pre itself")
+    if name.endswith(".csv"):
+        return _read_csv(target)
+    if formats.is_surface(target):
+        from ..meshing.voxelize import read_surface
+
+        points, _ = read_surface(target, 1e-3)
+        points = np.unique(points, axis=0)
+        if len(points) > MAX_SURFACE_POINTS:
+            points = points[np.linspace(0, len(points) - 1, MAX_SURFACE_POINTS).astype(int)]
+        return Target(points, None, [f"s{i}" for i in range(len(points))])
+    raise InputError(f"--target: '{target.name}': use a Slicer point list (.mrk.json), a CSV (x, y, z in mm) or a "
+                     f"surface ({', '.join(formats.SURFACE_SUFFIXES)})")
+
+
+def _read_csv(path: Path) -> Target:
+    with open(path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    if not rows:
+        raise InputError(f"--target: '{path.name}' has no rows under a header line")
+    columns = set(rows[0])
+    if not {"x", "y", "z"} <= columns:
+        raise InputError(f"--target: '{path.name}' needs columns x, y, z (mm; and x_pre, y_pre, z_pre for point "
+                         f"to point); it has {', '.join(sorted(columns))}")
+    try:
+        measured = np.array([[float(r[k]) for k in "xyz"] for r in rows])
+        pre = (np.array([[float(r[f"{k}_pre"]) for k in "xyz"] for r in rows])
+               if {"x_pre", "y_pre", "z_pre"} <= columns else None)
+    except ValueError as exc:
+        raise InputError(f"--target: '{path.name}': {exc}") from None
+    labels = [r.get("label") or f"p{i + 1}" for i, r in enumerate(rows)]
+    return Target(measured * 1e-3, None if pre is None else pre * 1e-3, labels)
