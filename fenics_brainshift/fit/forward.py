@@ -10,6 +10,8 @@ hyperelastic materials and with skull contact. Each evaluation starts from the l
 """
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 from mpi4py import MPI
 
@@ -20,12 +22,18 @@ from ..physics.surface import surface_facets
 from .parameters import rotated_gravity
 
 MAX_HALVINGS = 6  # of a parameter change that Newton cannot take at once
+# the follower fixed point's stopping point (relative change of u): the Jacobian's differences
+# are of relative size 1e-3 (calibrate.DIFFERENCE_STEP), so the answers must be far tighter
+FOLLOWER_TOL = 1e-7
 
 
 class ForwardModel:
     def __init__(self, scene, comm=MPI.COMM_WORLD):
         from ..runner import Simulation
 
+        if scene.fluid is not None and scene.fluid.follower_tol > FOLLOWER_TOL:
+            # finite differences of the residuals need the answers tighter than a run does
+            scene = dataclasses.replace(scene, fluid=dataclasses.replace(scene.fluid, follower_tol=FOLLOWER_TOL))
         self.scene = scene
         self.sim = Simulation(scene, comm)
         self.sim.setup()
