@@ -105,6 +105,23 @@ def test_a_fit_recovers_the_truth_within_its_uncertainty_and_predicts_held_out_p
     forward.destroy()
 
 
+def test_two_outliers_do_not_pull_the_fit(truth):
+    """Two of 20 points mis-tracked by 10 mm: the soft-l1 loss keeps the fit within three
+    standard deviations (those of the fit without the outliers) of the truth."""
+    pre, measured, _, _ = truth
+    forward = ForwardModel(load_scene("brain", COARSE))
+    params = parameters(forward.scene, list(TRUTH), forward.heights())
+    labels = [str(i) for i in range(20)]
+    clean = fit(forward, Target(measured[:20], pre[:20], labels), params, noise=0.5e-3)
+    measured = measured[:20].copy()
+    measured[[3, 11]] += [0.0, 0.010, 0.0]
+    robust = fit(forward, Target(measured, pre[:20], labels), params, noise=0.5e-3)
+    for p, value, sd in zip(params, robust.values, clean.std):
+        assert abs(value - TRUTH[p.name]) < 3.0 * sd, (p.name, value, sd)
+    assert sorted(np.argsort(robust.residuals)[-2:]) == [3, 11]  # the outliers stand out
+    forward.destroy()
+
+
 def test_points_that_do_not_move_constrain_nothing():
     """Points on the occipital pin (held by the support) see no shift: level and G are
     reported as not constrained, not as confident numbers."""
