@@ -67,6 +67,11 @@ def test_in_place_changes_equal_a_rebuilt_scene(model):
     shift = np.abs(theirs - points).max()
     assert shift > 2e-3  # millimetres: a real test of the equality below
     assert np.abs(ours - theirs).max() < 2e-4 * shift
+    forward.solve({})  # back to the scene's own values: nothing of the last call stays behind
+    assert forward.model.fluid.level_at(forward.t) == pytest.approx(0.030)
+    assert forward.model.load_scale == 1.0
+    np.testing.assert_allclose(forward.model.gravity.g.value, [0.0, -9.81, 0.0], atol=1e-12)
+    np.testing.assert_allclose(forward.model.fluid.hydro.up, [0.0, 1.0, 0.0], atol=1e-12)
     forward.destroy()
     reference.destroy()
 

@@ -49,7 +49,7 @@ class ForwardModel:
         self._last: dict | None = None
         self._scene_level = scene.fluid.level(scene.time.end) if scene.fluid is not None and scene.fluid.level else 0.0
         self.solves = 0  # settled states computed
-        self._evaluators: dict[int, PointEvaluator] = {}
+        self._located: tuple[np.ndarray, PointEvaluator] | None = None  # the last points and their cells
         fluid = self.model.fluid
         self._facets = fluid.hydro.facets if fluid is not None else surface_facets(self.model.V)
 
@@ -77,8 +77,8 @@ class ForwardModel:
         model.gravity.set_gravity(g)
         if model.fluid is not None:
             model.fluid.set_gravity(g)
-            if "fluid.level" in values:
-                model.fluid.set_level(values["fluid.level"])
+            if model.fluid.settings.level is not None:  # (the settled state sees only the level at t)
+                model.fluid.set_level(values.get("fluid.level", self._scene_level))
         model.load_scale = self.G0 / values.get("material.G", self.G0)
 
     def _continue(self, start: dict, end: dict, depth: int) -> None:
@@ -102,10 +102,9 @@ class ForwardModel:
 
     def positions(self, points: np.ndarray) -> np.ndarray:
         """Where pre-operative points (n, 3; m) are in the current state."""
-        key = id(points)
-        if key not in self._evaluators:
-            self._evaluators = {key: PointEvaluator(self.model.mesh, points)}
-        return points + self._evaluators[key].values(self.sim.u)
+        if self._located is None or not np.array_equal(self._located[0], points):
+            self._located = (np.array(points, copy=True), PointEvaluator(self.model.mesh, points))
+        return points + self._located[1].values(self.sim.u)
 
     def signed_distances(self, points: np.ndarray) -> np.ndarray:
         """Signed distance (m, + outside) of points to the current deformed surface."""
