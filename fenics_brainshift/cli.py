@@ -302,79 +302,21 @@ def _compare(args, comm) -> int:
 
 
 def _warp(args, comm) -> int:
-    import numpy as np
+    from .images.command import warp_command
 
-    from .errors import InputError
-    from .images import DeformedMesh, Warp, is_volume, read_volume, write_itk_transform, write_like
-    from .outputs.files import check_writable
-
-    output = Path(args.output)
-    if not is_volume(output):
-        raise InputError(f"warp: -o '{output.name}': use a .nii.gz or .nrrd file name")
-    if args.transform and not args.transform.lower().endswith((".h5", ".hdf5")):
-        raise InputError(f"warp: --transform '{args.transform}': use an ITK transform file name ending in .h5")
-    for path in [output] + ([Path(args.transform)] if args.transform else []):
-        check_writable(path.parent, comm, "folder of " + ("-o" if path == output else "--transform"), "-o")
-    volume = read_volume(args.image, "warp: --image")
-    body = DeformedMesh.from_run(args.run_dir, args.mesh_frame)
-    warp = Warp.compute(volume, body, args.blend, comm)
-    if not warp.inside.any():
-        raise InputError(f"warp: the run's brain does not overlap '{Path(args.image).name}' (mesh {body.points.min(0)} "
-                         f"to {body.points.max(0)} mm RAS); is the image in the mesh's frame? (--mesh-frame)")
-    if comm.rank == 0:
-        warped = warp.apply(labels=args.labels)
-        write_like(volume, warped, output)
-        if args.transform:
-            write_itk_transform(warp, args.transform)
-        moved = warp.moved()
-        print(f"warp: {int(moved.sum())} of {moved.size} voxels moved (largest {warp.largest_mm():.2f} mm, "
-              f"{int(warp.inside.sum())} inside the deformed brain); {'nearest' if args.labels else 'linear'} "
-              f"sampling; wrote {output}" + (f" and {args.transform}" if args.transform else "")
-              + (f"; labels {sorted(np.unique(warped).tolist())[:12]}" if args.labels else ""))
-    comm.barrier()
-    return 0
+    return _report(warp_command(args, comm), comm)
 
 
 def _fit(args, comm) -> int:
-    from .fit import ForwardModel, fit, parameters, read_target, scene_changes
-    from .fit.report import write_fit_json, write_fitted_scene
-    from .outputs.files import check_writable
-    from .runner import run
-    from .scene import load_scene
+    from .fit.command import fit_command
 
-    from .fit.parameters import check_names
-    from .errors import InputError
+    return _report(fit_command(args, comm), comm)
 
-    out = Path(args.out)
-    check_writable(out, comm)
-    names = [n.strip() for n in args.params.split(",") if n.strip()]
-    check_names(names)
-    if not args.noise > 0:
-        raise InputError(f"--noise must be > 0 mm (got {args.noise:g})")
-    target = read_target(args.target, args.pre)
-    scene = load_scene(args.scene, args.set)
-    forward = ForwardModel(load_scene(args.scene, args.set + ["time.mode=quasi-static"]), comm)
-    params = parameters(scene, names, forward.heights())
-    result = fit(forward, target, params, args.noise * 1e-3)
-    forward.destroy()
+
+def _report(lines: list[str], comm) -> int:
+    """A command's result lines, on rank 0."""
     if comm.rank == 0:
-        out.mkdir(parents=True, exist_ok=True)
-    comm.barrier()
-    values = dict(zip(names, (float(v) for v in result.values)))
-    fitted = write_fitted_scene(args.scene, args.set, scene_changes(scene, values), out) if comm.rank == 0 else None
-    fitted = comm.bcast(fitted, root=0)
-    write_fit_json(out, result, target, comm)
-    if comm.rank == 0:
-        print(f"fit: {target.kind}, {len(target.measured)} points; {result.solves} settled states in "
-              f"{result.seconds:.1f} s; residual RMS {result.as_dict()['prior_residual_rms_mm']:.2f} mm (scene) -> "
-              f"{result.as_dict()['residual_rms_mm']:.2f} mm (fitted)")
-        for p, v, sd, ok in zip(params, result.values, result.std, result.constrained):
-            spread = f"+- {sd:.3g}" if ok else "NOT CONSTRAINED by these points (the value is not a measurement)"
-            print(f"  {p.name:16s} {p.prior:10.4g} -> {v:10.4g} {p.unit:4s} {spread}")
-    if not args.no_run:
-        run(load_scene(fitted), out, comm)
-    if comm.rank == 0:
-        print(f"wrote {out}/fitted.toml, fit.json" + ("" if args.no_run else " and the fitted run"))
+        print("\n".join(lines))
     return 0
 
 

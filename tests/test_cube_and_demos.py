@@ -260,3 +260,15 @@ def test_warp_demo_serial_and_mpi(tmp_path):
     assert np.array_equal(images[1].affine, t1.affine) and one.shape == data.shape
     assert np.array_equal(one, two)
     assert (one != np.asarray(t1.dataobj)).sum() > 100_000
+
+
+def test_fit_demo(tmp_path):
+    """demos/fit.py on a coarse brain: the fitted scene predicts the held-out points better
+    than the scene, and the picture is written."""
+    import re
+
+    out = tmp_path / "fit"
+    stdout = _run(out, 1, str(ROOT / "demos" / "fit.py"), "--out", str(out), "--set", "mesh.voxel=0.01")
+    prior, fitted = map(float, re.search(r"mean error ([\d.]+) mm with the scene, ([\d.]+) mm fitted", stdout).groups())
+    assert fitted < 0.5 * prior
+    assert (out / "fit.png").stat().st_size > 10_000 and (out / "fitted.toml").is_file()

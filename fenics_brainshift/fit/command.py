@@ -1,0 +1,48 @@
+"""`brainshift fit SCENE --target ... --params ...`: the command around the calibration."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..errors import InputError
+from ..outputs.files import check_writable
+from ..runner import run
+from ..scene import load_scene
+from .calibrate import fit
+from .forward import ForwardModel
+from .parameters import check_names, parameters, scene_changes
+from .report import write_fit_json, write_fitted_scene
+from .targets import read_target
+
+
+def fit_command(args, comm) -> list[str]:
+    """`brainshift fit` (arguments: cli.py); returns the report's lines (cli prints them)."""
+    out = Path(args.out)
+    check_writable(out, comm)
+    names = [n.strip() for n in args.params.split(",") if n.strip()]
+    check_names(names)
+    if not args.noise > 0:
+        raise InputError(f"--noise must be > 0 mm (got {args.noise:g})")
+    target = read_target(args.target, args.pre)
+    scene = load_scene(args.scene, args.set)
+    forward = ForwardModel(load_scene(args.scene, args.set + ["time.mode=quasi-static"]), comm)
+    params = parameters(scene, names, forward.heights())
+    result = fit(forward, target, params, args.noise * 1e-3)
+    forward.destroy()
+    if comm.rank == 0:
+        out.mkdir(parents=True, exist_ok=True)
+    comm.barrier()
+    values = dict(zip(names, (float(v) for v in result.values)))
+    fitted = write_fitted_scene(args.scene, args.set, scene_changes(scene, values), out) if comm.rank == 0 else None
+    fitted = comm.bcast(fitted, root=0)
+    write_fit_json(out, result, target, comm)
+    if not args.no_run:
+        run(load_scene(fitted), out, comm)
+    report = result.as_dict()
+    lines = [f"fit: {target.kind}, {len(target.measured)} points; {result.solves} settled states in "
+             f"{result.seconds:.1f} s; residual RMS {report['prior_residual_rms_mm']:.2f} mm (scene) -> "
+             f"{report['residual_rms_mm']:.2f} mm (fitted)"]
+    for p, v, sd, ok in zip(params, result.values, result.std, result.constrained):
+        spread = f"+- {sd:.3g}" if ok else "NOT CONSTRAINED by these points (the value is not a measurement)"
+        lines.append(f"  {p.name:16s} {p.prior:10.4g} -> {v:10.4g} {p.unit:4s} {spread}")
+    lines.append(f"wrote {out}/fitted.toml, fit.json" + ("" if args.no_run else " and the fitted run"))
+    return lines

@@ -1,0 +1,40 @@
+"""`brainshift warp RUN_DIR --image PRE -o INTRA`: the command around warp.py."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..outputs.files import check_writable
+from .volumes import is_volume, read_volume, write_like
+from .warp import DeformedMesh, Warp, write_itk_transform
+
+
+def warp_command(args, comm) -> list[str]:
+    """`brainshift warp` (arguments: cli.py); returns the report's lines (cli prints them)."""
+
+    output = Path(args.output)
+    if not is_volume(output):
+        raise InputError(f"warp: -o '{output.name}': use a .nii.gz or .nrrd file name")
+    if args.transform and not args.transform.lower().endswith((".h5", ".hdf5")):
+        raise InputError(f"warp: --transform '{args.transform}': use an ITK transform file name ending in .h5")
+    for path in [output] + ([Path(args.transform)] if args.transform else []):
+        check_writable(path.parent, comm, "folder of " + ("-o" if path == output else "--transform"), "-o")
+    volume = read_volume(args.image, "warp: --image")
+    body = DeformedMesh.from_run(args.run_dir, args.mesh_frame)
+    warp = Warp.compute(volume, body, args.blend, comm)
+    if not warp.inside.any():
+        raise InputError(f"warp: the run's brain does not overlap '{Path(args.image).name}' (mesh {body.points.min(0)} "
+                         f"to {body.points.max(0)} mm RAS); is the image in the mesh's frame? (--mesh-frame)")
+    if comm.rank == 0:
+        warped = warp.apply(labels=args.labels)
+        write_like(volume, warped, output)
+        if args.transform:
+            write_itk_transform(warp, args.transform)
+    comm.barrier()
+    moved = warp.moved()
+    return [f"warp: {int(moved.sum())} of {moved.size} voxels moved (largest {warp.largest_mm():.2f} mm, "
+            f"{int(warp.inside.sum())} inside the deformed brain); {'nearest' if args.labels else 'linear'} "
+            f"sampling; wrote {output}" + (f" and {args.transform}" if args.transform else "")
+            + (f"; labels {sorted(np.unique(warped).tolist())[:12]}" if args.labels and comm.rank == 0 else "")]
