@@ -25,40 +25,23 @@ from scipy.optimize import least_squares
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from fenics_brainshift import load_scene, logs  # noqa: E402
+from fenics_brainshift import logs  # noqa: E402
 from fenics_brainshift.bench import machine_line  # noqa: E402
 from fenics_brainshift.fit import ForwardModel, Target, fit, parameters  # noqa: E402
 from fenics_brainshift.fit.calibrate import DIFFERENCE_STEP  # noqa: E402
-from fenics_brainshift.fit.parameters import rotated_gravity  # noqa: E402
+from fenics_brainshift.fit.synthetic import measurements, true_scene  # noqa: E402
 from fenics_brainshift.outputs.points import PointEvaluator  # noqa: E402
-from fenics_brainshift.physics.skull import gathered_outward_surface  # noqa: E402
 from fenics_brainshift.runner import Simulation  # noqa: E402
 
 TRUTH = {"fluid.level": 0.040, "material.G": 3000.0, "gravity.angle_z": 8.0}
 
 
 def scene_with(voxel: float, values: dict):
-    g = rotated_gravity([0.0, -9.81, 0.0], values)
-    sets = [f"mesh.voxel={voxel}", "time.mode=quasi-static", f"gravity.vector=[{g[0]}, {g[1]}, {g[2]}]"]
-    if "fluid.level" in values:
-        sets.append(f"fluid.level={values['fluid.level']}")
-    if "material.G" in values:
-        sets.append(f"material.G={values['material.G']}")
-    return load_scene("brain", sets)
+    return true_scene([f"mesh.voxel={voxel}"], values)
 
 
 def synthetic_target(voxel: float) -> Target:
-    scene = scene_with(voxel, TRUTH)
-    sim = Simulation(scene, MPI.COMM_SELF)
-    sim.setup()
-    sim.solve_to_settled(scene.time.end)
-    surface, _ = gathered_outward_surface(sim.model.fluid.hydro.facets, MPI.COMM_SELF)
-    surface = np.unique(surface, axis=0)
-    exposed = surface[surface[:, 1] > 0.03]
-    rng = np.random.default_rng(1)
-    pre = exposed[rng.choice(len(exposed), 20, replace=False)]
-    measured = pre + PointEvaluator(sim.model.mesh, pre).values(sim.u) + rng.normal(scale=0.5e-3, size=pre.shape)
-    sim.destroy()
+    pre, measured = measurements([f"mesh.voxel={voxel}"], TRUTH, 20, 0.5e-3, 1, MPI.COMM_SELF)
     return Target(measured, pre, [f"P{i + 1}" for i in range(20)])
 
 

@@ -31,11 +31,8 @@ from mpi4py import MPI
 from fenics_brainshift import InputError, SolverError, load_scene, logs
 from fenics_brainshift.cli import main as brainshift
 from fenics_brainshift.fit import ForwardModel
-from fenics_brainshift.fit.parameters import rotated_gravity
+from fenics_brainshift.fit.synthetic import measurements
 from fenics_brainshift.images import write_markups
-from fenics_brainshift.outputs.points import PointEvaluator
-from fenics_brainshift.physics.skull import gathered_outward_surface
-from fenics_brainshift.runner import Simulation
 
 TRUTH = {"fluid.level": 0.040, "material.G": 3000.0, "gravity.angle_z": 8.0}
 NOISE_MM = 0.5
@@ -52,34 +49,16 @@ def parse_args(argv=None):
     return p.parse_args(argv)
 
 
-# ## The truth, and what is measured
+# ## The truth, what is measured, the fit
 
 # +
-def true_points(overrides, seed, comm):
-    """Surface points of the exposed cortex (anterior: y > 30 mm), before and after the true shift."""
-    g = rotated_gravity([0.0, -9.81, 0.0], TRUTH)
-    scene = load_scene("brain", overrides + ["time.mode=quasi-static", f"fluid.level={TRUTH['fluid.level']}",
-                                             f"material.G={TRUTH['material.G']}", f"gravity.vector=[{g[0]}, {g[1]}, {g[2]}]"])
-    sim = Simulation(scene, comm)
-    sim.setup()
-    sim.solve_to_settled(scene.time.end)
-    surface, _ = gathered_outward_surface(sim.model.fluid.hydro.facets, comm)
-    surface = np.unique(surface, axis=0)
-    exposed = surface[surface[:, 1] > 0.03]
-    rng = np.random.default_rng(seed)
-    pre = exposed[rng.choice(len(exposed), FITTED + HELD_OUT, replace=False)]
-    intra = pre + PointEvaluator(sim.model.mesh, pre).values(sim.u) + rng.normal(scale=NOISE_MM * 1e-3, size=pre.shape)
-    sim.destroy()
-    return pre, intra
-
-
 def main(argv=None) -> int:
     args = parse_args(argv)
     logs.configure("WARNING")
     comm = MPI.COMM_WORLD
     out = Path(args.out)
     try:
-        pre, intra = true_points(args.set, args.seed, comm)
+        pre, intra = measurements(args.set, TRUTH, FITTED + HELD_OUT, NOISE_MM * 1e-3, args.seed, comm)
         labels = [f"P{i + 1}" for i in range(len(pre))]
         if comm.rank == 0:
             out.mkdir(parents=True, exist_ok=True)

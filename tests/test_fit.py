@@ -201,3 +201,24 @@ def test_bad_fit_input_is_one_line(tmp_path, capsys, args, words):
     err = capsys.readouterr().err.strip()
     assert words in err and len(err.splitlines()) == 1
     assert not (tmp_path / "out" / "fit.json").exists()
+
+
+@pytest.mark.mpi
+def test_in_place_stiffness_with_the_skull_equals_a_rebuilt_scene():
+    """With skull contact each evaluation grows its loads from rest: G by scaled loads still
+    equals a scene built with that G, and nothing passes the skull."""
+    skull = ["skull.gap=0.003"]
+    forward = ForwardModel(load_scene("brain", COARSE + skull))
+    forward.solve({"material.G": 2000.0})
+    forward.solve({"material.G": 3500.0})
+    reference = _settled(load_scene("brain", COARSE + skull + ["material.G=3500"]))
+    points = _surface_points(reference)[::7]
+    ours = forward.positions(points)
+    theirs = points + PointEvaluator(reference.model.mesh, points).values(reference.u)
+    shift = np.abs(theirs - points).max()
+    assert shift > 2e-3
+    assert np.abs(ours - theirs).max() < 1e-3 * shift
+    contact = forward.sim.contact
+    assert contact.report(forward.sim.u)["max_penetration_m"] <= contact.tolerance
+    forward.destroy()
+    reference.destroy()
