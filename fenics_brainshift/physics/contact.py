@@ -34,6 +34,13 @@ REACH = 40.0  # a node more than REACH rounding widths off the skull (beyond lam
 FD_STEP = 1e-7  # the central-difference step of the tangent, relative to the element size
 
 
+def _add_blocks(A: PETSc.Mat, dofs: np.ndarray, blocks: np.ndarray) -> None:
+    """A[dof, dof] += block for each node (block-local numbering), then A assembled."""
+    for dof, block in zip(dofs, blocks):
+        A.setValuesBlockedLocal([dof], [dof], block.ravel(), addv=PETSc.InsertMode.ADD_VALUES)
+    A.assemble()
+
+
 class SkullContact:
     def __init__(self, V, facets, skull, E: float, tolerance: float):
         self.V, self.skull, self.tolerance = V, skull, tolerance
@@ -108,23 +115,47 @@ class SkullContact:
         self.vector.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         return self.vector
 
-    def add_tangent(self, A: PETSc.Mat, u, scale: float = 1.0) -> None:
-        """A += scale d(-f)/du on the pressed nodes (A assembled after). A node just touching
-        is pressed with half the penalty (the rounded kink): a body resting on the skull at
-        rest then has a regular tangent."""
+    def tangent_blocks(self, u, scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+        """(block dofs (n,), blocks (n, 3, 3)): scale d(-f)/du of the pressed nodes. A node just
+        touching is pressed with half the penalty (the rounded kink): a body resting on the
+        skull at rest then has a regular tangent."""
         y, phi, _, _ = self._state(u)
         pressed = self.multipliers / self.penalty - phi >= -REACH * self._width()
-        if np.any(pressed):
-            y, lam, w = y[pressed], self.multipliers[pressed], self.weights[pressed]
-            h = FD_STEP * self.h
-            blocks = np.empty((len(y), 3, 3))
-            for j in range(3):
-                step = np.zeros(3)
-                step[j] = h
-                blocks[:, :, j] = -scale * (self._force(y + step, lam, w) - self._force(y - step, lam, w)) / (2 * h)
-            for dof, block in zip(self.nodes[pressed], blocks):
-                A.setValuesBlockedLocal([dof], [dof], block.ravel(), addv=PETSc.InsertMode.ADD_VALUES)
-        A.assemble()
+        y, lam, w = y[pressed], self.multipliers[pressed], self.weights[pressed]
+        h = FD_STEP * self.h
+        blocks = np.empty((len(y), 3, 3))
+        for j in range(3):
+            step = np.zeros(3)
+            step[j] = h
+            blocks[:, :, j] = -scale * (self._force(y + step, lam, w) - self._force(y - step, lam, w)) / (2 * h)
+        return self.nodes[pressed], blocks
+
+    def add_tangent(self, A: PETSc.Mat, u, scale: float = 1.0, blocks=None) -> None:
+        """A += scale d(-f)/du on the pressed nodes (A assembled after); ``blocks``: those of
+        tangent_blocks (or their stiffness), if already computed."""
+        dofs, blocks = self.tangent_blocks(u, scale) if blocks is None else blocks
+        _add_blocks(A, dofs, blocks)
+
+    @staticmethod
+    def stiffness(blocks) -> tuple[np.ndarray, np.ndarray]:
+        """The symmetric, positive semi-definite part of tangent blocks (dofs, blocks): the
+        contact's stiffness in a matrix that must stay SPD for a Cholesky factor (the turning
+        of the normal at a concave corner can make a block indefinite, and it is not
+        symmetric)."""
+        dofs, blocks = blocks
+        symmetric = 0.5 * (blocks + blocks.transpose(0, 2, 1))
+        values, vectors = np.linalg.eigh(symmetric)
+        return dofs, np.einsum("nij,nj,nkj->nik", vectors, np.maximum(values, 0.0), vectors)
+
+    def times(self, blocks, u) -> PETSc.Vec:
+        """The product of blocks (dofs, blocks) with the Function u, into self.vector (owned
+        entries summed over ranks, like the forces)."""
+        dofs, blocks = blocks
+        with self.vector.localForm() as local:
+            local.set(0.0)
+            local.array.reshape(-1, 3)[dofs] = np.einsum("nij,nj->ni", blocks, u.x.array.reshape(-1, 3)[dofs])
+        self.vector.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        return self.vector
 
     def _force(self, y: np.ndarray, multipliers: np.ndarray, weights: np.ndarray) -> np.ndarray:
         """Forces (n, 3) of nodes at positions y (exact distances)."""
@@ -148,6 +179,13 @@ class SkullContact:
         _, phi, _, p = self._state(u)
         local = float(np.abs(np.minimum(phi, p / self.penalty)).max(initial=0.0))
         return self.comm.allreduce(local, op=MPI.MAX)
+
+    def pressing(self, u) -> bool:
+        """Does any node press on the skull (a pressure above zero's rounding), or keep a
+        multiplier? (On every rank.)"""
+        _, phi, _, _ = self._state(u)
+        local = bool(np.any(self.multipliers > 0.0) or np.any(phi <= REACH * self._width()))
+        return self.comm.allreduce(local, op=MPI.LOR)
 
     def penetration(self, u) -> float:
         """The deepest any surface node is past the skull (m, 0 if none)."""

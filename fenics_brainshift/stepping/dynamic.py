@@ -68,9 +68,13 @@ class DynamicStepper:
         self._mass_diagonal = self.M.getDiagonal() if m.lumped else None
         self._pair = PairProduct(self.K)
         self._K_wk_of_step = -1  # K w_k is cached for the state after this many steps
-        self.solves.reset(self.A)
+        self._factor_step_matrix()
         m.load_into(self.state.t, self._F_old, self.state.u)
         self._initial_acceleration()
+
+    def _factor_step_matrix(self) -> None:
+        """The step solver's factor (or preconditioner), of the effective matrix A."""
+        self.solves.reset(self.A)
 
     def _initial_acceleration(self) -> None:
         """(M + dt/2 b K) a0 = F(0) - C v0 - K u0: the acceleration at rest, averaged over the
@@ -154,8 +158,18 @@ class DynamicStepper:
         """Advance one time step; returns the Krylov iterations of the last solve. With follower
         loading the fluid load at t_{n+1} is evaluated on x + u_{n+1}, iterated within the step."""
         self._resect()
+        its = self._linear_step((self.steps_taken + 1) * self.integrator.dt)  # not a running sum: no drift in t
+        self.steps_taken += 1
+        self._energy_check()
+        return its
+
+    def _linear_step(self, t_new: float, same_problem: bool = True, solve=None, reaction=None) -> int:
+        """The step to t_new of the linear model (the follower load by the fixed point);
+        same_problem: the last step was one too (the acceleration keeps its history); solve:
+        (rhs, x, t) -> iterations, the step solver by default; reaction: a load that depends
+        on where the body is (the skull's: stepping/lagged_contact.py), in the fixed point
+        too, settled again while it asks for another round."""
         st, ti = self.state, self.integrator
-        t_new = (self.steps_taken + 1) * ti.dt  # not a running sum: no drift in t
         w_new, w_old = ti.load_weights()
         if self._K_wk_of_step != self.steps_taken:  # w_m, w_k, K w_k not left by the last energy check
             self._rhs_vectors()
@@ -168,14 +182,27 @@ class DynamicStepper:
         follower = self.settle.follower
 
         def rhs_for_current_du():
-            if follower:  # the geometry of this iterate: x + u_n + du
+            if follower or reaction is not None:  # the geometry of this iterate: x + u_n + du
                 self._geometry.x.array[:] = st.u.x.array + self.du.x.array
             self.model.load_into(t_new, self._F, self._geometry if follower else st.u)
+            if reaction is not None:
+                reaction.add_force(self._F, self._geometry)
             base.copy(self._rhs)
             self._rhs.axpy(w_new, self._F)
+            if reaction is not None:
+                reaction.add_lagged(self._rhs, self.du)
             return self._rhs
 
-        its = self.settle(self.du, rhs_for_current_du, self.solves, t_new, scale=st.norm(st.u), same_problem=True)
+        def settle(same: bool) -> int:
+            return self.settle(self.du, rhs_for_current_du, solve or self.solves, t_new, scale=st.norm(st.u),
+                               same_problem=same, depends_on_x=reaction is not None)
+
+        its = settle(same_problem)
+        while reaction is not None:
+            self._geometry.x.array[:] = st.u.x.array + self.du.x.array
+            if not reaction.another_round(self._geometry):
+                break
+            its = settle(True)
         n = st.n_owned
         ti.update(st.u.x.array[:n], st.v.x.array[:n], st.a.x.array[:n], self.du.x.array[:n])
         for f in (st.u, st.v, st.a):
@@ -184,8 +211,6 @@ class DynamicStepper:
         self.energy.add_work(0.5 * (du.dot(self._F) + du.dot(self._F_old)))
         self._F.copy(self._F_old)  # F_{n+1} becomes F_n
         st.t = t_new
-        self.steps_taken += 1
-        self._energy_check()
         return its
 
     def restore(self, snapshot: tuple) -> None:

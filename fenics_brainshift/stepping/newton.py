@@ -22,6 +22,7 @@ from .. import compat
 from ..errors import SolverError
 from ..logs import get_logger
 from ..physics.load_tangent import add_load_tangent
+from .contact_preconditioner import ContactPreconditioner
 from .solves import Solves
 from .state import State
 
@@ -130,12 +131,15 @@ class NewtonStatic:
         self._F, self._du = self._R.duplicate(), fem.Function(V)
         self._A = None  # the tangent, assembled anew into the same matrix each iteration
         self._K0 = None  # a linear material's stiffness, in the tangent's storage
-        self._P = None  # the matrix the factor or preconditioner was built on
+        self._K = None  # K with supports: the preconditioner at rest
+        self._P = None  # an LU copy of a tangent, when GMRES failed with the factor it had
         self._stale = False  # GMRES needed many iterations with it: rebuild before the next solve
         self._fixed = fixed_dofs(model.bcs)
         self.follower = model.fluid is not None and model.fluid.follower
         self.load_tangent = load_tangent  # False: the follower load's tangent left out (a baseline)
         self.contact = contact  # a SkullContact (physics/contact.py) or None
+        self._contact_pc = ContactPreconditioner(solves, contact, lambda: self._K, self._fixed) if contact else None
+        self._blocks = None  # the contact's tangent blocks at the current iterate
         self.contact_rounds = 0  # multiplier updates of the last solve
         self.iterations = 0  # Newton iterations of the last solve
         self.history: list[float] = []  # residual norms of the last Newton solve
@@ -144,7 +148,7 @@ class NewtonStatic:
 
     def setup(self) -> None:
         """The preconditioner at rest (a factor of K, or AMG), reused by every Newton step."""
-        if self._P is None:
+        if self._K is None:
             self._preconditioner_at_rest()
 
     # -- one Newton solve -----------------------------------------------------------------------
@@ -181,24 +185,27 @@ class NewtonStatic:
         if with_load and self.follower and self.load_tangent and fluid.level == fluid.level:  # a level is known
             add_load_tangent(A, fluid.hydro, fluid.level, self.state.u, -factor * self.model.load_scale)
         if self.contact is not None:
-            self.contact.add_tangent(A, self.state.u)
+            self._blocks = self.contact.tangent_blocks(self.state.u)
+            self.contact.add_tangent(A, self.state.u, blocks=self._blocks)
         A.zeroRowsColumnsLocal(self._fixed, 1.0)
         return A
 
     def _preconditioner_at_rest(self) -> None:
-        """The factor (or AMG) of K with supports: positive definite, built once."""
-        self._P = self.model.assemble(self.model.stiffness_form(), with_bcs=True)
-        if self.contact is not None:  # nodes touching the skull at rest carry the body (K alone may be singular)
-            self.contact.add_tangent(self._P, self.state.u)
-            self._P.zeroRowsColumnsLocal(self._fixed, 1.0)
-        self.solves.reset(self._P)
+        """The factor (or AMG) of K with supports, built once; with contact, of K and the
+        stiffness of the nodes touching the skull at rest (they may carry the body: K alone
+        can be singular)."""
+        self._K = self.model.assemble(self.model.stiffness_form(), with_bcs=True)
+        if self.contact is not None:
+            self._contact_pc.rebuild(self.contact.tangent_blocks(self.state.u))
+        else:
+            self.solves.reset(self._K)
         self.solves.solver.ksp.setTolerances(max_it=MAX_KRYLOV)
 
     def adopt_preconditioner(self, K: PETSc.Mat) -> None:
         """Take over K with supports, already factored (or AMG'd) by this solver's Solves for a
         contact-free solve: the preconditioner at rest without building it again (the 5 mm
         brain's Cholesky factor takes 1.2 s). Only the Krylov method changes."""
-        self._P = K
+        self._K = K
         ksp = self.solves.solver.ksp
         options = self.solves.settings["options"]
         ksp.setType(options["ksp_type"])
@@ -208,17 +215,20 @@ class NewtonStatic:
     def _preconditioner_now(self, A: PETSc.Mat) -> None:
         """An LU factor of the current full tangent A (GMRES slowed down with the one it had)."""
         log.debug("  Newton: LU factor of the current tangent")
-        self.solves.settings = {**self.solves.settings, "kind": "lu"}
+        settings, self.solves.settings = self.solves.settings, {**self.solves.settings, "kind": "lu"}
         old, self._P = self._P, A.convert("aij", PETSc.Mat())  # a scalar copy (out=None converts A in place)
-        self.solves.reset(self._P)
-        old.destroy()
+        try:
+            self.solves.reset(self._P)
+        finally:
+            self.solves.settings = settings  # a contact rebuild factors by the scene's kind again
+        if old is not None:
+            old.destroy()
         self.solves.solver.ksp.setTolerances(max_it=MAX_KRYLOV)
         self._stale = False
 
     def _solve_step(self, factor: float, t: float, forcing: float) -> None:
         """du = -K_T^-1 R to the relative tolerance ``forcing``, by GMRES on the full tangent."""
-        self._R.scale(-1.0)
-        if self._P is None:
+        if self._K is None:
             self._preconditioner_at_rest()
         A = self._tangent_matrix(factor)
         if self._stale:
@@ -231,7 +241,12 @@ class NewtonStatic:
             self.solves.solver.ksp.setTolerances(rtol=forcing)
             du.set(0.0)
             try:
-                self._stale = self.solves(self._R, du, t) > STALE_KRYLOV
+                iterations = self.solves(self._R, du, t)
+                du.scale(-1.0)
+                if self._contact_pc is not None:  # slow: a factor with the pressed nodes, if they changed
+                    self._contact_pc.after_solve(iterations, self.solves.last_seconds, self._blocks)
+                else:
+                    self._stale = iterations > STALE_KRYLOV
                 return
             except SolverError:
                 if attempt == 1:
@@ -307,7 +322,9 @@ class NewtonStatic:
         return self.iterations
 
     def destroy(self) -> None:
-        for matrix in (self._A, self._P, self._K0):
+        for matrix in (self._A, self._P, self._K0, self._K):
             if matrix is not None:
                 matrix.destroy()
+        if self._contact_pc is not None:
+            self._contact_pc.destroy()
         self.solves.destroy()

@@ -28,24 +28,27 @@ class Settle:
         self._trial = template.duplicate()
         self.iterations = 0  # of the last call
 
-    def __call__(self, x, rhs_for_current_x, solve, t: float, scale: float, same_problem: bool) -> int:
+    def __call__(self, x, rhs_for_current_x, solve, t: float, scale: float, same_problem: bool,
+                 depends_on_x: bool = False) -> int:
         """Solve for the Function x (its values are the initial guess). ``rhs_for_current_x()``
         assembles the right-hand side for the current x; ``solve(rhs, vec, t)`` solves; scale:
         changes are measured against max(scale, |x|); same_problem: keep the acceleration's
-        history (a time step like the last). Returns the Krylov iterations of the last solve."""
+        history (a time step like the last); depends_on_x: the right-hand side depends on x
+        through more than the fluid load (the skull's reaction). Returns the Krylov iterations
+        of the last solve."""
         x_vec, trial = compat.petsc_vec(x), self._trial
         self.acceleration.reset(keep_history=same_problem)
         its, change = 0, float("nan")
         for k in range(1, self.max_iterations + 1):
             rhs = rhs_for_current_x()
-            if self.follower and k > 1 and self.fluid.reused_last:
+            if self.follower and not depends_on_x and k > 1 and self.fluid.reused_last:
                 trial.copy(x_vec)  # same load as the last solve: its answer is the fixed point
                 x.x.scatter_forward()
                 break
             set_bc(rhs, self.bcs)
             x_vec.copy(trial)  # warm start from the current iterate
             its = solve(rhs, trial, t)
-            if not self.follower:
+            if not (self.follower or depends_on_x):
                 trial.copy(x_vec)
                 x.x.scatter_forward()
                 break

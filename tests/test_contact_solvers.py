@@ -1,0 +1,94 @@
+"""How contact is solved fast (stepping/contact_preconditioner.py, stepping/lagged_contact.py):
+the stiffness put in the factor, the rent-or-buy rule for rebuilding it, and time steps of a
+linear body by the fixed point against the same steps by Newton."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.linalg
+
+from conftest import COMM
+from fenics_brainshift.physics.contact import SkullContact
+from fenics_brainshift.runner import Simulation
+from fenics_brainshift.scene import scene_from_dict
+from fenics_brainshift.stepping.contact_preconditioner import ContactPreconditioner
+from fenics_brainshift.stepping.newton_dynamic import NewtonDynamicStepper
+from test_contact import RHO, RHO_OIL, LEVEL, L, H, _block, _box_surface
+
+pytestmark = pytest.mark.mpi
+
+
+def test_the_factor_gets_the_symmetric_positive_part_of_the_contact_blocks():
+    """(S + |S|) / 2 with |S| the matrix square root of S^2, S the symmetric part: computed
+    here by scipy, independently of the eigen-decomposition in contact.py."""
+    rng = np.random.default_rng(5)
+    blocks = rng.normal(size=(6, 3, 3))
+    blocks[0] = np.outer([0, 0, 1], [0, 0, 1]) * 7.0  # a pressed node: k w n n^T, kept as it is
+    dofs, positive = SkullContact.stiffness((np.arange(6), blocks))
+    for block, result in zip(blocks, positive):
+        S = 0.5 * (block + block.T)
+        expected = 0.5 * (S + np.real(scipy.linalg.sqrtm(S @ S)))
+        np.testing.assert_allclose(result, expected, atol=1e-10)
+        assert np.linalg.eigvalsh(result).min() >= -1e-12
+    np.testing.assert_allclose(positive[0], blocks[0], atol=1e-12)
+
+
+class _Solves:
+    factors, last_factor_seconds = 1, 1.0
+
+
+class _Contact:
+    comm = COMM
+
+
+def test_a_factor_is_rebuilt_once_slow_solves_have_paid_for_it():
+    """Rent or buy: time lost beyond a fresh factor's iterations adds up until it exceeds what
+    the last factorisation took; a factor made meanwhile starts the count afresh."""
+    solves = _Solves()
+    pc = ContactPreconditioner(solves, _Contact(), lambda: None, np.zeros(0, dtype=np.int32))
+    assert not pc.pays(0.6)
+    assert pc.pays(0.6)  # 1.2 s lost > 1.0 s
+    solves.factors += 1  # someone factored
+    assert not pc.pays(0.6)
+    blocks = (np.array([4, 9], dtype=np.int32), np.zeros((2, 3, 3)))
+    assert pc.changed(blocks)  # none in the factor yet
+    pc._pressed = np.array([4, 9], dtype=np.int32)
+    assert not pc.changed(blocks)
+    assert pc.changed((np.array([4], dtype=np.int32), np.zeros((1, 3, 3))))
+
+
+@pytest.fixture
+def floor(shared_tmp):
+    """The plane z = 0 under the block, as the floor of a closed box."""
+    return _box_surface((-0.1, -0.1, 0.0), (0.15, 0.15, 0.2), shared_tmp / "floor.stl")
+
+
+def _falling_block(floor):
+    data = _block([], {"file": floor, "tolerance": 1e-6})
+    data["time"] = {"mode": "dynamic", "scheme": "generalized-alpha", "rho_inf": 0.5, "dt": 0.02, "end": 1.0}
+    data["damping"] = {"a": 20.0, "b": 0.0}
+    return Simulation(scene_from_dict(data), COMM)
+
+
+def test_steps_by_the_fixed_point_equal_newtons(floor, monkeypatch):
+    """The block, released at rest on the floor, sinks, bounces and settles: each step by the
+    lagged-contact fixed point where the pressed nodes are those in the factor, by Newton
+    where they changed; the same run by Newton alone gives the same motion (to the fixed
+    point's tolerance, 1e-4 of the displacement), and the floor the same reaction."""
+    fast = _falling_block(floor)
+    fast.setup()
+    history = []
+    while fast.t < 1.0 - 1e-9:
+        fast.step()
+        history.append(fast.probe_values()[:2].copy())
+    stepper = fast.dynamic
+    assert 0 < stepper.fixed_point_steps < stepper.steps_taken  # both kinds of step were taken
+    monkeypatch.setattr(NewtonDynamicStepper, "_fixed_point_step", lambda self, t: None)
+    newton = _falling_block(floor)
+    newton.setup()
+    for values in history:
+        newton.step()
+        np.testing.assert_allclose(values, newton.probe_values()[:2], rtol=0, atol=2e-4 * np.abs(values).max())
+    force = [sim.contact.report(sim.state.u)["force_N"][2] for sim in (fast, newton)]
+    assert force[0] == pytest.approx(force[1], rel=1e-3)
+    assert force[0] == pytest.approx(RHO * 9.81 * L * L * H - RHO_OIL * 9.81 * L * L * LEVEL, rel=2e-2)
