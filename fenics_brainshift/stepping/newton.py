@@ -139,7 +139,6 @@ class NewtonStatic:
         self.load_tangent = load_tangent  # False: the follower load's tangent left out (a baseline)
         self.contact = contact  # a SkullContact (physics/contact.py) or None
         self._contact_pc = ContactPreconditioner(solves, contact, lambda: self._K, self._fixed) if contact else None
-        self._blocks = None  # the contact's tangent blocks at the current iterate
         self.contact_rounds = 0  # multiplier updates of the last solve
         self.iterations = 0  # Newton iterations of the last solve
         self.history: list[float] = []  # residual norms of the last Newton solve
@@ -185,8 +184,7 @@ class NewtonStatic:
         if with_load and self.follower and self.load_tangent and fluid.level == fluid.level:  # a level is known
             add_load_tangent(A, fluid.hydro, fluid.level, self.state.u, -factor * self.model.load_scale)
         if self.contact is not None:
-            self._blocks = self.contact.tangent_blocks(self.state.u)
-            self.contact.add_tangent(A, self.state.u, blocks=self._blocks)
+            self.contact.add_tangent(A, self.state.u)
         A.zeroRowsColumnsLocal(self._fixed, 1.0)
         return A
 
@@ -241,12 +239,10 @@ class NewtonStatic:
             self.solves.solver.ksp.setTolerances(rtol=forcing)
             du.set(0.0)
             try:
-                iterations = self.solves(self._R, du, t)
+                # (a factor with the pressed nodes does not pay here: from rest the pressed set
+                # grows every iteration; docs/performance.md)
+                self._stale = self.solves(self._R, du, t) > STALE_KRYLOV
                 du.scale(-1.0)
-                if self._contact_pc is not None:  # slow: a factor with the pressed nodes, if they changed
-                    self._contact_pc.after_solve(iterations, self.solves.last_seconds, self._blocks)
-                else:
-                    self._stale = iterations > STALE_KRYLOV
                 return
             except SolverError:
                 if attempt == 1:
