@@ -120,7 +120,7 @@ class SkullContact:
         touching is pressed with half the penalty (the rounded kink): a body resting on the
         skull at rest then has a regular tangent."""
         y, phi, _, _ = self._state(u)
-        pressed = self.multipliers / self.penalty - phi >= -REACH * self._width()
+        pressed = self._pressed(phi)
         y, lam, w = y[pressed], self.multipliers[pressed], self.weights[pressed]
         h = FD_STEP * self.h
         blocks = np.empty((len(y), 3, 3))
@@ -129,6 +129,14 @@ class SkullContact:
             step[j] = h
             blocks[:, :, j] = -scale * (self._force(y + step, lam, w) - self._force(y - step, lam, w)) / (2 * h)
         return self.nodes[pressed], blocks
+
+    def _pressed(self, phi: np.ndarray) -> np.ndarray:
+        """Which nodes the tangent holds: within REACH rounding widths of pressing."""
+        return self.multipliers / self.penalty - phi >= -REACH * self._width()
+
+    def pressed_dofs(self, u) -> np.ndarray:
+        """The block dofs of the nodes tangent_blocks would hold at u (no finite differences)."""
+        return self.nodes[self._pressed(self._state(u)[1])]
 
     def add_tangent(self, A: PETSc.Mat, u, scale: float = 1.0, blocks=None) -> None:
         """A += scale d(-f)/du on the pressed nodes (A assembled after); ``blocks``: those of
@@ -181,10 +189,8 @@ class SkullContact:
         return self.comm.allreduce(local, op=MPI.MAX)
 
     def pressing(self, u) -> bool:
-        """Does any node press on the skull (a pressure above zero's rounding), or keep a
-        multiplier? (On every rank.)"""
-        _, phi, _, _ = self._state(u)
-        local = bool(np.any(self.multipliers > 0.0) or np.any(phi <= REACH * self._width()))
+        """Is any node pressed, as the tangent counts them (on every rank)?"""
+        local = bool(np.any(self._pressed(self._state(u)[1])))
         return self.comm.allreduce(local, op=MPI.LOR)
 
     def penetration(self, u) -> float:

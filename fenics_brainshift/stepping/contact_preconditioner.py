@@ -48,7 +48,7 @@ class ContactPreconditioner:
         contact blocks (dofs, blocks): rebuilds the factor when the time lost to slow solves
         has paid for one and the pressed set changed. Returns True if it did."""
         excess = seconds * max(0, iterations - GOOD_KRYLOV) / max(iterations, 1)
-        if not (self.pays(excess) and self.changed(blocks)):
+        if not (self.pays(excess) and self.changed(blocks[0])):
             return False
         self.rebuild(blocks)
         return True
@@ -60,9 +60,8 @@ class ContactPreconditioner:
         self._excess_seconds += excess_seconds
         return self.contact.comm.allreduce(self._excess_seconds, op=MPI.MAX) > self.solves.last_factor_seconds
 
-    def changed(self, blocks) -> bool:
-        """Are the nodes of ``blocks`` other than those in the factor (on any rank)?"""
-        dofs = blocks[0]
+    def changed(self, dofs: np.ndarray) -> bool:
+        """Are these pressed nodes (block dofs) other than those in the factor (on any rank)?"""
         before = self._pressed if self._pressed is not None else np.zeros(0, dtype=dofs.dtype)
         return self.contact.comm.allreduce(len(np.setxor1d(before, dofs)), op=MPI.SUM) > 0
 

@@ -162,7 +162,7 @@ class NewtonDynamicStepper(DynamicStepper):
             return None
         st, settle = self.state, self.settle
         w_new = self.integrator.load_weights()[0]
-        if self._contact_pc.changed(contact.tangent_blocks(st.u, w_new)):
+        if self._contact_pc.changed(contact.pressed_dofs(st.u)):
             self._fixed_point_run = False
             return None
         saved = (st.snapshot(), self.du.x.array.copy(), self._F_old.copy(), self.energy.work)
