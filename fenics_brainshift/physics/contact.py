@@ -115,13 +115,17 @@ class SkullContact:
         self.vector.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         return self.vector
 
-    def tangent_blocks(self, u, scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    def tangent_blocks(self, u, scale: float = 1.0, engaged: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """(block dofs (n,), blocks (n, 3, 3)): scale d(-f)/du of the pressed nodes. A node just
         touching is pressed with half the penalty (the rounded kink): a body resting on the
-        skull at rest then has a regular tangent."""
+        skull at rest then has a regular tangent. engaged: every node within reach as if
+        pressed well past the kink (the full penalty): for a matrix that must hold the nodes
+        about to press, not the tangent."""
         y, phi, _, _ = self._state(u)
         pressed = self._pressed(phi)
         y, lam, w = y[pressed], self.multipliers[pressed], self.weights[pressed]
+        if engaged:  # as if pressed well past the rounded kink: the full penalty
+            lam = np.maximum(lam, self.penalty * (phi[pressed] + 10.0 * self._width()))
         h = FD_STEP * self.h
         blocks = np.empty((len(y), 3, 3))
         for j in range(3):

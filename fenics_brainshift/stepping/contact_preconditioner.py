@@ -14,6 +14,11 @@ spends more than twice the better of the two policies in hindsight.
 Only the symmetric, positive part of the contact blocks goes in (physics/contact.py,
 stiffness): the factor stays a Cholesky one, as fast to apply as the contact-free
 factor, and GMRES makes up the rest (that part, and the follower load's tangent).
+
+The time steps' fixed point (lagged_contact.py) needs the matrix it solves with to hold the
+nodes pressed now, exactly; there adjust() keeps the factor and puts the nodes come or gone
+since into a low-rank update (linalg/low_rank.py: three triangular solves per node, done
+together), until more than MAX_UPDATED have: then a new factor.
 """
 from __future__ import annotations
 
@@ -23,10 +28,12 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
+from ..linalg.low_rank import LowRankUpdate
 from ..logs import get_logger
 
 log = get_logger("contact")
 GOOD_KRYLOV = 3  # GMRES iterations of a solve with a fresh factor (forcing 1e-2 .. 1e-6)
+MAX_UPDATED = 30  # nodes come or gone since the factor beyond which adjust() factors anew
 
 
 class ContactPreconditioner:
@@ -40,8 +47,12 @@ class ContactPreconditioner:
         self._factors = -1  # solves.factors when the excess was last reset
         self._excess_seconds = 0.0  # solve time beyond GOOD_KRYLOV iterations since the last factor
         self._built_at = -1  # solves.factors after the last rebuild
-        self.stiffness = None  # (dofs, blocks): the contact stiffness in the factor, if any
+        self.stiffness = None  # (dofs, blocks): the contact stiffness in the factor and its update
+        self._factored = None  # (dofs, blocks): the part of it in the factor
+        self._update: LowRankUpdate | None = None  # the nodes come or gone since
         self.rebuilds = 0
+        self.updates = 0
+        self._fixed_global: set[int] | None = None  # global scalar dofs the supports hold
 
     def after_solve(self, iterations: int, seconds: float, blocks) -> bool:
         """Called after each solve with its GMRES iterations, its time and the tangent's
@@ -73,8 +84,11 @@ class ContactPreconditioner:
             self._matrix.setLGMap(*base.getLGMap())  # (a duplicate lacks the local numbering)
         else:
             base.copy(self._matrix, PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
-        self.stiffness = self.contact.stiffness(blocks)
+        self.stiffness = self._factored = self.contact.stiffness(blocks)
         self.contact.add_tangent(self._matrix, None, blocks=self.stiffness)
+        if self._update is not None:
+            self._update.destroy()
+            self._update = None
         self._matrix.zeroRowsColumnsLocal(self.fixed, 1.0)
         solver = self.solves.solver
         operator = solver.ksp.getOperators()[0] if solver is not None else self._matrix
@@ -89,6 +103,55 @@ class ContactPreconditioner:
         log.debug("  contact: preconditioner rebuilt with %d pressed nodes (%.2f s)", len(blocks[0]),
                   self.solves.last_factor_seconds)
 
+    def adjust(self, blocks) -> None:
+        """Make the preconditioner base + the contact stiffness of ``blocks`` (the tangent's at
+        the pressed nodes now): nodes in the factor keep the blocks they were factored with,
+        nodes come or gone since join a low-rank update (linalg/low_rank.py, three triangular
+        solves per node); more than MAX_UPDATED of them: a new factor (collective)."""
+        if self._factored is None or self.solves.factors != self._built_at:
+            return self.rebuild(blocks)
+        new = self.contact.stiffness(blocks)
+        old_dofs, old_blocks = self._factored
+        added = ~np.isin(new[0], old_dofs)
+        removed = ~np.isin(old_dofs, new[0])
+        dofs = np.concatenate([new[0][added], old_dofs[removed]])
+        deltas = np.concatenate([new[1][added], -old_blocks[removed]])
+        comm = self.contact.comm
+        index_map = self.contact.V.dofmap.index_map
+        to_global = lambda local: index_map.local_to_global(np.asarray(local, dtype=np.int32))  # noqa: E731
+        if self._fixed_global is None:
+            fixed = np.asarray(self.fixed)
+            held = 3 * to_global(fixed // 3) + fixed % 3 if len(fixed) else np.zeros(0, dtype=np.int64)
+            self._fixed_global = set(np.concatenate(comm.allgather(held)).tolist())
+        nodes = np.concatenate(comm.allgather(to_global(dofs)))
+        deltas = np.concatenate(comm.allgather(deltas))
+        unique, where = np.unique(nodes, return_inverse=True)
+        if len(unique) > MAX_UPDATED:
+            return self.rebuild(blocks)
+        B = np.zeros((len(unique), 3, len(unique), 3))
+        np.add.at(B, (where, slice(None), where, slice(None)), deltas)  # the ranks' shares summed
+        scalar = (3 * unique[:, None] + np.arange(3)).ravel()
+        keep = np.array([d not in self._fixed_global for d in scalar.tolist()], dtype=bool)  # supports stay identity
+        B = B.reshape(len(scalar), len(scalar))[np.ix_(keep, keep)]
+        if self._update is None:
+            pc = self.solves.solver.ksp.getPC()
+            factor = (lambda: pc.getFactorMatrix()) if self.solves.settings["kind"] in ("cholesky", "lu") else None
+            self._update = LowRankUpdate(lambda rhs, x: pc.apply(rhs, x), self.contact.vector, factor)
+        self._update.set(scalar[keep], B)
+        kept = ~removed
+        self.stiffness = (np.concatenate([old_dofs[kept], new[0][added]]),
+                          np.concatenate([old_blocks[kept], new[1][added]]))
+        self._pressed = np.sort(new[0])
+        self.updates += 1
+
+    def solve(self, rhs: PETSc.Vec, x: PETSc.Vec, t: float) -> int:
+        """x = P^-1 rhs with P the factored matrix and its low-rank update (a Solves-like call:
+        counted, checked)."""
+        its = self.solves.by_factor(rhs, x, t)
+        if self._update is not None:
+            self._update.correct(x)
+        return its
+
     def factor_is_base(self) -> bool:
         """Is the solver's factor that of the base alone (no node pressed in it, on any rank)?"""
         local = (self._pressed is None or len(self._pressed) == 0 or self.solves.factors != self._built_at)
@@ -98,7 +161,9 @@ class ContactPreconditioner:
         """The base changed (a resection): the next rebuild starts from it afresh."""
         if self._matrix is not None:
             self._matrix.destroy()
-        self._matrix, self._pressed, self.stiffness = None, None, None
+        if self._update is not None:
+            self._update.destroy()
+        self._matrix, self._pressed, self.stiffness, self._factored, self._update = None, None, None, None, None
 
     def destroy(self) -> None:
         self.forget()
