@@ -83,6 +83,7 @@ def test_steps_by_the_fixed_point_equal_newtons(floor, monkeypatch, limit):
     if limit is not None:
         monkeypatch.setattr(newton_dynamic, "FIXED_POINT_ITERATIONS", limit)
     fast = _falling_block(floor)
+    assert "lagged load" in fast.plan.contact  # what the plan says is what runs
     fast.setup()
     history = []
     while fast.t < 1.0 - 1e-9:

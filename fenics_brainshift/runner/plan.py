@@ -130,6 +130,9 @@ def make_plan(scene: Scene, mesh) -> Plan:
         if mode == "quasi-static" and scene.material.model == "linear":
             contact = ("skipped while the contact-free answer stays clear of the skull (then exact); Newton with "
                        "contact from the first settled state that would pass it")
+        elif mode == "dynamic" and scene.material.model == "linear":
+            contact = ("the contact-free step's fixed point with the skull's reaction as a lagged load, its factor "
+                       "updated for the pressed nodes; Newton with contact where that does not settle")
         else:
             contact = "Newton with the contact forces in every " + ("step" if mode == "dynamic" else "settled state")
     return Plan(mode, reasons, period, change, fluid_load=fluid, fields=fields, stiffness_band=band, contact=contact)
