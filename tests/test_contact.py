@@ -125,6 +125,31 @@ def test_nothing_passes_a_skull_made_from_a_gap_under_a_large_load():
     assert contact["contact_from_s"] == 0.0 and contact["states_without_contact"] == 0
 
 
+def test_a_skull_from_labels_of_the_label_volume(shared_tmp):
+    """[skull] label: the boundary of the labels inside the skull, by marching cubes. A block of
+    label 1 hangs from its top face over three image voxels of CSF (label 2); 8 g would pull its
+    bottom 6 mm past the labels' floor, which lies on the face between image voxels 2 and 3:
+    z = 5 mm (image voxel i spans 2i -/+ 1 mm). With the skull its bottom rests on that plane."""
+    import nibabel as nib
+
+    if COMM.rank == 0:
+        labels = np.zeros((20, 20, 20), dtype=np.uint8)
+        labels[4:16, 4:16, 3:17] = 2
+        labels[6:14, 6:14, 6:14] = 1  # the block: 11 .. 27 mm, its bottom 6 mm over the floor
+        nib.save(nib.Nifti1Image(labels, np.diag([2.0, 2.0, 2.0, 1.0])), str(shared_tmp / "head.nii.gz"))
+    COMM.barrier()
+    data = {"mesh": {"file": str(shared_tmp / "head.nii.gz"), "labels": [1], "voxel": 0.002, "unit": "mm"},
+            "material": {"E": E, "nu": NU, "density": RHO}, "gravity": {"vector": [0.0, 0.0, -8 * 9.81]},
+            "fixed": [{"where": "z > 0.0269"}], "time": {"mode": "quasi-static"}, "solver": {"kind": "cholesky"},
+            "skull": {"label": [1, 2], "tolerance": 1e-6}, "probes": {"bottom": [0.019, 0.019, 0.011]}}
+    result = run(scene_from_dict(data), comm=COMM)
+    contact = result.summary["skull_contact"]
+    assert contact["max_penetration_m"] <= 1e-6 and contact["pressed_nodes"] > 0
+    assert 0.011 + result.probes["bottom"][2] == pytest.approx(0.005, abs=2e-6)
+    del data["skull"]
+    assert 0.011 + run(scene_from_dict(data), comm=COMM).probes["bottom"][2] < 0.004  # would pass the floor
+
+
 def test_contact_is_skipped_while_nothing_reaches_the_skull():
     """A skull 10 mm out of a block that sags a few millimetres: every settled state is solved
     without contact (the plan says so), and the answer is the contact-free one exactly."""
@@ -147,6 +172,8 @@ def test_contact_is_skipped_while_nothing_reaches_the_skull():
     ("both", {"gap": 0.001, "file": "x.stl"}, "[skull] give exactly one of file"),
     ("not a surface", {"file": "skull.nii.gz"}, "[skull] file must be a closed triangulated surface"),
     ("missing", {"file": "/nonexistent/skull.stl"}, "[skull] file not found"),
+    ("label of no volume", {"label": [1, 2]}, "[skull] label needs [mesh] file to be a label volume"),
+    ("label not a label", {"label": [1.5]}, "[skull] label must be a label value"),
 ])
 def test_bad_skull_sections_are_named(label, skull, message):
     with pytest.raises(InputError, match=message.replace("[", r"\[").replace("]", r"\]")):

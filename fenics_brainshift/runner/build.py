@@ -12,6 +12,7 @@ from dolfinx import fem
 
 from ..errors import InputError
 from ..meshing import box_mesh, gmsh_shape, read_mesh_file, voxelized_mesh
+from ..meshing.label_surface import label_surface
 from ..meshing.label_volume import labels_at
 from ..outputs.fine_surface import load_fine_surface
 from ..meshing.voxelize import VoxelizeError, read_surface
@@ -58,6 +59,8 @@ def skull_contact(scene: Scene, model):
     if spec.gap is not None:
         points, triangles = gathered_outward_surface(facets, model.comm)
         skull = RigidSkull(points, triangles, gap=spec.gap)
+    elif spec.label is not None:  # marching cubes of the labels' mask: closed by construction
+        skull = RigidSkull(*label_surface(scene.mesh.file, spec.label, scene.mesh.scale))
     else:
         try:
             points, triangles = read_surface(Path(spec.file), scene.mesh.scale)

@@ -54,6 +54,9 @@ class Scene:
             if r.label is not None and not formats.is_label_volume(self.mesh.file or ""):
                 raise InputError("[[remove]] label needs [mesh] file to be a label volume (.nii, .nii.gz, .nrrd); "
                                  "use where = \"...\" otherwise")
+        if self.skull is not None and self.skull.label is not None and not formats.is_label_volume(self.mesh.file or ""):
+            raise InputError("[skull] label needs [mesh] file to be a label volume (.nii, .nii.gz, .nrrd); give "
+                             "file = \"skull.stl\" or gap = 0.003 otherwise")
         if self.skull is not None and self.time.mode != "quasi-static" and (
                 self.time.scheme != "generalized-alpha" or self.time.rho_inf > MAX_RHO_INF_WITH_CONTACT):
             # Newmark enforcing contact at the step's end pumps energy in at every impact
