@@ -1,5 +1,6 @@
-"""The boundary of labels of a label volume as a closed triangulated surface (a skull from a
-segmentation: the labels of everything inside it, brain and CSF).
+"""The boundary of labels of a label volume as a closed triangulated surface: a skull from a
+segmentation (the labels of everything inside it, brain and CSF), and the fine surface of a
+mesh made from a label volume (outputs/fine_surface.py).
 
 Marching cubes (scikit-image) on the labels' mask at the 0.5 level, the mask padded by one
 empty voxel so that the surface closes at the image's edge; the vertices mapped through the
@@ -19,13 +20,14 @@ from ..physics.skull import outward
 
 def label_surface(path: str | Path, labels, scale: float, what: str = "[skull] label") -> tuple[np.ndarray, np.ndarray]:
     """(points (m), triangles with outward normals) of the boundary of the voxels whose label
-    is one of ``labels`` (values or segment names) in the volume at ``path``, whose unit
-    times ``scale`` is m."""
+    is one of ``labels`` (values or segment names; None: any label but 0) in the volume at
+    ``path``, whose unit times ``scale`` is m."""
     volume = read_volume(path, "[mesh] file")
-    values = label_values(volume, labels, what)
-    mask = np.isin(volume.data, values)
+    values = label_values(volume, labels, what) if labels is not None else None
+    mask = np.isin(volume.data, values) if values is not None else volume.data > 0
     if not mask.any():
-        raise InputError(f"{what}: no voxel of '{Path(path).name}' has label {', '.join(map(str, values))}; "
+        wanted = ", ".join(map(str, values)) if values is not None else "other than 0"
+        raise InputError(f"{what}: no voxel of '{Path(path).name}' has label {wanted}; "
                          f"its labels: {', '.join(map(str, np.unique(volume.data)[:20]))}")
     padded = np.pad(mask, 1).astype(np.float32)
     ijk, triangles, _, _ = marching_cubes(padded, 0.5)

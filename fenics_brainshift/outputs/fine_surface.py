@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import formats
+from ..meshing.label_surface import label_surface
 from ..meshing.voxelize import read_surface
 from .points import PointEvaluator
 
@@ -38,19 +39,6 @@ class SurfaceEmbedding(PointEvaluator):
         self.comm.barrier()
 
 
-def surface_of_label_volume(path: str | Path, scale: float, labels=None) -> tuple[np.ndarray, np.ndarray]:
-    """A marching-cubes surface (m) of a label volume, for when no surface file is given."""
-    import nibabel as nib
-    from skimage.measure import marching_cubes
-
-    image = nib.load(str(path))
-    data = np.asanyarray(image.dataobj)
-    inside = np.isin(data, labels) if labels else data > 0
-    verts, faces, _, _ = marching_cubes(np.pad(inside.astype(np.float32), 1), level=0.5)
-    A = image.affine
-    return ((verts - 1.0) @ A[:3, :3].T + A[:3, 3]) * scale, faces
-
-
 def load_fine_surface(file: str | None, surface: str | None, scale: float, labels=None):
     """The fine surface (points in m, triangles) a mesh input implies: ``surface`` if given,
     else a surface ``file`` itself, else a marching-cubes surface of a label volume ``file``;
@@ -60,5 +48,5 @@ def load_fine_surface(file: str | None, surface: str | None, scale: float, label
     if file is not None and formats.is_surface(file):
         return read_surface(Path(file), scale)
     if file is not None and formats.is_label_volume(file):
-        return surface_of_label_volume(file, scale, list(labels) if labels else None)
+        return label_surface(file, list(labels) if labels else None, scale, "[mesh] labels")
     return None
