@@ -14,7 +14,7 @@ from fenics_brainshift.physics.contact import SkullContact
 from fenics_brainshift.runner import Simulation
 from fenics_brainshift.scene import scene_from_dict
 from fenics_brainshift.stepping.contact_preconditioner import ContactPreconditioner
-from fenics_brainshift.stepping import newton_dynamic
+from fenics_brainshift.stepping import newton, newton_dynamic
 from fenics_brainshift.stepping.newton_dynamic import NewtonDynamicStepper
 from test_contact import RHO, RHO_OIL, LEVEL, L, H, _block, _box_surface
 
@@ -103,6 +103,24 @@ def test_steps_by_the_fixed_point_equal_newtons(floor, monkeypatch, limit):
     force = [sim.contact.report(sim.state.u)["force_N"][2] for sim in (fast, newton)]
     assert force[0] == pytest.approx(force[1], rel=1e-3)
     assert force[0] == pytest.approx(RHO * 9.81 * L * L * H - RHO_OIL * 9.81 * L * L * LEVEL, rel=2e-2)
+
+
+def test_a_slow_settled_solve_refactors_with_the_pressed_nodes(floor, monkeypatch):
+    """Where GMRES slows down, a linear body in contact is preconditioned by a Cholesky factor
+    of K and the pressed nodes' stiffness (no LU of the tangent): forced here on every Newton
+    step, the block on the floor settles as with a slide support (the answer of
+    test_contact.py), the floor carrying its weight less Archimedes' buoyancy."""
+    monkeypatch.setattr(newton, "STALE_KRYLOV", -1)  # every solve counts as slow
+    lu = []
+    monkeypatch.setattr(newton.NewtonStatic, "_preconditioner_now", lambda self, A: lu.append(A))
+    sim = Simulation(scene_from_dict(_block([], {"file": floor, "tolerance": 1e-6})), COMM)
+    sim.solve_to_settled(0.0)
+    assert sim.static.engaged._contact_pc.rebuilds >= 3 and not lu  # factors with the pressed nodes, never an LU
+    report = sim.static.contact.report(sim.state.u)
+    assert report["force_N"][2] == pytest.approx(RHO * 9.81 * L * L * H - RHO_OIL * 9.81 * L * L * LEVEL, rel=1e-9)
+    sliding = Simulation(scene_from_dict(_block([{"where": "z < 1e-9", "axes": "z"}], None)), COMM)
+    sliding.solve_to_settled(0.0)
+    np.testing.assert_allclose(sim.probe_values(), sliding.probe_values(), atol=2e-6)
 
 
 def _cg(A, b):

@@ -224,13 +224,26 @@ class NewtonStatic:
         self.solves.solver.ksp.setTolerances(max_it=MAX_KRYLOV)
         self._stale = False
 
+    def _refreshed_preconditioner(self, A: PETSc.Mat) -> None:
+        """GMRES slowed down: a linear body in contact gets a Cholesky factor of K and the
+        contact stiffness of the nodes pressed now (the nodes pressed since the last factor
+        are what slowed it; the factor takes less than half the LU of the whole tangent, and
+        its solves are as fast as K's: docs/performance.md); else an LU factor of the current
+        tangent (a hyperelastic body's tangent is not K's)."""
+        if self.contact is not None and not self.model.nonlinear:
+            log.debug("  Newton: a factor of K and the contact stiffness now")
+            self._contact_pc.rebuild(self.contact.tangent_blocks(self.state.u))
+            self._stale = False
+        else:
+            self._preconditioner_now(A)
+
     def _solve_step(self, factor: float, t: float, forcing: float) -> None:
         """du = -K_T^-1 R to the relative tolerance ``forcing``, by GMRES on the full tangent."""
         if self._K is None:
             self._preconditioner_at_rest()
         A = self._tangent_matrix(factor)
         if self._stale:
-            self._preconditioner_now(A)
+            self._refreshed_preconditioner(A)
         du = compat.petsc_vec(self._du)
         for attempt in range(2):
             if attempt == 1:  # GMRES did not converge: a factor of this very tangent
@@ -239,8 +252,8 @@ class NewtonStatic:
             self.solves.solver.ksp.setTolerances(rtol=forcing)
             du.set(0.0)
             try:
-                # (a factor with the pressed nodes does not pay here: from rest the pressed set
-                # grows every iteration; docs/performance.md)
+                # (a factor with the pressed nodes only once GMRES slows down: from rest the
+                # pressed set grows every iteration; docs/performance.md)
                 self._stale = self.solves(self._R, du, t) > STALE_KRYLOV
                 du.scale(-1.0)
                 return
