@@ -225,11 +225,11 @@ class NewtonStatic:
         self._stale = False
 
     def _refreshed_preconditioner(self, A: PETSc.Mat) -> None:
-        """GMRES slowed down: a linear body in contact gets a Cholesky factor of K and the
-        contact stiffness of the nodes pressed now (the nodes pressed since the last factor
-        are what slowed it; the factor takes less than half the LU of the whole tangent, and
-        its solves are as fast as K's: docs/performance.md); else an LU factor of the current
-        tangent (a hyperelastic body's tangent is not K's)."""
+        """GMRES slowed down: a linear body in contact gets a new factor (by the scene's kind:
+        Cholesky, or AMG) of K and the contact stiffness of the nodes pressed now, since the
+        nodes pressed after the last factor are what slowed it; it stays symmetric, cheaper
+        than an LU of the whole tangent (docs/performance.md). Otherwise an LU factor of the
+        current tangent (a hyperelastic body's tangent is not K's)."""
         if self.contact is not None and not self.model.nonlinear:
             log.debug("  Newton: a factor of K and the contact stiffness now")
             self._contact_pc.rebuild(self.contact.tangent_blocks(self.state.u))
