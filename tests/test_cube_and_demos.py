@@ -186,8 +186,11 @@ def test_resection_demo_with_skull_serial_and_mpi(tmp_path):
         assert 0 <= contact["max_penetration_m"] <= contact["tolerance_m"] and contact["pressed_nodes"] > 20
         net_weight = -(s["gravity_force_N"][1] + s["fluid_force_N"][1])  # along -y, N
         assert 0.2 * net_weight < contact["force_N"][1] < net_weight  # the skull pushes up (+y)
+    # each step with contact settles to 1e-5 of |u|, and over 18 of them one and two ranks stop
+    # at different iterates; two runs on two ranks alone differ by up to 8e-6 of it (the
+    # partition and MUMPS's parallel factorisation are not repeatable bit for bit)
     a, b = (np.array(s["probes"]["cavity_roof"]) for s in (one, two))
-    assert np.abs(a - b).max() <= 1e-5 * np.abs(a).max()
+    assert np.abs(a - b).max() <= 5e-5 * np.abs(a).max()
 
 
 def test_hyperelastic_demo_serial_and_mpi(tmp_path):

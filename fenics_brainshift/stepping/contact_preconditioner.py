@@ -6,10 +6,12 @@ matrix), every pressed node is a direction GMRES has to find by itself: with a h
 pressed nodes a solve takes 6-15 iterations instead of 2-3, each a triangular solve. The
 pressed set changes slowly (over Newton iterations, over time steps), so a factor that
 includes it stays good for many solves. When to build a new one is a rent-or-buy choice: the
-time the solves spend beyond what a fresh factor would need (GOOD_KRYLOV iterations) is
-added up, and once it exceeds what the last factorisation took, the factor is rebuilt
-(provided the pressed set has changed since; else a new factor would not help). That never
-spends more than twice the better of the two policies in hindsight.
+Krylov iterations the solves spend beyond what a fresh factor would need (GOOD_KRYLOV) are
+added up, and once they exceed what a factorisation costs (FACTOR_COST_KRYLOV iterations),
+the factor is rebuilt (provided the pressed set has changed since; else a new factor would
+not help). That never spends more than twice the better of the two policies in hindsight.
+The price is counted in iterations, not measured in seconds: a decision taken on timings
+differs from run to run, and so would the answer (within the solver's tolerance).
 
 Only the symmetric, positive part of the contact blocks goes in (physics/contact.py,
 stiffness): the factor stays a Cholesky one, as fast to apply as the contact-free
@@ -33,6 +35,7 @@ from ..logs import get_logger
 
 log = get_logger("contact")
 GOOD_KRYLOV = 3  # GMRES iterations of a solve with a fresh factor (forcing 1e-2 .. 1e-6)
+FACTOR_COST_KRYLOV = 50  # a factorisation's price in iterations (each a triangular solve and a product)
 MAX_UPDATED = 30  # nodes come or gone since the factor beyond which adjust() factors anew
 
 
@@ -45,7 +48,7 @@ class ContactPreconditioner:
         self._matrix: PETSc.Mat | None = None  # the base plus contact blocks, factored now
         self._pressed: np.ndarray | None = None  # the block dofs pressed at the last build
         self._factors = -1  # solves.factors when the excess was last reset
-        self._excess_seconds = 0.0  # solve time beyond GOOD_KRYLOV iterations since the last factor
+        self._excess = 0  # Krylov iterations beyond GOOD_KRYLOV a solve since the last factor
         self._built_at = -1  # solves.factors after the last rebuild
         self.stiffness = None  # (dofs, blocks): the contact stiffness in the factor and its update
         self._factored = None  # (dofs, blocks): the part of it in the factor
@@ -54,22 +57,23 @@ class ContactPreconditioner:
         self.updates = 0
         self._fixed_global: set[int] | None = None  # global scalar dofs the supports hold
 
-    def after_solve(self, iterations: int, seconds: float, blocks) -> bool:
-        """Called after each solve with its GMRES iterations, its time and the tangent's
-        contact blocks (dofs, blocks): rebuilds the factor when the time lost to slow solves
-        has paid for one and the pressed set changed. Returns True if it did."""
-        excess = seconds * max(0, iterations - GOOD_KRYLOV) / max(iterations, 1)
+    def after_solve(self, iterations: int, blocks) -> bool:
+        """Called after each solve with its GMRES iterations and the tangent's contact blocks
+        (dofs, blocks): rebuilds the factor when the iterations lost to slow solves have paid
+        for one and the pressed set changed. Returns True if it did."""
+        excess = max(0, iterations - GOOD_KRYLOV)
         if not (self.pays(excess) and self.changed(blocks[0])):
             return False
         self.rebuild(blocks)
         return True
 
-    def pays(self, excess_seconds: float) -> bool:
-        """Add time lost to slow solves since the last factor; has it paid for a new one?"""
+    def pays(self, excess_iterations: int) -> bool:
+        """Add iterations lost to slow solves since the last factor; have they paid for a new
+        one? (The same on every rank: GMRES iterates collectively.)"""
         if self._factors != self.solves.factors:  # a factor made since (here or by the owner)
-            self._factors, self._excess_seconds = self.solves.factors, 0.0
-        self._excess_seconds += excess_seconds
-        return self.contact.comm.allreduce(self._excess_seconds, op=MPI.MAX) > self.solves.last_factor_seconds
+            self._factors, self._excess = self.solves.factors, 0
+        self._excess += excess_iterations
+        return self._excess > FACTOR_COST_KRYLOV
 
     def changed(self, dofs: np.ndarray) -> bool:
         """Are these pressed nodes (block dofs) other than those in the factor (on any rank)?"""

@@ -282,7 +282,7 @@ class NewtonDynamicStepper(DynamicStepper):
             iterations = self.solves(self._R, update, t_new)
             update.scale(-1.0)
             if self._contact_pc is not None:  # slow: a factor with the pressed nodes, if they changed
-                self._contact_pc.after_solve(iterations, self.solves.last_seconds, self._blocks)
+                self._contact_pc.after_solve(iterations, self._blocks)
 
         def newton() -> bool:
             converged, self.newton_history = newton_iterate(
