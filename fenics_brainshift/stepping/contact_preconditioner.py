@@ -19,8 +19,9 @@ factor, and GMRES makes up the rest (that part, and the follower load's tangent)
 
 The time steps' fixed point (lagged_contact.py) needs the matrix it solves with to hold the
 nodes pressed now, exactly; there adjust() keeps the factor and puts the nodes come or gone
-since into a low-rank update (linalg/low_rank.py: three triangular solves per node, done
-together), until more than MAX_UPDATED have: then a new factor.
+since, or whose block has changed, into a low-rank update (linalg/low_rank.py: three
+triangular solves per node, done together), until more than MAX_UPDATED have: then a new
+factor.
 """
 from __future__ import annotations
 
@@ -36,7 +37,9 @@ from ..logs import get_logger
 log = get_logger("contact")
 GOOD_KRYLOV = 3  # GMRES iterations of a solve with a fresh factor (forcing 1e-2 .. 1e-6)
 FACTOR_COST_KRYLOV = 50  # a factorisation's price in iterations (each a triangular solve and a product)
-MAX_UPDATED = 30  # nodes come or gone since the factor beyond which adjust() factors anew
+MAX_UPDATED = 100  # nodes come, gone or changed since the factor beyond which adjust() factors anew
+DRIFT = 0.3  # a factored node whose block has changed by more than this (relative) is updated too
+# (both chosen on the 5 mm drain and the resection demo with the skull: docs/performance.md)
 
 
 class ContactPreconditioner:
@@ -55,6 +58,7 @@ class ContactPreconditioner:
         self._update: LowRankUpdate | None = None  # the nodes come or gone since
         self.rebuilds = 0
         self.updates = 0
+        self.refreshed = 0  # factored nodes whose block was updated for having changed (on this rank)
         self._fixed_global: set[int] | None = None  # global scalar dofs the supports hold
 
     def after_solve(self, iterations: int, blocks) -> bool:
@@ -109,17 +113,26 @@ class ContactPreconditioner:
 
     def adjust(self, blocks) -> None:
         """Make the preconditioner base + the contact stiffness of ``blocks`` (the tangent's at
-        the pressed nodes now): nodes in the factor keep the blocks they were factored with,
-        nodes come or gone since join a low-rank update (linalg/low_rank.py, three triangular
-        solves per node); more than MAX_UPDATED of them: a new factor (collective)."""
+        the pressed nodes now): nodes come or gone since, and nodes in the factor whose block
+        has changed by more than DRIFT of it (a node factored when barely within reach, or
+        whose normal has turned as it slid), join a low-rank update (linalg/low_rank.py, three
+        triangular solves per node); the other nodes in the factor keep the blocks they were
+        factored with. More than MAX_UPDATED nodes in the update: a new factor (collective).
+        A stale block costs the fixed point many iterations: the penalty is stiffer than the
+        tissue (docs/performance.md)."""
         if self._factored is None or self.solves.factors != self._built_at:
             return self.rebuild(blocks)
         new = self.contact.stiffness(blocks)
         old_dofs, old_blocks = self._factored
         added = ~np.isin(new[0], old_dofs)
         removed = ~np.isin(old_dofs, new[0])
-        dofs = np.concatenate([new[0][added], old_dofs[removed]])
-        deltas = np.concatenate([new[1][added], -old_blocks[removed]])
+        kept = ~removed
+        order = np.argsort(new[0])
+        now = new[1][order[np.searchsorted(new[0][order], old_dofs[kept])]]  # the kept nodes' blocks today
+        was = old_blocks[kept]
+        drifted = np.linalg.norm(now - was, axis=(1, 2)) > DRIFT * np.linalg.norm(was, axis=(1, 2))
+        dofs = np.concatenate([new[0][added], old_dofs[removed], old_dofs[kept][drifted]])
+        deltas = np.concatenate([new[1][added], -old_blocks[removed], (now - was)[drifted]])
         comm = self.contact.comm
         index_map = self.contact.V.dofmap.index_map
         to_global = lambda local: index_map.local_to_global(np.asarray(local, dtype=np.int32))  # noqa: E731
@@ -142,11 +155,11 @@ class ContactPreconditioner:
             factor = (lambda: pc.getFactorMatrix()) if self.solves.settings["kind"] in ("cholesky", "lu") else None
             self._update = LowRankUpdate(lambda rhs, x: pc.apply(rhs, x), self.contact.vector, factor)
         self._update.set(scalar[keep], B)
-        kept = ~removed
         self.stiffness = (np.concatenate([old_dofs[kept], new[0][added]]),
-                          np.concatenate([old_blocks[kept], new[1][added]]))
+                          np.concatenate([np.where(drifted[:, None, None], now, was), new[1][added]]))
         self._pressed = np.sort(new[0])
         self.updates += 1
+        self.refreshed += int(drifted.sum())
 
     def solve(self, rhs: PETSc.Vec, x: PETSc.Vec, t: float) -> int:
         """x = P^-1 rhs with P the factored matrix and its low-rank update (a Solves-like call:
