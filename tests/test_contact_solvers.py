@@ -46,7 +46,9 @@ class _Contact:
 
 def test_a_factor_is_rebuilt_once_slow_solves_have_paid_for_it():
     """Rent or buy: iterations lost beyond a fresh factor's add up until they exceed a
-    factorisation's price; a factor made meanwhile starts the count afresh."""
+    factorisation's price; a factor made meanwhile starts the count afresh. No timings go in
+    (the stand-in solver has none): a decision on seconds would differ from run to run, and
+    the answer with it."""
     solves = _Solves()
     pc = ContactPreconditioner(solves, _Contact(), lambda: None, np.zeros(0, dtype=np.int32))
     price = contact_preconditioner.FACTOR_COST_KRYLOV
@@ -104,28 +106,6 @@ def test_steps_by_the_fixed_point_equal_newtons(floor, monkeypatch, limit):
     force = [sim.contact.report(sim.state.u)["force_N"][2] for sim in (fast, newton)]
     assert force[0] == pytest.approx(force[1], rel=1e-3)
     assert force[0] == pytest.approx(RHO * 9.81 * L * L * H - RHO_OIL * 9.81 * L * L * LEVEL, rel=2e-2)
-
-
-def test_a_run_with_rebuilt_factors_repeats_exactly(floor, monkeypatch):
-    """Newton's steps rebuild their factor by the rent-or-buy rule (made cheap here, so that
-    it does); the rule counts iterations, not seconds, so the same run twice gives the same
-    answer bit for bit (a rule on timings did not: 5e-6 apart on the resection demo)."""
-    monkeypatch.setattr(NewtonDynamicStepper, "_fixed_point_step", lambda self, t: None)
-    monkeypatch.setattr(contact_preconditioner, "FACTOR_COST_KRYLOV", 2)
-    runs = []
-    for _ in range(2):
-        sim = _falling_block(floor)
-        sim.setup()
-        while sim.t < 0.5 - 1e-9:
-            sim.step()
-        runs.append((sim.probe_values()[:2].copy(), sim.dynamic._contact_pc.rebuilds, sim.solves.count))
-    (first, rebuilds, solves), again = runs
-    assert rebuilds > 1  # the rule acted (the first build is at the start)
-    if COMM.size == 1:
-        assert (rebuilds, solves) == again[1:]
-        assert np.array_equal(first, again[0])
-    else:  # two builds may be partitioned differently, and MUMPS is not repeatable bit for bit
-        assert np.abs(first - again[0]).max() <= 1e-6 * np.abs(first).max()
 
 
 def test_a_slow_settled_solve_refactors_with_the_pressed_nodes(floor, monkeypatch):
