@@ -125,6 +125,23 @@ def test_nothing_passes_a_skull_made_from_a_gap_under_a_large_load():
     assert contact["contact_from_s"] == 0.0 and contact["states_without_contact"] == 0
 
 
+def test_the_summary_counts_the_multiplier_updates_of_every_settled_state(monkeypatch):
+    """Two settled states pressed on the skull (the buoyancy falls between them), to a tight
+    tolerance: summary.json's multiplier_updates is the run's total, counted here apart."""
+    from fenics_brainshift.physics.contact import SkullContact
+
+    calls = []
+    update = SkullContact.update_multipliers
+    monkeypatch.setattr(SkullContact, "update_multipliers", lambda self, u: (calls.append(1), update(self, u)))
+    data = _block([], {"gap": 0.001, "tolerance": 1e-7}, g=50 * 9.81)
+    data["fixed"] = [{"where": f"z > {H} - 1e-9"}]
+    data["fluid"]["level"] = [[0.0, 0.015], [1.0, 0.005]]
+    result = run(scene_from_dict(data), comm=COMM)
+    contact = result.summary["skull_contact"]
+    assert contact["max_penetration_m"] <= 1e-7 and contact["contact_from_s"] == 0.0
+    assert contact["multiplier_updates"] == len(calls) >= 2
+
+
 def test_a_skull_from_labels_of_the_label_volume(shared_tmp):
     """[skull] label: the boundary of the labels inside the skull, by marching cubes. A block of
     label 1 hangs from its top face over three image voxels of CSF (label 2); 8 g would pull its

@@ -139,7 +139,7 @@ class NewtonStatic:
         self.load_tangent = load_tangent  # False: the follower load's tangent left out (a baseline)
         self.contact = contact  # a SkullContact (physics/contact.py) or None
         self._contact_pc = ContactPreconditioner(solves, contact, lambda: self._K, self._fixed) if contact else None
-        self.contact_rounds = 0  # multiplier updates of the last solve
+        self.contact_rounds = 0  # multiplier updates over the run (as the time steppers count them)
         self.iterations = 0  # Newton iterations of the last solve
         self.history: list[float] = []  # residual norms of the last Newton solve
         self.cuts = 0  # load steps halved, over the run
@@ -294,14 +294,15 @@ class NewtonStatic:
         solve until the deepest node is within the tolerance. Returns the Newton iterations
         of the last load step."""
         iterations = self._solve_loads(t)
-        self.contact_rounds = 0
+        rounds = 0
         while self.contact is not None and self.contact.violation(self.state.u) > self.contact.tolerance:
-            if self.contact_rounds == MAX_CONTACT_ROUNDS:
+            if rounds == MAX_CONTACT_ROUNDS:
                 raise SolverError(f"skull contact at t = {t:g} s: the contact conditions are still off by "
                                   f"{self.contact.violation(self.state.u) * 1e3:.3g} mm after "
                                   f"{MAX_CONTACT_ROUNDS} multiplier updates; raise [skull] tolerance or check "
                                   f"that the loads can be carried by the skull")
             self.contact.update_multipliers(self.state.u)
+            rounds += 1
             self.contact_rounds += 1
             iterations = self._solve_loads(t)
         return iterations
