@@ -12,6 +12,7 @@ import pytest
 from conftest import ROOT, column_dict, subprocess_env
 from fenics_brainshift.data import MESHES
 from fenics_brainshift.cli import main
+from fenics_brainshift.errors import InputError
 from fenics_brainshift.scene.predicates import PredicateError, parse_predicate
 
 
@@ -198,6 +199,28 @@ def test_not_toml_and_missing_scene(tmp_path, capsys):
     assert "not valid TOML" in capsys.readouterr().err
     assert main(["run", str(tmp_path / "none.toml")]) == 2
     assert "not found" in capsys.readouterr().err
+
+
+def test_files_in_overrides_are_relative_to_the_current_directory(tmp_path, monkeypatch):
+    """A file typed after --set is found where it was typed; one in a scene file next to it."""
+    from fenics_brainshift import load_scene
+
+    here, there = tmp_path / "here", tmp_path / "there"
+    here.mkdir()
+    there.mkdir()
+    for folder in (here, there):
+        (folder / "skull.stl").write_text("solid s\nendsolid s\n")  # only its existence is checked here
+    data = column_dict(4)
+    write_scene(there / "scene.toml", {**data, "time": {**data["time"], "mode": "quasi-static"},
+                                       "skull": {"file": "skull.stl"}})
+    monkeypatch.chdir(here)
+    assert load_scene(there / "scene.toml").skull.file == str(there / "skull.stl")
+    assert load_scene(there / "scene.toml", ["skull.file=skull.stl"]).skull.file == str(here / "skull.stl")
+    bundled = ["time.mode=quasi-static", "skull.file=skull.stl"]
+    assert load_scene("cube", bundled).skull.file == str(here / "skull.stl")
+    (here / "skull.stl").unlink()
+    with pytest.raises(InputError, match=f"skull. file not found: {here / 'skull.stl'}"):
+        load_scene("cube", bundled)
 
 
 def test_command_line_error_has_no_traceback(tmp_path, serial_only):

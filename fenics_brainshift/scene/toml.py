@@ -83,6 +83,10 @@ def scene_from_dict(data: dict, base: Path | None = None) -> Scene:
     return Scene(**kwargs)
 
 
+# keys naming a file: in a scene file relative to its folder, in an override to the current one
+FILE_KEYS = ("mesh.file", "mesh.surface", "skull.file", "probes.markups")
+
+
 def apply_override(data: dict, assignment: str) -> None:
     """Apply ``section.key=value`` (``fixed.0.where=...`` indexes arrays) to parsed TOML.
 
@@ -95,6 +99,8 @@ def apply_override(data: dict, assignment: str) -> None:
         value = tomllib.loads(f"v = {text.strip()}")["v"]
     except tomllib.TOMLDecodeError:
         value = text.strip()
+    if key.strip() in FILE_KEYS and isinstance(value, str):
+        value = str(Path(value).resolve())  # typed in a shell: relative to where it was typed
     node: Any = data
     parts = key.strip().split(".")
     for i, part in enumerate(parts):
