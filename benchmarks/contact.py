@@ -2,7 +2,10 @@
 
 Settled state after the drain (quasi-static, follower CSF load, from rest): without contact
 by the default fixed point and by Newton (the solver contact uses), with a skull 3 mm out
-(`skull.gap`) and the occipital pin, and with the skull and the brain-stem support alone.
+(`skull.gap`) and the occipital pin, with the skull and the brain-stem support alone, and the
+first skull case again handed the multipliers it settled with (what Newton costs with no
+multiplier update left); how deep any surface node's straight path from rest goes past the
+skull.
 Then the drain by time steps (generalized-alpha, rho_inf = 0.5, as contact requires), with
 and without the skull: the whole drain's time, the median step of its first STEPS steps
 (before the brain reaches the skull) and of its last STEPS (pressed on it). Counts: linear
@@ -40,6 +43,7 @@ DT = 0.2  # the demo's time step
 SETTLED = [("no skull, fixed point", [], "both", False), ("no skull, Newton", [], "both", True),
            ("skull 3 mm", ["skull.gap=0.003"], "both", False), ("skull 3 mm", ["skull.gap=0.003"], "brain stem", False)]
 DYNAMIC = [("no skull", []), ("skull 3 mm", ["skull.gap=0.003"])]
+EXACT_MULTIPLIERS = ("given",)  # the skull case again, from rest, given the multipliers it settled with
 
 
 def _scene(voxel: float, extra: list[str], supports: str, mode: str):
@@ -49,7 +53,19 @@ def _scene(voxel: float, extra: list[str], supports: str, mode: str):
     return scene
 
 
-def settled(voxel: float, label: str, extra: list[str], supports: str, newton: bool) -> dict:
+def deepest_along_paths(sim, samples: int = 61) -> float:
+    """How far past the skull (m) the straight path from rest of any surface node goes, at
+    ``samples`` points along it: a node that passed through a thin wall of the skull shows
+    here, not in the penetration at its end."""
+    contact = sim.contact
+    u = sim.state.u.x.array.reshape(-1, 3)[contact.nodes]
+    phi = [contact.skull.phi(contact.X + s * u)[0].min(initial=np.inf) for s in np.linspace(0.0, 1.0, samples)]
+    return max(0.0, -min(phi))
+
+
+def settled(voxel: float, label: str, extra: list[str], supports: str, newton: bool, multipliers=None) -> dict:
+    """One settled state from rest; ``multipliers``: the contact's, set before (the final ones
+    of an earlier run: what Newton costs when no multiplier update is left to do)."""
     scene = _scene(voxel, extra, supports, "quasi-static")
     t0 = time.perf_counter()
     sim = Simulation(scene, MPI.COMM_SELF)
@@ -58,18 +74,28 @@ def settled(voxel: float, label: str, extra: list[str], supports: str, newton: b
     sim.setup()
     if newton:
         sim.static.setup()
+    if multipliers is not None:
+        sim.contact.multipliers[:] = multipliers
+    free_solves = []  # solves of the contact-free answer that shows whether the skull is reached
+    free = getattr(sim.static, "free", None)
+    if free is not None:
+        solve_free = free.solve
+        free.solve = lambda t: (solve_free(t), free_solves.append(sim.solves.count))[0]
     setup = time.perf_counter() - t0
     t0 = time.perf_counter()
     sim.solve_to_settled(10.0)
     solve = time.perf_counter() - t0
     report = sim.contact.report(sim.state.u) if sim.contact is not None else {}
     row = {"voxel_mm": voxel * 1e3, "case": label, "supports": supports, "setup_s": round(setup, 3),
-           "final_shift_s": round(solve, 3), "linear_solves": sim.solves.count, "factorisations": sim.solves.factors,
+           "final_shift_s": round(solve, 3), "linear_solves": sim.solves.count,
+           "contact_free_solves": free_solves[-1] if free_solves else "", "factorisations": sim.solves.factors,
            "multiplier_updates": getattr(sim.static, "contact_rounds", ""),
            "pressed_nodes": report.get("pressed_nodes", ""), "distance_queries": report.get("distance_queries", ""),
            "max_penetration_um": round(report["max_penetration_m"] * 1e6, 2) if report else "",
+           "path_depth_um": round(deepest_along_paths(sim) * 1e6, 2) if report else "",
            "max_shift_mm": round(sim.state.max_displacement() * 1e3, 3),
-           "frontal_pole_mm": round(float(np.linalg.norm(sim.probe_values()[0])) * 1e3, 3)}
+           "frontal_pole_mm": round(float(np.linalg.norm(sim.probe_values()[0])) * 1e3, 3),
+           "multipliers": sim.contact.multipliers.copy() if sim.contact is not None else None}
     sim.destroy()
     return row
 
@@ -148,15 +174,22 @@ def main(argv=None) -> None:
         cols += columns(voxel)
         print(cols[-1], flush=True)
         settled(voxel, *SETTLED[2])  # compile the forms once, outside the timings
-        for case in SETTLED:
-            runs = [settled(voxel, *case) for _ in range(args.repeat)]
+        for case in SETTLED + [EXACT_MULTIPLIERS]:
+            given = {}
+            if case is EXACT_MULTIPLIERS:  # the multipliers the skull case (both supports) settled with
+                case, given = SETTLED[2], {"multipliers": rows[-len(SETTLED) + 2]["multipliers"]}
+            runs = [settled(voxel, *case, **given) for _ in range(args.repeat)]
             row = {**runs[-1], "final_shift_s": statistics.median(r["final_shift_s"] for r in runs),
                    "setup_s": statistics.median(r["setup_s"] for r in runs)}
+            if given:
+                row["case"] += ", final multipliers given"
             rows.append(row)
-            print(row, flush=True)
+            print({k: v for k, v in row.items() if k != "multipliers"}, flush=True)
         for case in DYNAMIC:
             steps.append(stepping(voxel, *case))
             print(steps[-1], flush=True)
+    for row in rows:
+        row.pop("multipliers")
     out = Path(args.out)
     for table, suffix in ((rows, ""), (steps, "_drain"), (cols, "_columns")):
         with open(out.parent / f"{out.name}{suffix}.csv", "w", newline="") as f:
@@ -167,14 +200,20 @@ def main(argv=None) -> None:
              f"{machine_line()}; DOLFINx {DOLFINX_VERSION}; one rank; `python benchmarks/contact.py`; settled "
              f"states: median of {args.repeat} runs.\n",
              "## The settled state after the drain (from rest, follower CSF load)\n",
-             "| voxel (mm) | case | supports | setup (s) | final shift (s) | solves | factorisations | multiplier "
-             "updates | pressed nodes | distance queries | penetration (um) | largest shift (mm) | frontal pole (mm) |",
-             "|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+             "Solves: all linear solves; of them, those of the contact-free answer solved first (it shows whether "
+             "the skull is reached; the rest are Newton's iterations with contact). Path depth: the deepest any "
+             "surface node's straight path from rest goes past the skull (61 points along it; a node through a thin "
+             "wall of the skull would show here, not in the penetration at its end).\n",
+             "| voxel (mm) | case | supports | setup (s) | final shift (s) | solves | of them contact-free | "
+             "factorisations | multiplier updates | pressed nodes | distance queries | penetration (um) | path depth "
+             "(um) | largest shift (mm) | frontal pole (mm) |",
+             "|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
         lines.append(f"| {r['voxel_mm']:g} | {r['case']} | {r['supports']} | {r['setup_s']:.2f} | "
-                     f"{r['final_shift_s']:.2f} | {r['linear_solves']} | {r['factorisations']} | "
-                     f"{r['multiplier_updates']} | {r['pressed_nodes']} | {r['distance_queries']} | "
-                     f"{r['max_penetration_um']} | {r['max_shift_mm']:.2f} | {r['frontal_pole_mm']:.2f} |")
+                     f"{r['final_shift_s']:.2f} | {r['linear_solves']} | {r['contact_free_solves']} | "
+                     f"{r['factorisations']} | {r['multiplier_updates']} | {r['pressed_nodes']} | "
+                     f"{r['distance_queries']} | {r['max_penetration_um']} | {r['path_depth_um']} | "
+                     f"{r['max_shift_mm']:.2f} | {r['frontal_pole_mm']:.2f} |")
     lines += ["\n## The drain by time steps (generalized-alpha, rho_inf = 0.5)\n",
               f"{DRAIN} steps of dt = {DT} s to the end of the drain; both supports. Step times: the median of the "
               f"first {STEPS} steps (the brain not yet on the skull) and of the last {STEPS} (pressed on it). Solves "
