@@ -68,19 +68,46 @@ def dofmap_array(V) -> np.ndarray:
 
 
 def tetra_domain():
-    """The ufl.Mesh of an affine tetrahedral mesh in 3-D."""
+    """The ufl.Mesh of an affine tetrahedral mesh in 3-D (equispaced nodes: see settled_mesh)."""
     if MODERN:
         import basix.ufl
 
         return ufl.Mesh(basix.ufl.element("Lagrange", "tetrahedron", 1, shape=(3,)))
-    return ufl.Mesh(ufl.VectorElement("Lagrange", ufl.tetrahedron, 1))
+    scalar = ufl.FiniteElement("Lagrange", ufl.tetrahedron, 1, variant="equispaced")
+    return ufl.Mesh(ufl.VectorElement(scalar))
+
+
+def settled_mesh(mesh):
+    """The mesh with its coordinate element's Lagrange variant given once, here.
+
+    Debian 12's FFCx 0.5 gives a coordinate element without a variant the variant
+    "equispaced" *in place* when it compiles a form that misses the JIT cache. UFL Arguments
+    fix their hash when made but compare by the current state, so Arguments made before such
+    a compile and after it compare equal, hash differently, and a form mixing them fails
+    ("Found different Arguments with same number and part") - on a cold cache only. Every
+    mesh the package builds or reads passes through here, so no compile changes it later.
+    (basix.ufl elements, DOLFINx 0.8+, carry their variant: nothing to do.)"""
+    domain = mesh.ufl_domain()
+    element = domain.ufl_coordinate_element()
+    sub = getattr(element, "_sub_element", None)
+    if sub is not None and getattr(sub, "variant", lambda: "")() is None:
+        scalar = ufl.FiniteElement(sub.family(), sub.cell(), sub.degree(), sub.quadrature_scheme(),
+                                   variant="equispaced")
+        domain._ufl_coordinate_element = ufl.VectorElement(scalar, dim=element.value_shape()[0])
+    return mesh
 
 
 def create_mesh(comm, cells: np.ndarray, points: np.ndarray):
     """Distributed mesh from cells/points given on some ranks (others pass empty arrays)."""
     cells = np.ascontiguousarray(cells, dtype=np.int64)
     points = np.ascontiguousarray(points, dtype=np.float64)
-    return dolfinx.mesh.create_mesh(comm, cells, points, tetra_domain())
+    return settled_mesh(dolfinx.mesh.create_mesh(comm, cells, points, tetra_domain()))
+
+
+def read_xdmf_mesh(comm, path, name: str = "mesh"):
+    """A mesh (and nothing else) from a DOLFINx XDMF file."""
+    with dolfinx.io.XDMFFile(comm, str(path), "r") as f:
+        return settled_mesh(f.read_mesh(name=name))
 
 
 def gmsh_model_to_mesh(model, comm, rank: int = 0):
@@ -88,7 +115,7 @@ def gmsh_model_to_mesh(model, comm, rank: int = 0):
     import dolfinx.io.gmshio as gmshio
 
     out = gmshio.model_to_mesh(model, comm, rank, gdim=3)
-    return out[0], out[1], out[2]
+    return settled_mesh(out[0]), out[1], out[2]
 
 
 def interpolation_points(V) -> np.ndarray:

@@ -273,3 +273,52 @@ def test_a_time_step_newton_cannot_solve_is_cut_in_halves():
     assert np.abs(cut).max() > 1e-3  # a column sagging millimetres
     np.testing.assert_allclose(cut, halves[1::2], atol=1e-7 * np.abs(halves).max())
     assert work_cut == pytest.approx(work_halves, rel=1e-6)
+
+
+_TWO_STEPPERS = """
+import sys
+sys.path.insert(0, {tests!r})
+from mpi4py import MPI
+from conftest import column_dict
+from fenics_brainshift.runner import Simulation
+from fenics_brainshift.scene import scene_from_dict
+for layers in (3, 4):  # two steppers in one process, each compiling its forms afresh
+    data = column_dict(layers, material={{"E": 3000.0, "nu": 0.3, "density": 1000.0, "model": "neo-hookean"}},
+                       time={{"mode": "dynamic", "dt": 0.01, "end": 0.02}})
+    sim = Simulation(scene_from_dict(data), MPI.COMM_WORLD)
+    sim.setup()
+    sim.step()
+    print("top", layers, sim.probe_values()[0, 2])
+"""
+
+
+def test_neo_hookean_time_steps_on_an_empty_form_cache(tmp_path, serial_only):
+    """Debian 12's FFCx rewrote the mesh's coordinate element when it compiled a form missing
+    from the cache; Arguments made before and after then hashed differently and Newton's step
+    form failed ("Found different Arguments with same number and part") - on a cold cache only,
+    so the steppers are built in a process whose cache is new."""
+    import subprocess
+    import sys
+
+    from conftest import ROOT, subprocess_env
+
+    env = {**subprocess_env(), "XDG_CACHE_HOME": str(tmp_path / "cache")}
+    code = _TWO_STEPPERS.format(tests=str(ROOT / "tests"))
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert proc.stdout.count("top") == 2
+    assert list((tmp_path / "cache").rglob("*.so")), "nothing was compiled: the test did not test"
+
+
+def test_a_compile_leaves_the_mesh_coordinate_element_as_it_was():
+    """Every mesh the package makes carries its coordinate element's variant from the start,
+    so an Argument made after a compile is the same (equal and same hash) as one made before."""
+    mesh = mesh_from_spec(MeshSpec(shape="box", size=(1.0, 1.0, 1.0), cells=(1, 1, 1)), COMM)
+    V = compat.vector_space(mesh, 1)
+    before = ufl.TestFunction(V)
+    element_before = repr(mesh.ufl_domain().ufl_coordinate_element())
+    unique = float(np.random.default_rng().uniform(1.0, 2.0))  # a form no cache holds yet
+    fem.form(unique * ufl.inner(ufl.grad(before), ufl.grad(ufl.TrialFunction(V))) * ufl.dx)
+    after = ufl.TestFunction(V)
+    assert repr(mesh.ufl_domain().ufl_coordinate_element()) == element_before
+    assert before == after and hash(before) == hash(after)

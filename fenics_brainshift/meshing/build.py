@@ -69,10 +69,7 @@ def read_mesh_file(comm, path: str | Path, scale: float = 1.0):
         if path.suffix == ".msh":
             mesh = read_msh(comm, str(path))
         elif _dolfinx_xdmf(comm, path):
-            import dolfinx.io
-
-            with dolfinx.io.XDMFFile(comm, str(path), "r") as f:
-                mesh = f.read_mesh(name="mesh")
+            mesh = compat.read_xdmf_mesh(comm, path)
         else:  # meshio's XDMF (a grid of another name, cells by type)
             mesh = mesh_from_arrays(comm, *_meshio_tetrahedra(comm, path))
     except Exception as exc:  # corrupt or unreadable file: say which and why, no traceback
