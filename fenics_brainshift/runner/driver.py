@@ -72,7 +72,7 @@ def run(scene: Scene, out: str | Path | None = None, comm=MPI.COMM_WORLD, raise_
             out.mkdir(parents=True, exist_ok=True)
         comm.barrier()
         m = sim.model
-        writer = FieldWriter(out, m.mesh, m.V, scene.output.fields, m.mu, m.lmbda, embedding,
+        writer = FieldWriter(out, m.mesh, m.V, scene.output.fields, m.constitutive, embedding,
                              m.tissue.indicator if m.tissue is not None else None, sim.contact)
     setup_s = time.perf_counter() - t_start
     _log_start(sim, setup_s)
@@ -80,6 +80,8 @@ def run(scene: Scene, out: str | Path | None = None, comm=MPI.COMM_WORLD, raise_
     result = Result(sim, summary(sim, h, stopped, setup_s), h, out)
     if "warning" in result.summary["validity"]:
         log.warning("%s: %s", scene.name, result.summary["validity"]["warning"])
+    elif "note" in result.summary["validity"]:
+        log.info("%s: %s", scene.name, result.summary["validity"]["note"])
     if out is not None:
         writer.close()
         write_csv(out / "probes.csv", *probe_table(sim, h), comm)

@@ -11,6 +11,7 @@ import numpy as np
 from ..errors import SolverError
 from ..logs import get_logger
 from ..outputs.progress import progress
+from ..outputs.validity import StrainReport
 
 log = get_logger("run")
 
@@ -24,9 +25,7 @@ class History:
     probes: list[np.ndarray] = field(default_factory=list)
     surfaces: list[np.ndarray] = field(default_factory=list)
     step_seconds: list[float] = field(default_factory=list)
-    largest_strain: float = 0.0  # principal Green-Lagrange, over the output times
-    largest_rotation_deg: float = 0.0
-    inverted_cells: int = 0  # the most at any output time
+    strain: StrainReport = field(default_factory=StrainReport)  # the worst over the output times
 
     def record(self, sim) -> None:
         self.times.append(sim.t)
@@ -35,12 +34,10 @@ class History:
         self.surfaces.append(sim.surfaces.values())
 
     def measure_strain(self, sim) -> None:
-        """The largest strain and rotation of the current state (at output times: a DG0
-        interpolation and a small eigenproblem per cell)."""
-        strain, rotation, inverted = sim.strain_meter.measure()
-        self.largest_strain = max(self.largest_strain, strain)
-        self.largest_rotation_deg = max(self.largest_rotation_deg, rotation)
-        self.inverted_cells = max(self.inverted_cells, inverted)
+        """The strain, rotation and inverted cells of the current state (at output times: a
+        DG0 interpolation and a small eigenproblem per cell)."""
+        pressed = sim.contact.pressed_dofs(sim.state.u) if sim.contact is not None else None
+        self.strain = self.strain.worse(sim.strain_meter.measure(pressed))
 
 
 def events(sim) -> list[tuple[float, bool]]:

@@ -10,7 +10,7 @@ from __future__ import annotations
 import copy
 
 from ..logs import get_logger
-from ..outputs.validity import NONLINEAR_MODEL, STRAIN_LIMIT
+from ..outputs.validity import NONLINEAR_MODEL, STRAIN_LIMIT, in_doubt
 from ..scene import Scene
 from .loop import march
 from .simulation import Simulation
@@ -28,11 +28,17 @@ def resolve_material(scene: Scene, comm) -> tuple[Scene, str]:
     trial.setup()
     history, stopped = march(trial)
     trial.destroy()
-    strain = history.largest_strain
-    if stopped is None and strain <= STRAIN_LIMIT and not history.inverted_cells:
-        return linear, f"linear: a linear trial run's largest strain is {strain:.1%}, within {STRAIN_LIMIT:.0%}"
+    report = history.strain
+    found = (f"a linear trial run's largest strain is {abs(report.strain):.1%} ({report.near}), "
+             f"{report.volume_past_limit:.1%} of the volume past {STRAIN_LIMIT:.0%}")
+    if stopped is None and not in_doubt(report):
+        return linear, f"linear: {found}"
     nonlinear = copy.deepcopy(scene)
     nonlinear.material.model = NONLINEAR_MODEL
-    why = (f"the linear trial run stopped ({stopped})" if stopped is not None
-           else f"a linear trial run's largest strain is {strain:.1%}, past {STRAIN_LIMIT:.0%}")
+    if stopped is not None:
+        why = f"the linear trial run stopped ({stopped})"
+    elif report.inverted:
+        why = f"{found}; {report.inverted} cells inside out"
+    else:
+        why = found
     return nonlinear, f"{NONLINEAR_MODEL}: {why}"

@@ -41,7 +41,9 @@ class Simulation:
         self.state = State(self.model.V)
         self.probes = Probes(self.model.mesh, scene.probes)
         self.surfaces = SurfaceAverages(self.state.u, scene.surfaces)
-        self.strain_meter = StrainMeter(self.state.u)
+        fixed = np.concatenate([bc.dof_indices()[0] for bc in self.model.bcs]) if self.model.bcs else None
+        tissue = self.model.tissue.indicator if self.model.tissue is not None else None
+        self.strain_meter = StrainMeter(self.state.u, fixed, tissue)
         nullspace = rigid_body_modes(self.model.V) if scene.solver.kind == "cg-gamg" else None
         self.solves = Solves(build.solver_settings(scene), nullspace)
         self.dynamic: DynamicStepper | None = None

@@ -51,7 +51,7 @@ def summary(sim, h, stopped, setup_s: float) -> dict:
         "probes": probes,
         "surfaces": sim.surfaces.as_dict(h.surfaces[-1]),
         **sim.forces(),
-        "validity": assessment(h.largest_strain, h.largest_rotation_deg, scene.material.model, h.inverted_cells),
+        "validity": assessment(h.strain, scene.material.model),
     }
     if dynamic and sim.dynamic is not None:
         e = sim.dynamic.energy
