@@ -1,7 +1,9 @@
 """The XDMF time series of a run, for ParaView and meshio.
 
 DOLFINx writes XDMF for functions of the mesh's own degree, so P2 fields are written through
-their P1 interpolant at the vertices; von Mises stress is cell-wise (DG0).
+their P1 interpolant at the vertices; von Mises stress is cell-wise (DG0), of the run's own
+material: the small-strain stress of a linear run, the Cauchy stress of a hyperelastic one,
+with the tissue's coefficients (zero in removed cells) after a resection.
 """
 from __future__ import annotations
 
@@ -13,7 +15,6 @@ from dolfinx import fem
 from dolfinx.io import XDMFFile
 
 from .. import compat
-from ..physics.material import LinearElastic
 
 
 class FieldWriter:
@@ -21,8 +22,10 @@ class FieldWriter:
     deformed fine surface (surface_NNNN.vtk/.stl, the last also as surface_final) when the
     scene has one."""
 
-    def __init__(self, folder: Path, mesh, V, fields: tuple[str, ...], mu: float, lmbda: float,
+    def __init__(self, folder: Path, mesh, V, fields: tuple[str, ...], material=None,
                  embedding=None, tissue=None, contact=None):
+        """material: what gives the stress, an object with von_mises(u) (physics/material.py;
+        Model.constitutive); needed when fields has "von_mises"."""
         self.fields = fields
         self.tissue = tissue  # DG0 1/0 after a resection: threshold on it in ParaView
         self.folder = folder
@@ -45,7 +48,7 @@ class FieldWriter:
         if "von_mises" in fields:
             DG0 = compat.scalar_space(mesh, "DG", 0)
             self.von_mises = fem.Function(DG0, name="von_mises")
-            self._vm_expr = compat.expression(LinearElastic(mu, lmbda).von_mises(self._u), DG0)
+            self._vm_expr = compat.expression(material.von_mises(self._u), DG0)
 
     def write(self, t: float, u, v) -> None:
         for name, src in (("displacement", u), ("velocity", v)):

@@ -86,6 +86,11 @@ class Model:
         return Hyperelastic.for_degree(self._present(self.mu), self._present(self.lmbda), self.material_model,
                                        compat.element_degree(self.V))
 
+    @property
+    def constitutive(self) -> LinearElastic | Hyperelastic:
+        """The material as the run solves it (its stress, von Mises, internal force)."""
+        return self.hyperelastic if self.nonlinear else self.material
+
     def mass_form(self):
         u, v = self._trial_test()
         return forms.mass(u, v, self._present(self.density), self.lumped)

@@ -65,7 +65,7 @@ class NewtonDynamicStepper(DynamicStepper):
         V = model.V
         self._x = fem.Function(V)  # u_n + du, the configuration of the current iterate
         v, w = ufl.TestFunction(V), ufl.TrialFunction(V)
-        material = model.hyperelastic if model.nonlinear else model.material
+        material = model.constitutive
         self._internal = fem.form(material.internal_force(self._x, v))
         # the step's tangent as one form: the blocks are assembled once, with no matrix sums
         self._coefficient = {part: fem.Constant(model.mesh, PETSc.ScalarType(0.0)) for part in ("f", "M", "K0")}
