@@ -55,17 +55,19 @@ class Hyperelastic:
     lmbda: object
     kind: str = "neo-hookean"
     quadrature_degree: int | None = None  # None: UFL's estimate (high: ln J, det F)
+    # 1, or a resection's tissue indicator: a removed cell (0) is evaluated at F = I, not at its
+    # leftover deformation, whose ln J is NaN once it has turned inside out (and 0 * NaN is NaN)
+    present: object = 1.0
 
     @classmethod
-    def for_degree(cls, mu, lmbda, kind: str, degree: int) -> "Hyperelastic":
+    def for_degree(cls, mu, lmbda, kind: str, degree: int, present=1.0) -> "Hyperelastic":
         """The quadrature a Lagrange degree needs: P1's deformation gradient is constant on a
         (straight) tetrahedron, so one point integrates the energy exactly; P2's is linear,
         and four-degree quadrature is the usual choice for the nonlinear energy."""
-        return cls(mu, lmbda, kind, 1 if degree == 1 else 4)
+        return cls(mu, lmbda, kind, 1 if degree == 1 else 4, present)
 
-    @staticmethod
-    def deformation_gradient(u):
-        return ufl.variable(ufl.Identity(len(u)) + ufl.grad(u))
+    def deformation_gradient(self, u):
+        return ufl.variable(ufl.Identity(len(u)) + self.present * ufl.grad(u))
 
     def energy_density(self, F):
         """psi(F). Compressible neo-Hookean: mu/2 (I1 - 3) - mu ln J + lmbda/2 (ln J)^2;

@@ -83,8 +83,9 @@ class Model:
 
     @property
     def hyperelastic(self) -> Hyperelastic:
+        present = self.tissue.indicator if self.tissue is not None else 1.0
         return Hyperelastic.for_degree(self._present(self.mu), self._present(self.lmbda), self.material_model,
-                                       compat.element_degree(self.V))
+                                       compat.element_degree(self.V), present)
 
     @property
     def constitutive(self) -> LinearElastic | Hyperelastic:

@@ -55,11 +55,12 @@ class DynamicStepper:
         """Remove what is due at t = 0, build the operators, start in equilibrium."""
         self._remove_due_cells()
         self._build_operators()
+        self._initial_acceleration()
         self._energy_check()
 
     def _build_operators(self) -> None:
-        """M, K, the effective matrix and its solver, F_n and a consistent a_n. Once, and
-        again after a resection (the matrices change; the state u, v carries over)."""
+        """M, K, the effective matrix and its solver, and F_n. Once, and again after a
+        resection (the matrices change; the state u, v, a carries over: _resect)."""
         m = self.model
         cm, ck = self.integrator.effective_coefficients(self.damping_a, self.damping_b)
         self.M = m.mass_matrix()  # M and K only ever multiply vectors
@@ -69,16 +70,23 @@ class DynamicStepper:
         self._pair = PairProduct(self.K)
         self._K_wk_of_step = -1  # K w_k is cached for the state after this many steps
         self._factor_step_matrix()
-        m.load_into(self.state.t, self._F_old, self.state.u)
-        self._initial_acceleration()
+        self._current_load(self._F_old)
+
+    def _current_load(self, out) -> None:
+        """F_n, the loads on the current state, into out."""
+        self.model.load_into(self.state.t, out, self.state.u)
+
+    def _internal_force_of_state(self, out) -> None:
+        """f_int(u_n) into out: K u_n for a linear material."""
+        self.K.mult(compat.petsc_vec(self.state.u), out)
 
     def _factor_step_matrix(self) -> None:
         """The step solver's factor (or preconditioner), of the effective matrix A."""
         self.solves.reset(self.A)
 
     def _initial_acceleration(self) -> None:
-        """(M + dt/2 b K) a0 = F(0) - C v0 - K u0: the acceleration at rest, averaged over the
-        first half step.
+        """(M + dt/2 b K) a0 = F(0) - C v0 - f_int(u0): the acceleration at the start, averaged
+        over the first half step.
 
         The plain M a0 = ... is the instantaneous value. A load that is not in equilibrium
         element by element (pressure on the surface nodes, gravity inside) gives the stiffly
@@ -93,8 +101,8 @@ class DynamicStepper:
         m, st = self.model, self.state
         rhs = self._rhs
         self._F_old.copy(rhs)
-        u, v = compat.petsc_vec(st.u), compat.petsc_vec(st.v)
-        self.K.mult(u, self._tmp)
+        v = compat.petsc_vec(st.v)
+        self._internal_force_of_state(self._tmp)  # K u0, or a hyperelastic body's f_int(u0)
         rhs.axpy(-1.0, self._tmp)
         self._wm.array[:] = self.damping_a * v.array_r
         self._wk.array[:] = self.damping_b * v.array_r
@@ -103,19 +111,40 @@ class DynamicStepper:
         self.K.mult(self._wk, self._tmp)
         rhs.axpy(-1.0, self._tmp)
         set_bc(rhs, m.bcs)
+        its = self._solve_averaged_mass(rhs, compat.petsc_vec(st.a))
+        log.debug("initial acceleration: %d CG iterations", its)
+        st.a.x.scatter_forward()
+
+    def _solve_averaged_mass(self, rhs, a) -> int:
+        """(M + dt/2 b K) a = rhs with the supports (a = 0 there): the acceleration a force
+        gives, averaged over half a step (_initial_acceleration says why)."""
+        m = self.model
         weight = initial_stiffness_weight(self.integrator.dt, self.damping_b)
-        a0 = compat.petsc_vec(st.a)
-        if weight == 0.0:  # M a0 = ...: one Jacobi sweep for a lumped mass
+        if weight == 0.0:  # M a = ...: one Jacobi sweep for a lumped mass
             M_bc = m.assemble(m.mass_form(), with_bcs=True)
             mass_solver = LinearSolver(M_bc, "cg-jacobi", rtol=1e-14, atol=1e-300, max_it=10000, name="mass")
-            its = mass_solver.solve(rhs, a0)
+            its = mass_solver.solve(rhs, a)
             mass_solver.destroy()
         else:  # M + w K is spectrally close to K_eff = cM M + cK K: its solver preconditions CG
             M_bc = m.assemble(m.combined(1.0, weight), with_bcs=True)
-            its = solve_preconditioned_by(M_bc, self.solves.solver, rhs, a0, rtol=1e-12, name="initial acceleration")
-        log.debug("initial acceleration: %d CG iterations", its)
-        st.a.x.scatter_forward()
+            its = solve_preconditioned_by(M_bc, self.solves.solver, rhs, a, rtol=1e-12, name="acceleration")
         M_bc.destroy()
+        return its
+
+    def _unbalanced_force(self, out) -> None:
+        """F_n - C v_n - f_int(u_n) - M a_n into out: what the time scheme left of the equation of
+        motion at t_n (zero for Newmark up to its solves; generalized-alpha balances elsewhere)."""
+        st = self.state
+        self._F_old.copy(out)
+        self._internal_force_of_state(self._tmp)
+        out.axpy(-1.0, self._tmp)
+        v, a = compat.petsc_vec(st.v), compat.petsc_vec(st.a)
+        self._wm.array[:] = self.damping_a * v.array_r + a.array_r  # (a M + ...) v + M a in one product
+        self.M.mult(self._wm, self._tmp)
+        out.axpy(-1.0, self._tmp)
+        self.K.mult(v, self._tmp)
+        out.axpy(-self.damping_b, self._tmp)
+        self._K_wk_of_step = -1  # _wm was used as scratch
 
     # -- resection ------------------------------------------------------------------------------
     def _remove_due_cells(self) -> bool:
@@ -141,11 +170,33 @@ class DynamicStepper:
 
     def _resect(self) -> None:
         """Between steps: remove due cells, rebuild the operators on what is left, and stop
-        the nodes left without tissue (their rows become identity rows with zero load)."""
-        if not self._remove_due_cells():
+        the nodes left without tissue (their rows become identity rows with zero load).
+
+        The state carries over: u and v as they are, and the acceleration takes the jump of
+        the forces the removal makes and nothing else: with g = F - C v - f_int(u), primes after
+        the removal, M' a' - g' = M a - g (what the time scheme left unbalanced at t_n stays),
+        the jump a' - a averaged over half a step as the start's acceleration is
+        ((M' + dt/2 b K') (a' - a) = g' - g - (M' - M) a): a node the removed cells did not
+        touch keeps its a, a piece cut free falls with g from the cut on. (Recomputing a from
+        the start's formula changed it everywhere: K0 u stood in for a hyperelastic internal
+        force, and the averaging filtered the whole acceleration of a damped body.)"""
+        tissue = self.model.tissue
+        if tissue is None or not tissue.due(self.state.t, 1e-9 * self.integrator.dt):
             return
+        kept = self._F.duplicate()
+        self._unbalanced_force(kept)
+        self._remove_due_cells()
         self._destroy_operators()
         self._build_operators()
+        jump = self._F.duplicate()
+        self._unbalanced_force(jump)  # g' - M' a, with a still the old one
+        jump.axpy(-1.0, kept)  # g' - g - (M' - M) a
+        set_bc(jump, self.model.bcs)
+        change = jump.duplicate()
+        self._solve_averaged_mass(jump, change)
+        compat.petsc_vec(self.state.a).axpy(1.0, change)
+        for vec in (kept, jump, change):
+            vec.destroy()
         empty = self.M.getDiagonal()
         orphans = empty.array_r == 0.0
         empty.destroy()

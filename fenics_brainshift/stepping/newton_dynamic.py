@@ -120,12 +120,17 @@ class NewtonDynamicStepper(DynamicStepper):
         self._contact_pc.forget()  # (after a resection its base, A, is new)
         self._contact_pc.rebuild(self.contact.tangent_blocks(self.state.u, self.integrator.load_weights()[0]))
 
-    def _initial_acceleration(self) -> None:
+    def _current_load(self, out) -> None:
+        super()._current_load(out)
         if self.contact is not None:  # the skull's reaction is a load like the others
             cM, _ = self.integrator.effective_coefficients(self.damping_a, self.damping_b)
             self.contact.for_time_step(cM, self.model.density)
-            self._F_old.axpy(1.0, self.contact.assemble(self.state.u))
-        super()._initial_acceleration()
+            out.axpy(1.0, self.contact.assemble(self.state.u))
+
+    def _internal_force_of_state(self, out) -> None:
+        """f_int(u_n) of the material (K0 u_n only for a linear one)."""
+        self._x.x.array[:] = self.state.u.x.array
+        self._internal_force(out)
 
     def _forget_fixed_tangent(self) -> None:
         if self._J_fixed is not None:
