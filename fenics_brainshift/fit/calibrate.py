@@ -110,17 +110,27 @@ def _per_point(r: np.ndarray, target: Target) -> np.ndarray:
 
 
 def _uncertainty(result, r: np.ndarray, scale: np.ndarray, span: np.ndarray, noise: float):
-    """(std of each parameter, whether it is constrained, singular values of the scaled J)."""
-    J = result.jac  # d r / d (x / scale), robust weights not applied: the linearised model
-    m, n = J.shape
-    dof = max(m - n, 1)
-    s2 = max(float(r @ r) / dof, noise**2 / 9.0)  # at least the noise (a perfect fit is not a certainty)
-    _, sv, vt = np.linalg.svd(J, full_matrices=False)
+    """(std of each parameter, whether it is constrained, singular values of the scaled J).
+
+    The robust (M-estimator) sandwich covariance H^-1 B H^-1 of the soft-l1 fit: with
+    z = (r / noise)^2, H = J^T diag(rho' + 2 rho'' z) J (scipy's result.jac is J with its rows
+    scaled by the square root of that weight, (1 + z)^(-3/4) for soft-l1) and B = J^T diag(psi^2) J,
+    psi = rho'(z) r = r / sqrt(1 + z), times m / (m - n). Each psi^2 is at least (noise / 3)^2: a
+    perfect fit is not a certainty. (s^2 of the unweighted residuals with scipy's weighted J
+    reported 1.33 times the scatter of fits over noise draws: tests/test_fit_spread.py.)"""
+    Jw = result.jac  # d r / d (x / scale), rows times sqrt(w)
+    m, n = Jw.shape
+    z = (r / noise) ** 2
+    w = np.maximum((1.0 + z) ** -1.5, np.finfo(float).eps)  # rho' + 2 rho'' z of soft-l1
+    psi2 = np.maximum(r * r / (1.0 + z), noise**2 / 9.0)
+    J = Jw / np.sqrt(w)[:, None]
+    _, sv, vt = np.linalg.svd(Jw, full_matrices=False)
     tiny = sv <= 1e-12 * sv.max(initial=0.0)
-    inverse = np.where(tiny, 0.0, 1.0 / np.where(tiny, 1.0, sv) ** 2)
-    cov = (vt.T * inverse) @ vt * s2
+    H_pinv = (vt.T * np.where(tiny, 0.0, 1.0 / np.where(tiny, 1.0, sv) ** 2)) @ vt
+    B = (J.T * psi2) @ J * (m / max(m - n, 1))
+    cov = H_pinv @ B @ H_pinv
     std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     # a direction with (near-)zero singular value leaves the parameters along it free
     free = np.abs(vt[tiny]).max(axis=0) > 0.1 if tiny.any() else np.zeros(n, dtype=bool)
-    constrained = [bool((not f) and s < UNCONSTRAINED * w) for f, s, w in zip(free, std, span)]
+    constrained = [bool((not f) and s < UNCONSTRAINED * w_) for f, s, w_ in zip(free, std, span)]
     return std * scale, constrained, [float(v) for v in sv]
