@@ -116,6 +116,9 @@ def _subcommand_failures(tmp: Path) -> list[tuple[list[str], str]]:
         (["mesh", str(BRAIN_MASK), "--parts", "0", "-o", str(tmp / "m.xdmf")], "--parts must be >= 1"),
         (["mesh", str(BRAIN_MASK), "-o", str(tmp / "m.vtk")], "must end in .xdmf"),
         (["mesh", str(BRAIN_MASK), "-o", str(tmp / "a_file" / "m.xdmf")], "folder of -o"),
+        # a folder that refuses even root, who passes every permission check
+        (["mesh", str(BRAIN_MASK), "--voxel", "20", "-o", "/proc/nope/brain.xdmf"], "cannot be written"),
+        (["run", "cube", "--out", "/proc/nope"], "cannot be written"),
         # metres given for a millimetre surface: a grid of 10^13 voxels
         (["mesh", str(BRAIN_SURFACE), "--voxel", "0.005", "-o", str(tmp / "m.xdmf")],
          "is the voxel size in the right unit?"),

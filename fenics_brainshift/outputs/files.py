@@ -21,11 +21,23 @@ def check_writable(out: Path, comm, what: str = "output folder", flag: str = "--
             existing = existing.parent
         if out.exists() and not out.is_dir():
             problem = f"{what} '{out}' is an existing file; choose another {flag}"
-        elif not existing.is_dir() or not os.access(existing, os.W_OK | os.X_OK):
+        elif not existing.is_dir() or not _can_create_in(existing):
             problem = f"{what} '{out}' cannot be written ('{existing}' is not a writable folder); choose another {flag}"
     problem = comm.bcast(problem, root=0)
     if problem:
         raise InputError(problem)
+
+
+def _can_create_in(folder: Path) -> bool:
+    """Can a folder be made in ``folder``? Tried, not judged by permission bits: root passes
+    os.access everywhere, yet /proc, a read-only mount or a full disk still refuse."""
+    import tempfile
+
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix=".brainshift-probe-", dir=folder))
+    except OSError:
+        return False
+    return True
 
 
 def write_json(path: Path, data: dict, comm) -> None:
