@@ -1,4 +1,4 @@
-"""Build fenics_brainshift/data/meshes/mni152_brain_mask_2mm.nii.gz and fenics_brainshift/data/meshes/mni152_brain_surface.ply.
+"""Build meshes/mni152_brain_mask_2mm.nii.gz and meshes/mni152_brain_surface.ply.
 
 Source: the ICBM 2009a nonlinear symmetric template's grey- and white-matter probability maps
 as nilearn's wheel carries them (nilearn/datasets/data/mni_icbm152_{gm,wm}_tal_nlin_sym_09a_
@@ -27,7 +27,7 @@ from scipy import ndimage
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from fenics_brainshift.data.templates import template_bytes  # noqa: E402
 
-OUT = Path(__file__).resolve().parents[1] / "fenics_brainshift" / "data" / "meshes"
+OUT = Path(__file__).resolve().parents[1] / "meshes"
 
 
 def fetch(version: str) -> dict[str, nib.Nifti1Image]:

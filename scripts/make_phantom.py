@@ -1,4 +1,4 @@
-"""Write fenics_brainshift/data/meshes/phantom_ellipsoid_mm.msh: a brain-sized ellipsoid in millimetres.
+"""Write meshes/phantom_ellipsoid_mm.msh: a brain-sized ellipsoid in millimetres.
 
 Semi-axes 70 (left-right) x 85 (posterior-anterior) x 60 (inferior-superior) mm, about the
 size of an adult brain, centred so the lowest point is at z = 0; element size 12 mm. It is a
@@ -11,7 +11,7 @@ from pathlib import Path
 
 import gmsh
 
-OUT = Path(__file__).resolve().parents[1] / "fenics_brainshift" / "data" / "meshes" / "phantom_ellipsoid_mm.msh"
+OUT = Path(__file__).resolve().parents[1] / "meshes" / "phantom_ellipsoid_mm.msh"
 A, B, C, H = 70.0, 85.0, 60.0, 12.0
 
 gmsh.initialize()

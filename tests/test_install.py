@@ -5,14 +5,16 @@ from __future__ import annotations
 import json
 import shutil
 import subprocess
+from pathlib import Path
 
 from conftest import ROOT, subprocess_env
 
 
 def _copy_source(dest):
     """The source tree without environments, outputs and build leftovers, so the build leaves
-    the checkout clean (a copy without .git too: the Debian 13 and Docker trees have none)."""
-    shutil.copytree(ROOT, dest, ignore=shutil.ignore_patterns(
+    the checkout clean (a copy without .git too: the Debian 13 and Docker trees have none).
+    Links stay links, as in a clone: the package's data/meshes points at the top-level meshes/."""
+    shutil.copytree(ROOT, dest, symlinks=True, ignore=shutil.ignore_patterns(
         ".git", ".venv", "out_*", "bench_results", "__pycache__", "build", "*.egg-info", ".pytest_cache"))
 
 
@@ -37,6 +39,8 @@ def test_wheel_install_runs_the_bundled_scenes_from_elsewhere(tmp_path, serial_o
     call(python, "-m", "pip", "install", "--no-deps", "--no-build-isolation", "--no-index", src, "-q")
     where = call(python, "-c", "import fenics_brainshift, sys; print(fenics_brainshift.__file__)")
     assert str(env_dir) in where and str(ROOT) not in where
+    meshes = Path(where.strip()).parent / "data" / "meshes"
+    assert meshes.is_dir() and not meshes.is_symlink() and (meshes / "mni152_brain_mask_2mm.nii.gz").is_file()
     call(env_dir / "bin" / "brainshift", "--no-progress", "run", "cube", "--out", "cube",
          "--set", "mesh.cells=[4, 4, 2]", "--set", "time.end=0.1", "--set", "output.pictures=false")
     assert json.loads((work / "cube" / "summary.json").read_text())["status"] == "ok"

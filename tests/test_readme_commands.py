@@ -72,7 +72,7 @@ def _inputs(folder: Path) -> None:
     labels = [f"P{i}" for i in range(len(pre))]
     write_markups(folder / "pre.mrk.json", labels, pre * 1e3)
     write_markups(folder / "intra.mrk.json", labels, intra * 1e3)
-    surface = meshio.read(ROOT / "fenics_brainshift" / "data" / "meshes" / "mni152_brain_surface.ply")
+    surface = meshio.read(ROOT / "meshes" / "mni152_brain_surface.ply")
     triangles = [("triangle", surface.cells_dict["triangle"])]
     meshio.write(folder / "PRE.stl", meshio.Mesh(surface.points, triangles))
     meshio.write(folder / "INTRA.stl", meshio.Mesh(surface.points + [0.0, -3.0, 0.0], triangles))

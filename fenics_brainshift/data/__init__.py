@@ -1,7 +1,9 @@
 """What ships with the package: the demo scenes and the bundled MNI brain they use.
 
 ``scenes/*.toml`` refer to ``meshes/`` by relative paths, so they work from the source tree
-and from an installed wheel alike; `brainshift run cube` finds them by name.
+and from an installed wheel alike; `brainshift run cube` finds them by name. In the source
+tree ``meshes/`` is a link to the repository's top-level meshes/ folder; a wheel carries the
+files themselves (setuptools copies what the link points to).
 """
 from __future__ import annotations
 
