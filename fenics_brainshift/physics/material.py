@@ -15,10 +15,13 @@ def lame_parameters(E: float, nu: float) -> tuple[float, float]:
 @dataclass(frozen=True)
 class LinearElastic:
     """Isotropic linear elasticity; mu and lmbda are numbers or UFL coefficients (a resected
-    body passes them times the tissue indicator)."""
+    body passes them times the tissue indicator). growth: 1, or the growth stretch g of a
+    shrinking or swelling body (physics/growth.py), whose eigenstrain (g - 1) I is a load
+    (growth_load) and is taken off the strain in the stress that is written (von_mises)."""
 
     mu: object
     lmbda: object
+    growth: object = 1.0
 
     @staticmethod
     def strain(u):
@@ -28,10 +31,18 @@ class LinearElastic:
         eps = self.strain(u)
         return 2.0 * self.mu * eps + self.lmbda * ufl.tr(eps) * ufl.Identity(len(u))
 
+    def elastic_stress(self, u):
+        """C : (eps(u) - (g - 1) I): the stress with the free growth taken off."""
+        return self.stress(u) - (3.0 * self.lmbda + 2.0 * self.mu) * (self.growth - 1.0) * ufl.Identity(len(u))
+
     def von_mises(self, u):
-        s = self.stress(u)
+        s = self.elastic_stress(u)
         dev = s - ufl.tr(s) / 3.0 * ufl.Identity(len(u))
         return ufl.sqrt(1.5 * ufl.inner(dev, dev))
+
+    def growth_load(self, v):
+        """The eigenstrain's load, int C : (g - 1) I : eps(v) dx (K u = F + this)."""
+        return (3.0 * self.lmbda + 2.0 * self.mu) * (self.growth - 1.0) * ufl.div(v) * ufl.dx
 
     def stiffness(self, u, v):
         """The bilinear form of K."""
@@ -58,20 +69,28 @@ class Hyperelastic:
     # 1, or a resection's tissue indicator: a removed cell (0) is evaluated at F = I, not at its
     # leftover deformation, whose ln J is NaN once it has turned inside out (and 0 * NaN is NaN)
     present: object = 1.0
+    # 1, or the growth stretch g (physics/growth.py): F = F_e g I, and det(g I) psi(F_e) is stored
+    growth: object = 1.0
 
     @classmethod
-    def for_degree(cls, mu, lmbda, kind: str, degree: int, present=1.0) -> "Hyperelastic":
+    def for_degree(cls, mu, lmbda, kind: str, degree: int, present=1.0, growth=1.0) -> "Hyperelastic":
         """The quadrature a Lagrange degree needs: P1's deformation gradient is constant on a
         (straight) tetrahedron, so one point integrates the energy exactly; P2's is linear,
         and four-degree quadrature is the usual choice for the nonlinear energy."""
-        return cls(mu, lmbda, kind, 1 if degree == 1 else 4, present)
+        return cls(mu, lmbda, kind, 1 if degree == 1 else 4, present, growth)
 
     def deformation_gradient(self, u):
         return ufl.variable(ufl.Identity(len(u)) + self.present * ufl.grad(u))
 
     def energy_density(self, F):
-        """psi(F). Compressible neo-Hookean: mu/2 (I1 - 3) - mu ln J + lmbda/2 (ln J)^2;
-        Saint Venant-Kirchhoff: lmbda/2 (tr E)^2 + mu E:E with E = (F^T F - I) / 2."""
+        """The stored energy per reference volume, g^3 psi(F / g) (g = 1 without growth).
+        psi: compressible neo-Hookean mu/2 (I1 - 3) - mu ln J + lmbda/2 (ln J)^2; Saint
+        Venant-Kirchhoff lmbda/2 (tr E)^2 + mu E:E with E = (F^T F - I) / 2."""
+        if isinstance(self.growth, (int, float)) and self.growth == 1.0:
+            return self._psi(F)
+        return self.growth**3 * self._psi(F / self.growth)
+
+    def _psi(self, F):
         if self.kind == "neo-hookean":
             J = ufl.det(F)
             return self.mu / 2 * (ufl.tr(F.T * F) - 3) - self.mu * ufl.ln(J) + self.lmbda / 2 * ufl.ln(J) ** 2

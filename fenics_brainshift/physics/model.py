@@ -5,20 +5,23 @@ quasi-static path both use it. Nothing here steps in time.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+
+import numpy as np
 
 import ufl
 from dolfinx import fem
-from dolfinx.fem.petsc import assemble_matrix
+from dolfinx.fem.petsc import assemble_matrix, create_vector
 from petsc4py import PETSc
 
 from .. import compat
 from ..linalg import diagonal_matrix
 from . import forms
 from .fluid import FluidLoad, FluidSettings
-from .gravity import GravityLoad
+from .gravity import GravityLoad, assemble_into
+from .growth import Growth
 from .material import MODELS, Hyperelastic, LinearElastic, lame_parameters
-from .resection import Tissue, fill_empty_diagonal
+from .resection import Tissue, cell_centroids, fill_empty_diagonal
 from .supports import fixed_conditions
 
 
@@ -39,15 +42,19 @@ class Model:
     # so the body at G solves as the body at G0 with the loads times G0 / G, on the same
     # factor (the calibration's stiffness, fit/forward.py); 1 otherwise
     load_scale: float = 1.0
+    growth: Growth | None = None  # only when the tissue shrinks or swells
+    _growth_form: object = field(default=None, repr=False)  # its linear load, compiled on first use
+    _growth_vector: object = field(default=None, repr=False)
 
     @classmethod
     def create(cls, mesh, degree: int, E: float, nu: float, density: float, gravity, supports=(),
                fluid: FluidSettings | None = None, cuts=(), lumped: bool | None = None,
-               material_model: str = "linear") -> "Model":
+               material_model: str = "linear", swelling=()) -> "Model":
         """A model on ``mesh``: Lagrange ``degree`` 1 or 2, a material (E Pa, nu; "linear",
         "neo-hookean" or "saint-venant-kirchhoff"), density (kg/m3), gravity (m/s2, 3-vector),
         supports (supports.Support), an optional fluid, cuts (resection.Cut); lumped mass by
-        default for P1 (consistent for P2)."""
+        default for P1 (consistent for P2); swelling: (select: cell centroids (N, 3) -> bool,
+        t -> volume change) pairs, the regions that shrink or swell."""
         if material_model not in MODELS:
             raise ValueError(f"material_model must be one of {', '.join(MODELS)} (got {material_model!r})")
         V = compat.vector_space(mesh, degree)
@@ -56,8 +63,12 @@ class Model:
         tissue = Tissue(mesh, cuts) if cuts else None
         rho = PETSc.ScalarType(density) * (tissue.indicator if tissue is not None else 1.0)
         fluid_load = FluidLoad(V, fluid) if fluid is not None else None
+        growth = None
+        if swelling:
+            centroids = cell_centroids(mesh)
+            growth = Growth(mesh, [(np.asarray(select(centroids), dtype=bool), change) for select, change in swelling])
         return cls(mesh, V, bcs, mu, lmbda, density, degree == 1 if lumped is None else lumped,
-                   GravityLoad(V, rho, gravity), fluid_load, tissue, material_model)
+                   GravityLoad(V, rho, gravity), fluid_load, tissue, material_model, growth=growth)
 
     @property
     def comm(self):
@@ -77,15 +88,19 @@ class Model:
         return self.material_model != "linear"
 
     @property
+    def _stretch(self):
+        return self.growth.stretch if self.growth is not None else 1.0
+
+    @property
     def material(self) -> LinearElastic:
         """The linear material (for a hyperelastic model: its linearisation at u = 0)."""
-        return LinearElastic(self._present(self.mu), self._present(self.lmbda))
+        return LinearElastic(self._present(self.mu), self._present(self.lmbda), self._stretch)
 
     @property
     def hyperelastic(self) -> Hyperelastic:
         present = self.tissue.indicator if self.tissue is not None else 1.0
         return Hyperelastic.for_degree(self._present(self.mu), self._present(self.lmbda), self.material_model,
-                                       compat.element_degree(self.V), present)
+                                       compat.element_degree(self.V), present, self._stretch)
 
     @property
     def constitutive(self) -> LinearElastic | Hyperelastic:
@@ -141,9 +156,39 @@ class Model:
 
     def load_into(self, t: float, out: PETSc.Vec, u=None) -> PETSc.Vec:
         """F(t) = F_gravity + F_fluid into out (owned entries); with follower loading the fluid
-        load is evaluated on x + u (a Function on V)."""
+        load is evaluated on x + u (a Function on V). With growth, its stretch is set to time t
+        (a hyperelastic body's internal force then shrinks or swells) and a linear body gets the
+        eigenstrain's load too, which load_scale leaves alone (it is proportional to the moduli,
+        as the internal force is)."""
         grav, fluid = self.external_load(t, u)
         out.array[:] = grav.array_r if fluid is None else grav.array_r + fluid.array_r
         if self.load_scale != 1.0:
             out.scale(self.load_scale)
+        if self.growth is not None:
+            growth_load = self._growth_load(t)  # sets the stretch to t
+            if not self.nonlinear:  # a hyperelastic body's internal force holds the growth
+                out.axpy(1.0, growth_load)
         return out
+
+    def tissue_changed(self) -> None:
+        """After a resection: the loads that carry the tissue indicator, assembled again."""
+        self.gravity.refresh()
+        if self._growth_vector is not None:
+            assemble_into(self._growth_vector, self._growth_form)
+
+    def growth_scale(self, t: float) -> float:
+        """What a hyperelastic body's growth weighs beside the loads at time t, for Newton's
+        convergence test: |the linearised eigenstrain load| (its residual at rest). 0 for a
+        linear body (load_into holds its growth) and without growth."""
+        return self._growth_load(t).norm() if self.growth is not None and self.nonlinear else 0.0
+
+    def _growth_load(self, t: float) -> PETSc.Vec:
+        """The linear(ised) eigenstrain load at time t, with the stretch set to t; assembled
+        again only when the stretch changed."""
+        changed = self.growth.set_time(t)
+        if self._growth_form is None:
+            self._growth_form = fem.form(self.material.growth_load(ufl.TestFunction(self.V)))
+            self._growth_vector = assemble_into(create_vector(self._growth_form), self._growth_form)
+        elif changed:
+            assemble_into(self._growth_vector, self._growth_form)
+        return self._growth_vector

@@ -8,6 +8,7 @@ from __future__ import annotations
 from dataclasses import asdict
 from pathlib import Path
 
+import numpy as np
 from dolfinx import fem
 
 from ..errors import InputError
@@ -100,13 +101,38 @@ def cuts(scene: Scene) -> list[Cut]:
     return out
 
 
+def _cell_selector(scene: Scene, region):
+    """centroids (N, 3) -> bool (N,) of a region given by `where` or by `label`."""
+    if region.predicate is not None:
+        return lambda centroids: region.predicate(centroids.T)
+    return lambda centroids: labels_at(scene.mesh.file, centroids, scene.mesh.scale, region.label)
+
+
+def swelling(scene: Scene) -> list:
+    """The [[swelling]] regions as (cell selector, t -> volume change) pairs."""
+    return [(_cell_selector(scene, r), r.at) for r in scene.swelling]
+
+
+def _check_swelling(scene: Scene, model: Model) -> None:
+    """Each [[swelling]] region holds cells (a region that selects none is a unit slip)."""
+    if model.growth is None:
+        return
+    owned = model.mesh.topology.index_map(3).size_local
+    for region, (mask, _) in zip(scene.swelling, model.growth.regions):
+        if model.comm.allreduce(int(np.count_nonzero(mask[:owned]))) == 0:
+            raise InputError(f"[[swelling]] {region.describe()} selects no cell of the mesh (cell centroids); "
+                             f"check the region (metres, mesh frame)")
+
+
 def build_model(scene: Scene, comm) -> Model:
     """Mesh, space, supports, material and loads of a scene; every input check happens here."""
     mesh = build_mesh(scene, comm)
     mat = scene.material
-    return Model.create(mesh, scene.element.degree, mat.E, mat.nu, mat.density, scene.gravity.vector,
-                        supports(scene), fluid_settings(scene), cuts(scene),
-                        lumped=scene.element.mass == "lumped", material_model=mat.model)
+    model = Model.create(mesh, scene.element.degree, mat.E, mat.nu, mat.density, scene.gravity.vector,
+                         supports(scene), fluid_settings(scene), cuts(scene),
+                         lumped=scene.element.mass == "lumped", material_model=mat.model, swelling=swelling(scene))
+    _check_swelling(scene, model)
+    return model
 
 
 def follower_tolerance(scene: Scene) -> float:

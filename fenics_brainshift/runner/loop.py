@@ -12,6 +12,7 @@ from ..errors import SolverError
 from ..logs import get_logger
 from ..outputs.progress import progress
 from ..outputs.validity import StrainReport
+from .plan import settled_times
 
 log = get_logger("run")
 
@@ -58,8 +59,9 @@ def events(sim) -> list[tuple[float, bool]]:
 
 
 def static_times(scene) -> list[float]:
-    """Quasi-static solves happen at each breakpoint of the fluid schedule (t = 0 when dry)."""
-    return scene.fluid.schedule.times if scene.fluid is not None else [0.0]
+    """Quasi-static solves happen at each breakpoint of the fluid's and the swellings' schedules
+    (t = 0 when nothing changes)."""
+    return settled_times(scene)
 
 
 def march(sim, writer=None) -> tuple[History, SolverError | None]:

@@ -2,8 +2,9 @@
 
 - Time stepping or not ([time] mode = "auto", the default): a scene with [[remove]] or
   without supports needs inertia (a freed piece, or K singular); otherwise, if every change
-  of the fluid level (or volume) takes at least ten lowest natural periods, inertia is
-  negligible and the settled states at the schedule's breakpoints are solved directly
+  of the fluid level (or volume), and of every region's shrinkage or swelling, takes at least
+  ten lowest natural periods, inertia is negligible and the settled states at the schedules'
+  breakpoints are solved directly
   (quasi-static: one factor of K, a few solves). The lowest period is estimated as that of a
   shear column of the body's height along gravity, T1 = 4 H / sqrt(G / rho): an order of
   magnitude, which is all the choice needs. "dynamic" or "quasi-static" given explicitly wins.
@@ -42,6 +43,7 @@ class Plan:
     stiffness_band: str = ""
     material: str = ""  # with [material] model = "auto": which model, and why
     contact: str = ""  # with [skull]: when contact is solved, when skipped
+    swelling: str = ""  # with [[swelling]]: the regions, and how their growth enters
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -55,6 +57,8 @@ class Plan:
             lines.append(f"plan: material {self.material}")
         if self.contact:
             lines.append(f"plan: contact {self.contact}")
+        if self.swelling:
+            lines.append(f"plan: swelling {self.swelling}")
         return lines
 
 
@@ -74,14 +78,23 @@ def lowest_period(scene: Scene, height: float) -> float:
 
 
 def fastest_change(scene: Scene) -> float | None:
-    """The shortest duration over which the level (or volume) changes; 0 for a jump; None
-    when nothing changes (dry, or constant)."""
-    if scene.fluid is None:
-        return None
-    schedule = scene.fluid.schedule
-    times, values = schedule.times, schedule.values
-    durations = [t1 - t0 for t0, t1, v0, v1 in zip(times, times[1:], values, values[1:]) if v1 != v0]
+    """The shortest duration over which the level (or volume), or a region's shrinkage or
+    swelling, changes; 0 for a jump; None when nothing changes (dry and no growth, or constant)."""
+    schedules = ([scene.fluid.schedule] if scene.fluid is not None else []) + [r.schedule for r in scene.swelling]
+    durations = []
+    for schedule in schedules:
+        times, values = schedule.times, schedule.values
+        durations += [t1 - t0 for t0, t1, v0, v1 in zip(times, times[1:], values, values[1:]) if v1 != v0]
     return min(durations) if durations else None
+
+
+def settled_times(scene: Scene) -> list[float]:
+    """Where settled states are solved: every breakpoint of the fluid's and the swellings'
+    schedules (t = 0 when nothing changes)."""
+    times = set(scene.fluid.schedule.times if scene.fluid is not None else [0.0])
+    for r in scene.swelling:
+        times.update(r.schedule.times)
+    return sorted(times)
 
 
 def make_plan(scene: Scene, mesh) -> Plan:
@@ -135,7 +148,14 @@ def make_plan(scene: Scene, mesh) -> Plan:
                        "updated for the pressed nodes; Newton with contact where that does not settle")
         else:
             contact = "Newton with the contact forces in every " + ("step" if mode == "dynamic" else "settled state")
-    return Plan(mode, reasons, period, change, fluid_load=fluid, fields=fields, stiffness_band=band, contact=contact)
+    growth = ""
+    if scene.swelling:
+        where = "; ".join(r.describe() for r in scene.swelling)
+        growth = (f"{len(scene.swelling)} region(s) ({where}): " + (
+            "the eigenstrain's load, assembled again when a schedule moves" if scene.material.model == "linear"
+            else "the growth in the internal force (F = F_e F_g)"))
+    return Plan(mode, reasons, period, change, fluid_load=fluid, fields=fields, stiffness_band=band, contact=contact,
+                swelling=growth)
 
 
 def stiffness_band(scene: Scene, plan: Plan, max_displacement: float, probes: dict) -> dict | None:

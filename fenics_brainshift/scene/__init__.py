@@ -3,7 +3,7 @@
 Imports no DOLFINx: a scene can be read and checked anywhere. Units are SI (m, kg, s, Pa)
 everywhere; only a mesh *file* may be given in other length units (``[mesh] unit``).
 """
-from .body import FixedRegion, Material, MeshSpec, Removal
+from .body import FixedRegion, Material, MeshSpec, Removal, Swelling
 from .loads import Fluid, Gravity
 from .numerics import Damping, Element, Output, SolverConfig, TimeScheme
 from .predicates import Predicate, PredicateError, parse_predicate
@@ -12,5 +12,5 @@ from .schedule import Schedule
 from .toml import apply_override, load_scene, scene_from_dict
 
 __all__ = ["Damping", "Element", "FixedRegion", "Fluid", "Gravity", "Material", "MeshSpec", "Output",
-           "Predicate", "PredicateError", "Removal", "Scene", "Schedule", "SolverConfig", "TimeScheme",
+           "Predicate", "PredicateError", "Removal", "Scene", "Schedule", "SolverConfig", "Swelling", "TimeScheme",
            "apply_override", "load_scene", "parse_predicate", "scene_from_dict"]

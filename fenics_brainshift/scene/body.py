@@ -8,6 +8,7 @@ from .. import formats
 from ..errors import InputError
 from .checks import choice, integer, non_negative, number, positive, vector3
 from .predicates import Predicate, PredicateError, parse_predicate
+from .schedule import Schedule
 
 
 LENGTH_UNITS = {"m": 1.0, "cm": 1e-2, "mm": 1e-3}
@@ -193,3 +194,49 @@ class Removal:
 
     def describe(self) -> str:
         return f"where = \"{self.where}\"" if self.where is not None else f"label = {self.label}"
+
+
+@dataclass
+class Swelling:
+    """Shrinkage or swelling of the tissue: the cells whose centroid satisfies ``where``, or
+    lies in image voxels of ``label``, change their free (stress-free) volume by
+    ``volume_change`` (-0.03 shrinks them by 3 %, 0.05 swells them by 5 %), times ``schedule``:
+    a fraction, a number or [[t, fraction], ...] piecewise linear (a drug acting over minutes;
+    default 1, from the start)."""
+
+    volume_change: float = 0.0
+    where: str | None = None
+    label: int | str | None = None
+    schedule: object = 1.0
+    predicate: Predicate | None = field(default=None, repr=False)
+
+    def __post_init__(self):
+        self.volume_change = number("[[swelling]] volume_change", self.volume_change)
+        if not -1.0 < self.volume_change < 1.0 or self.volume_change == 0.0:
+            raise InputError(f"[[swelling]] volume_change is a fraction of the volume, not zero and between -1 and 1 "
+                             f"(got {self.volume_change:g}): -0.03 shrinks by 3 %, 0.05 swells by 5 %")
+        if (self.where is None) == (self.label is None):
+            raise InputError("[[swelling]] give exactly one of where = \"(x-a)**2 + ... < r**2\" or label = N")
+        if self.where is not None:
+            if not isinstance(self.where, str):
+                raise InputError(f"[[swelling]] where must be a condition on x, y, z in quotes (got {self.where!r})")
+            try:
+                self.predicate = parse_predicate(self.where)
+            except PredicateError as exc:
+                raise InputError(f"[[swelling]] where: {exc}") from None
+        elif not isinstance(self.label, str):
+            self.label = integer("[[swelling]] label", self.label, 1)
+        if not isinstance(self.schedule, Schedule):
+            self.schedule = Schedule(self.schedule, "[[swelling]] schedule")
+        for t, fraction in self.schedule.points:
+            if t < 0.0 or not 0.0 <= fraction <= 1.0:
+                raise InputError(f"[[swelling]] schedule: a fraction of volume_change in [0, 1] at a time >= 0 s "
+                                 f"(got [{t:g}, {fraction:g}]); give the size of the change in volume_change")
+
+    def describe(self) -> str:
+        where = f"where = \"{self.where}\"" if self.where is not None else f"label = {self.label}"
+        return f"{where}, volume_change = {self.volume_change:+g}"
+
+    def at(self, t: float) -> float:
+        """The region's free volume change at time t."""
+        return self.volume_change * self.schedule(t)

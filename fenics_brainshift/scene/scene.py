@@ -5,7 +5,7 @@ from dataclasses import dataclass, field
 
 from .. import formats
 from ..errors import InputError
-from .body import FixedRegion, Material, MeshSpec, Removal
+from .body import FixedRegion, Material, MeshSpec, Removal, Swelling
 from .checks import vector3
 from .loads import Fluid, Gravity
 from .numerics import Damping, Element, Output, SolverConfig, TimeScheme
@@ -24,6 +24,7 @@ class Scene:
     skull: Skull | None = None
     fixed: tuple[FixedRegion, ...] = ()
     remove: tuple[Removal, ...] = ()
+    swelling: tuple[Swelling, ...] = ()
     time: TimeScheme = field(default_factory=TimeScheme)
     damping: Damping = field(default_factory=Damping)
     solver: SolverConfig = field(default_factory=SolverConfig)
@@ -53,6 +54,10 @@ class Scene:
                                  "rule = \"consistent\" (\"quadrature\" acts on the original surface only)")
             if r.label is not None and not formats.is_label_volume(self.mesh.file or ""):
                 raise InputError("[[remove]] label needs [mesh] file to be a label volume (.nii, .nii.gz, .nrrd); "
+                                 "use where = \"...\" otherwise")
+        for r in self.swelling:
+            if r.label is not None and not formats.is_label_volume(self.mesh.file or ""):
+                raise InputError("[[swelling]] label needs [mesh] file to be a label volume (.nii, .nii.gz, .nrrd); "
                                  "use where = \"...\" otherwise")
         if self.skull is not None and self.skull.label is not None and not formats.is_label_volume(self.mesh.file or ""):
             raise InputError("[skull] label needs [mesh] file to be a label volume (.nii, .nii.gz, .nrrd); give "

@@ -8,7 +8,7 @@ from typing import Any
 
 from .. import formats
 from ..errors import InputError
-from .body import FixedRegion, Material, MeshSpec, Removal
+from .body import FixedRegion, Material, MeshSpec, Removal, Swelling
 from .loads import Fluid, Gravity
 from .numerics import Damping, Element, Output, SolverConfig, TimeScheme
 from .skull import Skull
@@ -38,7 +38,7 @@ def _build(cls, table: Any, where: str):
 
 def scene_from_dict(data: dict, base: Path | None = None) -> Scene:
     """Build a Scene from parsed TOML; relative mesh files resolve against ``base``."""
-    known = list(_SECTIONS) + ["fixed", "remove", "probes", "surfaces", "name"]
+    known = list(_SECTIONS) + ["fixed", "remove", "swelling", "probes", "surfaces", "name"]
     for key in data:
         if key not in known:
             raise InputError(f"unknown section [{key}]; known sections: {', '.join(known)}")
@@ -55,6 +55,10 @@ def scene_from_dict(data: dict, base: Path | None = None) -> Scene:
     if not isinstance(remove, list):
         raise InputError("[[remove]] must be an array of tables: [[remove]] at = 10.0, where = \"...\"")
     kwargs["remove"] = tuple(_build(Removal, r, "[[remove]]") for r in remove)
+    swelling = data.get("swelling", [])
+    if not isinstance(swelling, list):
+        raise InputError("[[swelling]] must be an array of tables: [[swelling]] where = \"...\", volume_change = -0.02")
+    kwargs["swelling"] = tuple(_build(Swelling, r, "[[swelling]]") for r in swelling)
     probes = data.get("probes", {})
     if not isinstance(probes, dict):
         raise InputError("[probes] must be a table of name = [x, y, z]")

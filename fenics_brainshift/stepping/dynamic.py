@@ -163,7 +163,7 @@ class DynamicStepper:
             log.info("  t=%.3f s: removed %d cells (%s) and %d left hanging by an edge or vertex; %.1f %% of "
                      "the body removed so far", self.state.t, count, cut.label, isolated,
                      100.0 * tissue.removed_fraction)
-        self.model.gravity.refresh()
+        self.model.tissue_changed()
         if self.model.fluid is not None:
             self.model.fluid.set_present(tissue.present)
         return True

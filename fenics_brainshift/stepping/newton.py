@@ -166,7 +166,7 @@ class NewtonStatic:
         if self.contact is not None:  # the skull's reaction: not scaled with the loads
             self._R.axpy(-1.0, self.contact.assemble(u))
         set_bc(self._R, self.model.bcs)
-        self._load_norm = factor * self._F.norm()
+        self._load_norm = factor * self._F.norm() + self.model.growth_scale(t)
         norm = self._R.norm()
         return norm if np.isfinite(norm) else np.inf
 

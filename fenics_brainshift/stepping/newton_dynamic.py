@@ -291,7 +291,7 @@ class NewtonDynamicStepper(DynamicStepper):
 
         def newton() -> bool:
             converged, self.newton_history = newton_iterate(
-                self.du, self._update, residual, solve, lambda: self._F.norm(), self.rtol,
+                self.du, self._update, residual, solve, lambda: self._F.norm() + self.model.growth_scale(t_new), self.rtol,
                 self.solves.settings["rtol"], self.max_iterations,
                 STALL_WITH_CONTACT if self.contact is not None else 1.0)
             return converged
