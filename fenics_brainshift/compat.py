@@ -91,7 +91,7 @@ def settled_mesh(mesh):
     element = domain.ufl_coordinate_element()
     sub = getattr(element, "_sub_element", None)
     if sub is not None and getattr(sub, "variant", lambda: "")() is None:
-        scalar = ufl.FiniteElement(sub.family(), sub.cell(), sub.degree(), sub.quadrature_scheme(),
+        scalar = ufl.FiniteElement(sub.family(), sub.cell(), sub.degree(), quad_scheme=sub.quadrature_scheme(),
                                    variant="equispaced")
         domain._ufl_coordinate_element = ufl.VectorElement(scalar, dim=element.value_shape()[0])
     return mesh

@@ -1,5 +1,8 @@
 """The skull contact's pressure distribution and nodal reactions (physics/contact.py), not only
 their total: the total holds for any converged answer whatever area each node is given.
+The nodal reactions hold for any converged answer too (equilibrium fixes them); the pressure,
+each node's force over its share of the surface, is what a wrong area changes, and the
+pressure checks are the ones that catch it.
 
 References made here, not by the package: each surface node's area is a third of every
 boundary triangle of the mesh it is a corner of, found from the tetrahedra's coordinates

@@ -310,15 +310,35 @@ def test_neo_hookean_time_steps_on_an_empty_form_cache(tmp_path, serial_only):
     assert list((tmp_path / "cache").rglob("*.so")), "nothing was compiled: the test did not test"
 
 
-def test_a_compile_leaves_the_mesh_coordinate_element_as_it_was():
+_ONE_COMPILE = """
+from mpi4py import MPI
+import ufl
+from dolfinx import fem
+from fenics_brainshift import compat
+from fenics_brainshift.runner.build import mesh_from_spec
+from fenics_brainshift.scene import MeshSpec
+mesh = mesh_from_spec(MeshSpec(shape="box", size=(1.0, 1.0, 1.0), cells=(1, 1, 1)), MPI.COMM_WORLD)
+V = compat.vector_space(mesh, 1)
+before = ufl.TestFunction(V)
+element = repr(mesh.ufl_domain().ufl_coordinate_element())
+fem.form(ufl.inner(ufl.grad(before), ufl.grad(ufl.TrialFunction(V))) * ufl.dx)  # a compile: the cache is new
+after = ufl.TestFunction(V)
+print(repr(mesh.ufl_domain().ufl_coordinate_element()) == element, before == after, hash(before) == hash(after))
+"""
+
+
+def test_a_compile_leaves_the_mesh_coordinate_element_as_it_was(tmp_path, serial_only):
     """Every mesh the package makes carries its coordinate element's variant from the start,
-    so an Argument made after a compile is the same (equal and same hash) as one made before."""
-    mesh = mesh_from_spec(MeshSpec(shape="box", size=(1.0, 1.0, 1.0), cells=(1, 1, 1)), COMM)
-    V = compat.vector_space(mesh, 1)
-    before = ufl.TestFunction(V)
-    element_before = repr(mesh.ufl_domain().ufl_coordinate_element())
-    unique = float(np.random.default_rng().uniform(1.0, 2.0))  # a form no cache holds yet
-    fem.form(unique * ufl.inner(ufl.grad(before), ufl.grad(ufl.TrialFunction(V))) * ufl.dx)
-    after = ufl.TestFunction(V)
-    assert repr(mesh.ufl_domain().ufl_coordinate_element()) == element_before
-    assert before == after and hash(before) == hash(after)
+    so an Argument made after a compile is the same (equal and same hash) as one made before
+    (in a process with a new cache, so that the compile happens, and leaves no module in
+    the user's cache)."""
+    import subprocess
+    import sys
+
+    from conftest import subprocess_env
+
+    env = {**subprocess_env(), "XDG_CACHE_HOME": str(tmp_path / "cache")}
+    proc = subprocess.run([sys.executable, "-c", _ONE_COMPILE], capture_output=True, text=True, env=env, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert proc.stdout.split() == ["True", "True", "True"], proc.stdout
+    assert list((tmp_path / "cache").rglob("*.so")), "nothing was compiled: the test did not test"

@@ -135,3 +135,24 @@ def test_auto_material_keeps_linear_when_valid_and_switches_when_not():
     linear = -rho_g * H**2 / (2 * (lam + 2 * mu))
     assert abs(linear - exact) > 0.08 * abs(exact)
     assert soft["probes"]["top"][2] == pytest.approx(exact, rel=1e-4)
+
+
+def test_removed_cells_are_not_measured():
+    """After a resection the strain is measured on the tissue left: u stretches every cell
+    by 10 % along z and turns the removed upper half inside out as well (F_zz = -0.4 there);
+    the check must see the 10 % everywhere it looks, over the present volume, and no cell
+    inside out."""
+    mesh = mesh_from_spec(MeshSpec(shape="box", size=(0.02, 0.02, 0.02), cells=(2, 2, 2)), COMM)
+    V = compat.vector_space(mesh, 1)
+    u = fem.Function(V)
+    u.interpolate(lambda x: np.stack([0 * x[0], 0 * x[1], 0.1 * x[2] - 1.5 * np.maximum(x[2] - 0.01, 0.0)]))
+    tissue = fem.Function(compat.scalar_space(mesh, "DG", 0))
+    from fenics_brainshift.physics.resection import cell_centroids
+
+    tissue.x.array[:] = (cell_centroids(mesh)[:, 2] < 0.01).astype(float)
+    report = StrainMeter(u, tissue=tissue).measure()
+    assert report.inverted == 0
+    assert report.strain == pytest.approx(0.1 + 0.1**2 / 2, rel=1e-12)  # E_zz of F_zz = 1.1
+    assert report.volume_past_limit == pytest.approx(1.0, rel=1e-12)  # of the tissue left
+    everything = StrainMeter(u).measure()  # without the indicator: the removed half counts
+    assert everything.inverted > 0 and everything.strain < -0.4

@@ -176,10 +176,14 @@ class DynamicStepper:
         the forces the removal makes and nothing else: with g = F - C v - f_int(u), primes after
         the removal, M' a' - g' = M a - g (what the time scheme left unbalanced at t_n stays),
         the jump a' - a averaged over half a step as the start's acceleration is
-        ((M' + dt/2 b K') (a' - a) = g' - g - (M' - M) a): a node the removed cells did not
-        touch keeps its a, a piece cut free falls with g from the cut on. (Recomputing a from
-        the start's formula changed it everywhere: K0 u stood in for a hyperelastic internal
-        force, and the averaging filtered the whole acceleration of a damped body.)"""
+        ((M' + dt/2 b K') (a' - a) = g' - g - (M' - M) a). Without stiffness damping (b = 0) and
+        with a lumped mass a node the removed cells did not touch keeps its a; with b > 0 the
+        jump spreads over about the distance a wave travels in dt/2, as the start's
+        acceleration does; either way a rebuild that removes nothing changes nothing, and under
+        Newmark (which leaves nothing unbalanced) a piece cut free falls with g from the cut
+        on. (Recomputing a from the start's formula changed it everywhere: K0 u stood in for a
+        hyperelastic internal force, and the averaging filtered the whole acceleration of a
+        damped body.)"""
         tissue = self.model.tissue
         if tissue is None or not tissue.due(self.state.t, 1e-9 * self.integrator.dt):
             return
