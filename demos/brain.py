@@ -14,6 +14,7 @@
 #
 #     python demos/brain.py                  # serial, writes out_brain/
 #     mpirun -n 2 python demos/brain.py      # the same on two ranks
+#     python demos/brain.py --shrink 2       # and the whole brain shrinks by 2 % (mannitol)
 
 # +
 import argparse
@@ -26,6 +27,7 @@ from mpi4py import MPI
 from fenics_brainshift import logs
 from fenics_brainshift import InputError, load_scene, run
 from fenics_brainshift.data import scene_path
+from fenics_brainshift.scene import Swelling
 
 PAPER_SHIFT_MM = "about 16-17 mm at the most anterior point (paper Table III)"
 # -
@@ -39,6 +41,8 @@ def parse_args(argv=None):
     p.add_argument("--quasi-static", action="store_true", help="settled states only (no time stepping)")
     p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
                    help="scene overrides, as for brainshift run")
+    p.add_argument("--shrink", type=float, default=0.0, metavar="PERCENT",
+                   help="the whole brain's tissue shrinks by this much (a hyperosmotic drug), over the drain")
     return p.parse_args(argv)
 
 
@@ -52,6 +56,9 @@ def main(argv=None) -> int:
     overrides = list(args.set) + (["time.mode=quasi-static"] if args.quasi_static else [])
     try:
         scene = load_scene(args.scene, overrides)
+        if args.shrink:  # as a [[swelling]] table would give it: every cell, over the drain's 10 s
+            scene.swelling += (Swelling(volume_change=-args.shrink / 100, where="x > -1",
+                                        schedule=[[0.0, 0.0], [10.0, 1.0]]),)
         summary = run(scene, args.out, comm).summary
     except InputError as exc:
         if comm.rank == 0:

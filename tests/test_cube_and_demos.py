@@ -275,3 +275,17 @@ def test_fit_demo(tmp_path):
     prior, fitted = map(float, re.search(r"mean error ([\d.]+) mm with the scene, ([\d.]+) mm fitted", stdout).groups())
     assert fitted < 0.5 * prior
     assert (out / "fit.png").stat().st_size > 10_000 and (out / "fitted.toml").is_file()
+
+
+def test_brain_demo_shrinks_the_brain_towards_its_supports(tmp_path):
+    """--shrink 2: the whole brain loses 2 % of its volume over the drain; settled, the frontal
+    pole (far from the occipital and brain-stem supports) moves further back (-y) than without,
+    by about the shrinkage's own pull over its distance from the supports (2/3 % of ~0.17 m)."""
+    poles = {}
+    for shrink in ("0", "2"):
+        out = tmp_path / f"s{shrink}"
+        _run(out, 1, str(ROOT / "demos" / "brain.py"), "--quasi-static", "--shrink", shrink, "--out", str(out),
+             "--set", "mesh.voxel=0.012", "--set", "output.pictures=false")
+        poles[shrink] = np.array(json.loads((out / "summary.json").read_text())["probes"]["frontal_pole"])
+    extra = poles["2"][1] - poles["0"][1]
+    assert -2.0e-3 < extra < -0.5e-3, extra
