@@ -6,6 +6,7 @@ import meshio
 import numpy as np
 import pytest
 
+from dolfinx import fem
 from mpi4py import MPI
 
 from conftest import COMM
@@ -281,3 +282,161 @@ def test_a_piece_cut_free_lands_on_its_cut_face(floor):
     # dead fluid load (follower off): buoyancy of the piece where it was, up to the level
     weight, buoyancy = RHO * 9.81 * L * L * (H - cut), RHO_OIL * 9.81 * L * L * (LEVEL - cut)
     assert sim.contact.report(sim.state.u)["force_N"][2] == pytest.approx(weight - buoyancy, rel=1e-3)
+
+
+def test_a_skull_file_in_another_unit_than_the_mesh_is_refused(shared_tmp):
+    """A skull 5 mm around the block (m) written in mm: 1000x the block's size and metres from
+    it at rest, a skull that would do nothing (it ran with status ok); the bundled phantom (mm)
+    with its skull written in m: 1000x too small. Both refused, the field and the unit named;
+    the same skull in the mesh's unit is accepted."""
+    from fenics_brainshift import load_scene
+
+    mm = _box_surface((-10.0, -10.0, -5.0), (60.0, 60.0, 35.0), shared_tmp / "skull_mm.stl")
+    with pytest.raises(InputError, match=r"^\[skull\] file 'skull_mm.stl' is 107 m across against a 0.075 m body, "
+                                         r"5 m from it at rest: is it in mm\? give the skull in the mesh's unit \(m\)"):
+        Simulation(scene_from_dict(_block([], {"file": mm})), COMM)
+    metres = _box_surface((-0.01, -0.01, -0.005), (0.06, 0.06, 0.035), shared_tmp / "skull_m.stl")
+    sim = Simulation(scene_from_dict(_block([], {"file": metres})), COMM)
+    assert sim.contact.clearance(fem.Function(sim.model.V)) == pytest.approx(0.005)
+    phantom = _box_surface((-0.075, -0.09, -0.005), (0.075, 0.09, 0.125), shared_tmp / "phantom_skull_m.stl")
+    with pytest.raises(InputError, match=r"^\[skull\] file 'phantom_skull_m.stl' is 0.000268 m across against a "
+                                         r"0.251 m body: is it in m\? give the skull in the mesh's unit \(mm\)"):
+        Simulation(load_scene("phantom", ["time.mode=quasi-static", f"skull.file={phantom}"]), COMM)
+
+
+def test_brainshift_run_refuses_a_skull_in_mm_for_a_scene_in_m(shared_tmp, capsys):
+    """`brainshift run` with `--set skull.file=` a skull in mm: exit 2, one line, nothing written."""
+    from fenics_brainshift.cli import main
+    from test_scene_errors import write_scene
+
+    mm = _box_surface((-10.0, -10.0, -5.0), (60.0, 60.0, 35.0), shared_tmp / "skull_mm.stl")
+    scene = write_scene(shared_tmp / f"block_r{COMM.rank}.toml", _block([], None))  # every rank its own copy
+    out = shared_tmp / "out"
+    code = main(["run", str(scene), "--out", str(out), "--set", f"skull.file={mm}"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2
+    if COMM.rank == 0:
+        assert ("[skull] file 'skull_mm.stl' is 107 m across against a 0.075 m body, 5 m from it at rest: "
+                "is it in mm?") in err
+        assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+    else:
+        assert err == ""
+    COMM.barrier()
+    assert not out.exists()
+
+
+def _cantilever(floor: str, tolerance: float, solve: bool = True) -> Simulation:
+    """A 100 x 10 x 10 mm cantilever clamped at x = 0 whose weight would bend its free end 10 mm
+    down, over a floor 2 mm below it (the settled state, solved)."""
+    data = {"mesh": {"shape": "box", "size": [0.1, 0.01, 0.01], "cells": [20, 2, 2]},
+            "material": {"E": 1e6, "nu": 0.3, "density": 1000.0}, "gravity": {"vector": [0.0, 0.0, -9.81]},
+            "fixed": [{"where": "x < 1e-9"}], "time": {"mode": "quasi-static"}, "solver": {"kind": "cholesky"},
+            "skull": {"file": floor, "tolerance": tolerance}, "probes": {"tip": [0.1, 0.005, 0.0]}}
+    sim = Simulation(scene_from_dict(data), COMM)
+    if solve:
+        sim.solve_to_settled(0.0)
+    return sim
+
+
+def _held_on_the_floor(sim, floor_z: float) -> np.ndarray:
+    """The same body's linear equilibrium with the z components of the nodes the skull presses
+    held at the floor, every other component free (frictionless), solved by PETSc's LU with no
+    contact code; checked to be the contact solution (the floor pushes every held node up,
+    and no other surface node is below it). The displacement's owned entries."""
+    from dolfinx.fem.petsc import set_bc
+    from petsc4py import PETSc
+
+    model, contact = sim.model, sim.contact
+    force = contact.weights * contact._state(sim.state.u)[3]  # each node's share, as each rank holds it
+    largest = COMM.allreduce(float(force.max(initial=0.0)), op=MPI.MAX)
+    pressed = force > 1e-6 * largest
+    nodes, X = contact.nodes[pressed], contact.X[pressed]
+    rows = (3 * nodes + 2).astype(np.int32)
+    K = model.assemble(model.stiffness_form(), with_bcs=True)
+    F = K.createVecRight()
+    model.load_into(0.0, F)
+    set_bc(F, model.bcs)
+    held = F.duplicate()
+    held.set(0.0)
+    index = model.V.dofmap.index_map
+    local_to_global = index.local_to_global(np.arange(index.size_local + index.num_ghosts, dtype=np.int32))
+    held.setValues((3 * local_to_global[nodes] + 2).astype(np.int32), floor_z - X[:, 2])
+    held.assemblyBegin(), held.assemblyEnd()
+    K0 = K.copy()
+    K.zeroRowsColumnsLocal(rows, 1.0, held, F)
+    ksp = PETSc.KSP().create(COMM)
+    ksp.setOperators(K)
+    ksp.setType("preonly")
+    ksp.getPC().setType("lu")
+    u = F.duplicate()
+    ksp.solve(F, u)
+    reaction = K0.createVecLeft()
+    K0.mult(u, reaction)
+    model.load_into(0.0, F)
+    set_bc(F, model.bcs)
+    reaction.axpy(-1.0, F)
+    owned = index.size_local
+    mine = nodes[nodes < owned]
+    assert np.all(reaction.array_r.reshape(-1, 3)[mine, 2] > 0.0)  # the floor pushes up
+    surface = contact.nodes[contact.nodes < owned]
+    z = contact.X[np.isin(contact.nodes, surface), 2] + u.array_r.reshape(-1, 3)[surface, 2]
+    assert np.all(z >= floor_z - 1e-12)  # nothing below it
+    return u.array_r.copy()
+
+
+def test_a_cantilever_settles_on_a_floor_at_tight_tolerances(shared_tmp):
+    """Its weight bends the cantilever's free end onto a floor 2 mm below. At tolerance 1e-8 m
+    it stopped with exit 3 (Newton failed with the load cut to 1/1024: the whole step put
+    the falling end millimetres past the floor, and each halving only halved the distance
+    left), though the equilibrium exists. Now it settles at 3e-7, 1e-7 and 1e-8 m, within
+    each tolerance of the floor, and at 1e-8 within 2e-8 m everywhere of the solve that
+    holds the pressed nodes on the floor (the contact solution, solved with no contact code)."""
+    floor = _box_surface((-0.05, -0.05, -0.002), (0.2, 0.06, 0.05), shared_tmp / "cantilever_floor.stl")
+    tips = {}
+    for tolerance in (3e-7, 1e-7, 1e-8):
+        sim = _cantilever(floor, tolerance)
+        report = sim.contact.report(sim.state.u)
+        assert report["max_penetration_m"] <= tolerance and report["pressed_nodes"] > 0
+        tips[tolerance] = sim.probe_values()[0, 2]
+        assert tips[tolerance] == pytest.approx(-0.002, abs=tolerance)
+    assert tips[1e-8] == pytest.approx(tips[3e-7], abs=3e-7 + 1e-8)
+    free = sim.model.V.dofmap.index_map.size_local * 3
+    ref = _held_on_the_floor(sim, -0.002)
+    np.testing.assert_allclose(sim.state.u.x.array[:free], ref, rtol=0, atol=2e-8)
+
+
+def test_a_step_without_descent_goes_as_far_as_the_first_contact(shared_tmp):
+    """What Newton's watched step may take (contact.step_limit): the whole body moved 8 mm
+    down reaches the floor 2 mm below it (the kink, at rest without multipliers) at a quarter
+    of the way; tilted down towards the free end, where the end does; moved up or sideways,
+    the whole step; with multipliers of 1 mm times the penalty, 1 mm above the floor (the
+    STL's single precision: 1e-7)."""
+    floor = _box_surface((-0.05, -0.05, -0.002), (0.2, 0.06, 0.05), shared_tmp / "cantilever_floor.stl")
+    sim = _cantilever(floor, 1e-8, solve=False)
+    x = sim.model.V.tabulate_dof_coordinates()
+    du = fem.Function(sim.model.V)
+    for values, expected in (([0.0, 0.0, -0.008], 0.25), ([0.0, 0.0, 0.008], 1.0), ([0.003, 0.0, 0.0], 1.0)):
+        du.x.array.reshape(-1, 3)[:] = values
+        assert sim.contact.step_limit(sim.state.u, du) == pytest.approx(expected, rel=1e-7)
+    du.x.array.reshape(-1, 3)[:] = 0.0
+    du.x.array.reshape(-1, 3)[:, 2] = -0.01 * x[:, 0] / 0.1  # 10 mm down at the free end
+    assert sim.contact.step_limit(sim.state.u, du) == pytest.approx(0.2, rel=1e-7)
+    sim.contact.multipliers[:] = 0.001 * sim.contact.penalty  # the kink 1 mm off the floor: reached after 1 mm
+    assert sim.contact.step_limit(sim.state.u, du) == pytest.approx(0.1, rel=1e-7)
+
+
+def test_a_settled_state_not_found_in_contact_says_what_the_skull_had_to_do_with_it(floor, monkeypatch):
+    """Newton forced to fail on the block on the floor: the one-line message names the
+    tolerance and how deep the deepest node was where the last try stopped (not only a missing
+    support or a lost stability)."""
+    from fenics_brainshift.errors import SolverError
+    from fenics_brainshift.stepping.newton import NewtonStatic
+
+    newton = NewtonStatic._newton
+    monkeypatch.setattr(NewtonStatic, "_newton", lambda self, t, factor: newton(self, t, factor) and False)
+    sim = Simulation(scene_from_dict(_block([], {"file": floor, "tolerance": 1e-6})), COMM)
+    with pytest.raises(SolverError, match=r"with skull contact: the deepest node \d\.\d+e-0\d m past the skull where "
+                                          r"Newton stopped, \[skull\] tolerance = 1e-06 m \(if the body is held, a "
+                                          r"looser tolerance may settle\)$") as failure:
+        sim.solve_to_settled(0.0)
+    assert "\n" not in str(failure.value)

@@ -14,7 +14,9 @@ equilibrium for fixed multipliers, then lambda <- p, until the contact condition
 scene's tolerance: no node deeper past the skull, and none pushed while off it. The pressure
 pushes along grad phi only, so nodes slide freely along the skull. The tangent of -f, each
 node's 3x3 block, is taken by central differences of the node's force: the pressure term
-w k n n^T and the turning of n around the skull's edges and corners alike.
+w k n n^T and the turning of n around the skull's edges and corners alike. A node off the
+skull adds nothing to it: where no fraction of Newton's step reduces the residual, the step
+is taken as far as the first such node's contact (step_limit; stepping/newton.py's watchdog).
 
 Distances are the cost: phi is 1-Lipschitz, so a node whose last exact phi, less how far it
 has moved since, still leaves it far from the skull cannot be pressed, and is not queried
@@ -174,6 +176,18 @@ class SkullContact:
         phi, normal = self.skull.phi(y)
         self.queries += len(y)
         return (weights * self._pressure(multipliers, phi))[:, None] * normal
+
+    def step_limit(self, u, du) -> float:
+        """The largest fraction (at most 1) of the step du from u that brings no node from the
+        force-free side of its pressure's kink (phi > lambda / k) past it, by phi's linear
+        prediction along the node's normal; the same on every rank. Such a node adds nothing to
+        the tangent, so Newton's whole step takes it as far past the skull as the step reaches."""
+        _, phi, normal, _ = self._state(u)
+        rate = np.einsum("ni,ni->n", normal, du.x.array.reshape(-1, 3)[self.nodes])  # d phi / d step
+        kink = self.multipliers / self.penalty
+        reaching = (phi > kink) & (phi + rate < kink)
+        local = float(np.min((phi[reaching] - kink[reaching]) / -rate[reaching], initial=1.0))
+        return self.comm.allreduce(local, op=MPI.MIN)
 
     def update_multipliers(self, u) -> None:
         self.multipliers = self._state(u)[3]

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 from dolfinx import fem
+from mpi4py import MPI
 
 from ..errors import InputError
 from ..meshing import box_mesh, gmsh_shape, read_mesh_file, voxelized_mesh
@@ -22,6 +23,7 @@ from ..physics.contact import SkullContact
 from ..physics.skull import RigidSkull, closed_surface_problem, gathered_outward_surface, outward
 from ..physics.surface import surface_facets
 from ..scene import Scene
+from ..scene.body import LENGTH_UNITS
 from ..stepping import TimeIntegrator
 
 
@@ -74,10 +76,37 @@ def skull_contact(scene: Scene, model):
         skull = RigidSkull(points, outward(points, triangles))
     contact = SkullContact(model.V, facets, skull, scene.material.E, spec.tolerance)
     clearance = contact.clearance(fem.Function(model.V))  # at rest
+    if spec.file is not None:
+        _check_skull_size(scene, skull.triangles.reshape(-1, 3), model.V.mesh, clearance)
     if clearance < -spec.tolerance:
         raise InputError(f"[skull] the body's surface is {-clearance * 1e3:.3g} mm past the skull at t = 0: the "
                          f"skull must enclose the body (check its unit, [mesh] unit, and its frame)")
     return contact
+
+
+SKULL_SIZE = (0.5, 5.0)  # a skull file's size over the body's outside this range: a unit slip, not a skull
+
+
+def _check_skull_size(scene: Scene, skull_points, mesh, clearance: float) -> None:
+    """InputError for a skull file in another unit than the mesh: smaller than half the body
+    (by bounding-box diagonal), or more than 5x its size and farther from it at rest than the
+    body's own size (a wide box standing in for a floor is fine: the body rests on it)."""
+    comm = mesh.comm
+    x = mesh.geometry.x
+    lo = [comm.allreduce(float(v), op=MPI.MIN) for v in x.min(axis=0, initial=np.inf)]
+    hi = [comm.allreduce(float(v), op=MPI.MAX) for v in x.max(axis=0, initial=-np.inf)]
+    body = float(np.linalg.norm(np.subtract(hi, lo)))
+    size = float(np.linalg.norm(skull_points.max(axis=0) - skull_points.min(axis=0)))
+    small, large = SKULL_SIZE
+    if small * body <= size and (size <= large * body or clearance <= body):
+        return
+    unit, scale = scene.mesh.unit, scene.mesh.scale
+    # the unit that would make it a plausible skull (as large as the body up to 5x)
+    guesses = [u for u, f in LENGTH_UNITS.items() if u != unit and body <= size * f / scale <= large * body]
+    guess = f"is it in {guesses[0]}? " if guesses else ""
+    far = f", {clearance:.3g} m from it at rest" if size > large * body else ""
+    raise InputError(f"[skull] file '{Path(scene.skull.file).name}' is {size:.3g} m across against a {body:.3g} m "
+                     f"body{far}: {guess}give the skull in the mesh's unit ({unit}), enclosing the body")
 
 
 def fluid_settings(scene: Scene) -> FluidSettings | None:

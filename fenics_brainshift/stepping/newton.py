@@ -16,6 +16,7 @@ import numpy as np
 import ufl
 from dolfinx import fem
 from dolfinx.fem.petsc import assemble_matrix, assemble_vector, create_matrix, set_bc
+from mpi4py import MPI
 from petsc4py import PETSc
 
 from .. import compat
@@ -38,6 +39,7 @@ MAX_KRYLOV = 100  # GMRES iterations before the preconditioner is rebuilt on the
 STALE_KRYLOV = 30  # more than this in a solve: the next one rebuilds it first
 STALL_WITH_CONTACT = 1e3  # no descent within 1e-6 of the load counts as converged with contact
 MAX_CONTACT_ROUNDS = 30  # augmented-Lagrangian multiplier updates per settled state
+WATCHDOG = 10  # with contact: iterations a step taken without descent has to bring |R| below where it was
 
 
 def tangent_settings(settings: dict) -> dict:
@@ -69,7 +71,7 @@ def fixed_dofs(bcs) -> np.ndarray:
 
 
 def newton_iterate(x, dx, residual, solve, scale, rtol: float, krylov_floor: float, max_iterations: int,
-                   stall: float = 1.0):
+                   stall: float = 1.0, watchdog: int = 0, step_limit=None):
     """Newton's iteration on the Function x with a backtracking line search on |R|.
 
     residual() evaluates R at x into the caller's vector and returns |R| (inf when R is not
@@ -79,16 +81,29 @@ def newton_iterate(x, dx, residual, solve, scale, rtol: float, krylov_floor: flo
     floor and a tenth of the reduction the target still asks for), so the linear solves are no
     more exact than needed and the convergence stays quadratic. A line search that finds no
     descent within ``stall`` x the target counts as converged (round-off: the contact's rounded
-    kink, narrower than a micrometre, leaves a floor above 1e-9 of small loads). Returns (converged, the |R|
-    history); on failure x is wherever it stopped."""
+    kink, narrower than a micrometre, leaves a floor above 1e-9 of small loads). Otherwise,
+    with ``watchdog`` > 0, a step is taken without descent, as far as ``step_limit()`` allows
+    (a fraction of dx, no less than the shortest tried), and Newton fails unless the next
+    ``watchdog`` iterations bring |R| below where it was (the watchdog technique: Chamberlain,
+    Powell, Lemarechal and Pedersen 1982). That is for contact: a node off the skull adds
+    nothing to the tangent, so the whole step takes a falling body as far past the skull as it
+    would fall, and while the tail of the pressure's rounded kink (steep at a tight tolerance)
+    still holds it, each halving of the step only halves the distance left, or finds no
+    descent; the step as far as the first node's contact lets the next iteration press it.
+    Returns (converged, the |R| history); on failure x is wherever it stopped."""
     def target():
         return rtol * max(scale(), 1e-300)
 
     norm = residual()
     history = [norm]
-    for _ in range(max_iterations):
+    watched = None  # (|R|, iteration) where a step was taken without descent
+    for iteration in range(max_iterations):
         if norm <= target():
             return True, history
+        if watched is not None and norm < (1.0 - 1e-4) * watched[0]:
+            watched = None  # the step paid off
+        elif watched is not None and iteration - watched[1] > watchdog:
+            return False, history
         # no more exact than the target needs either: the last solve then takes a few Krylov
         # iterations, not dozens (a tenth of the reduction still left, as a margin)
         forcing = min(1e-2, max(norm / max(scale(), 1e-300), 0.1 * target() / norm, krylov_floor))
@@ -103,13 +118,19 @@ def newton_iterate(x, dx, residual, solve, scale, rtol: float, krylov_floor: flo
             trial = residual()
             if trial < (1.0 - 1e-4 * alpha) * norm:
                 break
-        else:  # no descent: fine if already at round-off (within ``stall`` targets), a failure otherwise
-            if trial > stall * target():
+        else:  # no descent: fine if already at round-off (within ``stall`` targets)
+            if trial <= stall * target():
+                return True, history + [trial]
+            if not watchdog or watched is not None:
                 return False, history
-            return True, history + [trial]
+            alpha = max(1.0 if step_limit is None else step_limit(), 0.5 ** 7)
+            x.x.array[:] = start + alpha * dx.x.array
+            trial, watched = residual(), (norm, iteration)
+            if not np.isfinite(trial):
+                return False, history
         norm = trial
         history.append(norm)
-        log.debug("  Newton: |R| %.3e after a step of %g", norm, alpha)
+        log.debug("  Newton: |R| %.3e after a step of %g%s", norm, alpha, " (watched)" if watched else "")
     return norm <= target(), history
 
 
@@ -267,9 +288,17 @@ class NewtonStatic:
         converged, self.history = newton_iterate(
             self.state.u, self._du, lambda: self._residual(t, factor),
             lambda forcing: self._solve_step(factor, t, forcing), lambda: self._load_norm, self.rtol,
-            self.solves.settings["rtol"], self.max_iterations, STALL_WITH_CONTACT if self.contact is not None else 1.0)
+            self.solves.settings["rtol"], self.max_iterations, *self._globalisation())
         self.iterations = len(self.history) - 1
         return converged
+
+    def _globalisation(self) -> tuple:
+        """(stall, watchdog, step_limit) of newton_iterate: with contact, round-off at the
+        kink counts as converged, and a step without descent may be taken up to the first
+        node's contact; without, neither."""
+        if self.contact is None:
+            return 1.0, 0, None
+        return STALL_WITH_CONTACT, WATCHDOG, lambda: self.contact.step_limit(self.state.u, self._du)
 
     # -- a settled state, with load stepping ------------------------------------------------------
     def forget_settled(self) -> None:
@@ -318,6 +347,7 @@ class NewtonStatic:
                 done = fraction
                 step = min(2.0 * step, 1.0 - done) if done < 1.0 else step
                 continue
+            deepest = self._deepest() if 0.5 * step < MIN_FRACTION else None  # where the last try stopped
             self.state.u.x.array[:] = saved
             step *= 0.5
             self.cuts += 1
@@ -325,11 +355,29 @@ class NewtonStatic:
                 raise SolverError(f"Newton did not converge at t = {t:g} s even with the load step cut to "
                                   f"{MIN_FRACTION:g} of it (residual {self.history[-1]:.2e}); the body may have "
                                   f"no equilibrium under these loads (a support missing?), or the material "
-                                  f"lost stability (Saint Venant-Kirchhoff does under strong compression)")
+                                  f"lost stability (Saint Venant-Kirchhoff does under strong compression)"
+                                  + self._contact_note(deepest))
             log.info("  t=%g s: Newton did not converge; load step cut to %g", t, step)
         self._t_settled = t
         self.state.t = t
         return self.iterations
+
+    def _deepest(self) -> float | None:
+        """How far the deepest node is past the skull in the current state (None without
+        contact, or where the state is not finite)."""
+        if self.contact is None:
+            return None
+        if not self.model.comm.allreduce(bool(np.isfinite(self.state.u.x.array).all()), op=MPI.LAND):
+            return None
+        return self.contact.penetration(self.state.u)
+
+    def _contact_note(self, deepest: float | None) -> str:
+        """The skull's part in a settled state that was not found, for its message."""
+        if self.contact is None:
+            return ""
+        where = "" if deepest is None else f"the deepest node {deepest:.3g} m past the skull where Newton stopped, "
+        return (f"; with skull contact: {where}[skull] tolerance = {self.contact.tolerance:g} m (if the body is "
+                f"held, a looser tolerance may settle)")
 
     def destroy(self) -> None:
         for matrix in (self._A, self._P, self._K0, self._K):
