@@ -9,37 +9,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from dolfinx.fem.petsc import set_bc
 
-from conftest import COMM, column_dict, decay_per_step
+from conftest import COMM, column_dict, decay_per_step, lowest_mode
 from fenics_brainshift.stepping.integrators import newmark_discrete_frequency
 from fenics_brainshift.runner import build_model
 from fenics_brainshift.scene import scene_from_dict
 from fenics_brainshift.runner import Simulation
-from fenics_brainshift.linalg import LinearSolver
 
 pytestmark = pytest.mark.mpi
 H = 0.1
-
-
-def _lowest_mode(model):
-    """(omega, phi) by inverse iteration; the next mode is 3x higher, so it converges fast."""
-    M = model.assemble(model.mass_form(), with_bcs=False)
-    K = model.assemble(model.stiffness_form(), with_bcs=False)
-    K_bc = model.assemble(model.stiffness_form(), with_bcs=True)
-    solver = LinearSolver(K_bc, "cholesky", name="modes")
-    x, b = K.createVecRight(), K.createVecRight()
-    x.set(1.0)
-    set_bc(x, model.bcs)
-    for _ in range(40):
-        M.mult(x, b)
-        set_bc(b, model.bcs)
-        solver.solve(b, x)
-        x.scale(1.0 / x.norm())
-    Kx, Mx = K.createVecRight(), K.createVecRight()
-    K.mult(x, Kx)
-    M.mult(x, Mx)
-    return np.sqrt(x.dot(Kx) / x.dot(Mx)), x
 
 
 def _free_vibration(scheme: dict, damping: dict, omega_dt: float, steps: int, degree: int = 1):
@@ -48,7 +26,7 @@ def _free_vibration(scheme: dict, damping: dict, omega_dt: float, steps: int, de
                        damping=damping)
     scene = scene_from_dict(data)
     model = build_model(scene, COMM)
-    omega, phi = _lowest_mode(model)
+    omega, phi, _ = lowest_mode(model)
     scene.time.dt = omega_dt / omega
     sim = Simulation(scene, COMM, model)
     n = sim.state.n_owned
