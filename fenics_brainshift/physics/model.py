@@ -165,7 +165,7 @@ class Model:
         if self.load_scale != 1.0:
             out.scale(self.load_scale)
         if self.growth is not None:
-            growth_load = self._growth_load(t)  # sets the stretch to t
+            growth_load = self.growth_load(t)  # sets the stretch to t
             if not self.nonlinear:  # a hyperelastic body's internal force holds the growth
                 out.axpy(1.0, growth_load)
         return out
@@ -180,10 +180,11 @@ class Model:
         """What a hyperelastic body's growth weighs beside the loads at time t, for Newton's
         convergence test: |the linearised eigenstrain load| (its residual at rest). 0 for a
         linear body (load_into holds its growth) and without growth."""
-        return self._growth_load(t).norm() if self.growth is not None and self.nonlinear else 0.0
+        return self.growth_load(t).norm() if self.growth is not None and self.nonlinear else 0.0
 
-    def _growth_load(self, t: float) -> PETSc.Vec:
-        """The linear(ised) eigenstrain load at time t, with the stretch set to t; assembled
+    def growth_load(self, t: float) -> PETSc.Vec:
+        """The linear(ised) eigenstrain load at time t, with the stretch set to t (a linear
+        body's load; a hyperelastic body's Newton starts from its answer); assembled
         again only when the stretch changed."""
         changed = self.growth.set_time(t)
         if self._growth_form is None:
