@@ -45,6 +45,7 @@ class Model:
     growth: Growth | None = None  # only when the tissue shrinks or swells
     _growth_form: object = field(default=None, repr=False)  # its linear load, compiled on first use
     _growth_vector: object = field(default=None, repr=False)
+    _growth_scale: tuple = field(default=(None, 0.0), repr=False)  # (t, |load|): Newton asks it often
 
     @classmethod
     def create(cls, mesh, degree: int, E: float, nu: float, density: float, gravity, supports=(),
@@ -175,12 +176,17 @@ class Model:
         self.gravity.refresh()
         if self._growth_vector is not None:
             assemble_into(self._growth_vector, self._growth_form)
+            self._growth_scale = (None, 0.0)
 
     def growth_scale(self, t: float) -> float:
         """What a hyperelastic body's growth weighs beside the loads at time t, for Newton's
         convergence test: |the linearised eigenstrain load| (its residual at rest). 0 for a
         linear body (load_into holds its growth) and without growth."""
-        return self.growth_load(t).norm() if self.growth is not None and self.nonlinear else 0.0
+        if self.growth is None or not self.nonlinear:
+            return 0.0
+        if self._growth_scale[0] != t:  # the convergence test asks at every line-search trial
+            self._growth_scale = (t, self.growth_load(t).norm())
+        return self._growth_scale[1]
 
     def growth_load(self, t: float) -> PETSc.Vec:
         """The linear(ised) eigenstrain load at time t, with the stretch set to t (a linear

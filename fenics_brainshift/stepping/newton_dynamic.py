@@ -31,7 +31,8 @@ from ..physics.surface import surface_facets
 from .contact_preconditioner import ContactPreconditioner
 from .dynamic import DynamicStepper
 from .lagged_contact import LaggedContact
-from .newton import MAX_CONTACT_ROUNDS, STALL_WITH_CONTACT, fixed_dofs, newton_iterate, reassemble, tangent_settings
+from .newton import MAX_CONTACT_ROUNDS, STALL_WITH_CONTACT, fixed_dofs, reassemble, tangent_settings
+from .newton_iteration import newton_iterate
 
 log = get_logger("newton")
 MAX_CUTS = 5  # a failed step is cut in halves, down to dt / 32
