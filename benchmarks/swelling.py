@@ -34,10 +34,11 @@ REGIONS = {
 }
 
 
-def settle(voxel: float, model: str, regions) -> tuple[float, float, int, float]:
-    """(setup s, settled-state s, linear solves, frontal pole |u| mm)."""
+def settle(voxel: float, model: str, regions, overrides=()) -> tuple[float, float, int, float]:
+    """(setup s, settled-state s, linear solves, frontal pole |u| mm) of the brain with these
+    [[swelling]] regions and scene overrides (benchmarks/septa.py uses it too)."""
     scene = load_scene("brain", [f"mesh.voxel={voxel}", "time.mode=quasi-static", f"material.model={model}",
-                                 "output.pictures=false"])
+                                 "output.pictures=false", *overrides])
     scene.swelling = regions
     t0 = time.perf_counter()
     sim = Simulation(scene, MPI.COMM_WORLD)
@@ -51,18 +52,25 @@ def settle(voxel: float, model: str, regions) -> tuple[float, float, int, float]
     return t1 - t0, t2 - t1, solves, pole
 
 
+def timed_runs(regions: dict, settle, voxel: float, warm_voxel: float) -> tuple[list, dict]:
+    """(cases, {case: [settle's result per repeat]}) for both models and every region, the
+    repeats taken in turn; the form compiler's cache warmed first on a coarse mesh."""
+    cases = [(m, r) for m in ("linear", "neo-hookean") for r in regions]
+    for model, region in cases:
+        settle(warm_voxel, model, regions[region])
+    runs = {case: [] for case in cases}
+    for _ in range(REPEATS):
+        for case in cases:
+            runs[case].append(settle(voxel, case[0], regions[case[1]]))
+    return cases, runs
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--voxel", type=float, default=0.005)
     args = p.parse_args(argv)
     logs.configure("WARNING")
-    cases = [(m, r) for m in ("linear", "neo-hookean") for r in REGIONS]
-    for model, region in cases:  # the form compiler's cache, warmed on a coarse mesh
-        settle(0.03, model, REGIONS[region])
-    runs = {case: [] for case in cases}
-    for _ in range(REPEATS):
-        for case in cases:
-            runs[case].append(settle(args.voxel, case[0], REGIONS[case[1]]))
+    cases, runs = timed_runs(REGIONS, settle, args.voxel, 0.03)
     lines = [f"# What a [[swelling]] costs a settled state: the bundled brain, {args.voxel * 1e3:g} mm voxels", "",
              f"`.venv/bin/python benchmarks/swelling.py --voxel {args.voxel:g}`; {platform.processor() or platform.machine()}, "
              f"one rank; the settled state after the drain (follower CSF load); medians of {REPEATS} runs taken in turn. "

@@ -15,6 +15,7 @@
 #     python demos/brain.py                  # serial, writes out_brain/
 #     mpirun -n 2 python demos/brain.py      # the same on two ranks
 #     python demos/brain.py --shrink 2       # and the whole brain shrinks by 2 % (mannitol)
+#     python demos/brain.py --septa          # with the falx and the tentorium, which it slides along
 
 # +
 import argparse
@@ -43,6 +44,8 @@ def parse_args(argv=None):
                    help="scene overrides, as for brainshift run")
     p.add_argument("--shrink", type=float, default=0.0, metavar="PERCENT",
                    help="the whole brain's tissue shrinks by this much (a hyperosmotic drug), over the drain")
+    p.add_argument("--septa", action="store_true",
+                   help="turn on the scene's falx and tentorium (rigid membranes the tissue slides along)")
     return p.parse_args(argv)
 
 
@@ -54,6 +57,8 @@ def main(argv=None) -> int:
     logs.configure("INFO")
     comm = MPI.COMM_WORLD
     overrides = list(args.set) + (["time.mode=quasi-static"] if args.quasi_static else [])
+    if args.septa:
+        overrides += ["septum.falx.enabled=true", "septum.tentorium.enabled=true"]
     try:
         scene = load_scene(args.scene, overrides)
         if args.shrink:  # as a [[swelling]] table would give it: every cell, over the drain's 10 s
@@ -73,6 +78,12 @@ def main(argv=None) -> int:
         print(f"  CSF level {summary['final_level_m'] * 1e3:.0f} mm; frontal pole moves "
               f"[{pole[0]:.2f}, {pole[1]:.2f}, {pole[2]:.2f}] mm, |u| = {np.linalg.norm(pole):.2f} mm "
               f"(largest anywhere {summary['max_displacement_m'] * 1e3:.2f} mm); the paper: {PAPER_SHIFT_MM}")
+        for septum in summary.get("septa", []):
+            force = np.array(septum["force_N"])
+            print(f"  {septum['name']}: {septum['nodes']} nodes; it pushes the tissue with "
+                  f"{np.linalg.norm(force) * 1e3:.0f} mN in all ({septum['normal_force_sum_N'] * 1e3:.0f} mN summed "
+                  f"over its nodes, from both sides); the tissue slides up to {septum['largest_slide_m'] * 1e3:.2f} mm "
+                  f"along it and {septum['largest_motion_across_m'] * 1e3:.1g} mm across")
         print(f"  results in {out}/: displacement.xdmf (ParaView), surface_final.vtk/.stl "
               f"(3D Slicer), probes.csv, summary.json, frontal_pole.png")
         plot_probe(out)

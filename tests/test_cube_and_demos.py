@@ -289,3 +289,19 @@ def test_brain_demo_shrinks_the_brain_towards_its_supports(tmp_path):
         poles[shrink] = np.array(json.loads((out / "summary.json").read_text())["probes"]["frontal_pole"])
     extra = poles["2"][1] - poles["0"][1]
     assert -2.0e-3 < extra < -0.5e-3, extra
+
+
+def test_brain_demo_with_the_septa_holds_a_brain_lying_on_its_side(tmp_path):
+    """--septa turns on the scene's falx and tentorium: lying on the right side the falx holds
+    the midline, so the frontal pole moves far less than without (at 5 mm: 2.5 against 20.8 mm,
+    benchmarks/results/septa_effect.md), and the demo says what each septum carries."""
+    side = ["--set", "gravity.vector=[9.81, 0.0, 0.0]", "--set", "fluid.level=[[0.0, 0.08], [10.0, 0.02], [16.0, 0.02]]"]
+    poles, printed = {}, {}
+    for flag in ([], ["--septa"]):
+        out = tmp_path / ("septa" if flag else "none")
+        printed[bool(flag)] = _run(out, 1, str(ROOT / "demos" / "brain.py"), "--quasi-static", *flag, "--out", str(out),
+                                   "--set", "mesh.voxel=0.012", "--set", "output.pictures=false", *side)
+        summary = json.loads((out / "summary.json").read_text())
+        poles[bool(flag)] = np.linalg.norm(summary["probes"]["frontal_pole"])
+    assert poles[True] < 0.3 * poles[False], poles
+    assert "falx:" in printed[True] and "tentorium:" in printed[True] and "falx:" not in printed[False]

@@ -178,3 +178,18 @@ def test_over_a_face_next_to_its_edge_the_direction_is_the_face_normal():
     _, side, direction = RigidSkull(floor, triangles).distance(y)
     assert np.all(side == 1.0)
     np.testing.assert_allclose(direction, np.tile([0.0, 0.0, -1.0], (400, 1)), rtol=0, atol=1e-10)
+
+
+@pytest.mark.parametrize("far", [1e3, 1e8, 1.25e11])
+def test_a_point_far_outside_is_outside(far):
+    """A diverged iterate (a body free to translate, 1e11 m out) is past the skull, not inside:
+    every face of a small body is nearly as far, and a tie to within the distance's 1e-9 made
+    the farthest face's plane decide (it said inside: the run reported no contact)."""
+    points, triangles = lattice_box(*(np.linspace(0.0, s, 4) for s in (W, D, H)))
+    skull = RigidSkull(points, triangles)
+    rng = np.random.default_rng(7)
+    directions = rng.normal(size=(50, 3))
+    y = np.array([W, D, H]) / 2 + far * directions / np.linalg.norm(directions, axis=1)[:, None]
+    _, side, _ = skull.distance(y)
+    assert np.all(side == 1.0)
+    assert np.all(winding_number(points, triangles, y) < 0.5)

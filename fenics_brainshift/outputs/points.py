@@ -44,6 +44,11 @@ class PointEvaluator:
         self.cells = cells[self.mine].astype(np.int32)
         self.n = n
 
+    @property
+    def inside(self) -> np.ndarray:
+        """Which points lie in a cell of the mesh (bool, N)."""
+        return ~self._outside_mask
+
     def far_outside(self) -> np.ndarray:
         """Indices of points farther from every cell than a cell's own size."""
         if not self.outside:

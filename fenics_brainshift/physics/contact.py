@@ -44,8 +44,9 @@ def _add_blocks(A: PETSc.Mat, dofs: np.ndarray, blocks: np.ndarray) -> None:
 
 
 class SkullContact:
-    def __init__(self, V, facets, skull, E: float, tolerance: float):
+    def __init__(self, V, facets, skull, E: float, tolerance: float, constraints=None):
         self.V, self.skull, self.tolerance = V, skull, tolerance
+        self.constraints = constraints  # physics/constraints.py: septa take the normal part of its blocks
         self.comm = V.mesh.comm
         X = facets.x_vertices  # (F, 3, 3)
         edges = np.linalg.norm(X - np.roll(X, 1, axis=1), axis=2).ravel()
@@ -134,6 +135,8 @@ class SkullContact:
             step = np.zeros(3)
             step[j] = h
             blocks[:, :, j] = -scale * (self._force(y + step, lam, w) - self._force(y - step, lam, w)) / (2 * h)
+        if self.constraints is not None:  # a node on a septum: its block projected as the matrix is
+            blocks = self.constraints.blocks(self.nodes[pressed], blocks)
         return self.nodes[pressed], blocks
 
     def _pressed(self, phi: np.ndarray) -> np.ndarray:

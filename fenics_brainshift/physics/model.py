@@ -19,9 +19,11 @@ from ..linalg import diagonal_matrix
 from . import forms
 from .fluid import FluidLoad, FluidSettings
 from .gravity import GravityLoad, assemble_into
+from .constraints import Constraints
 from .growth import Growth
 from .material import MODELS, Hyperelastic, LinearElastic, lame_parameters
 from .resection import Tissue, cell_centroids, fill_empty_diagonal
+from .septa import septum_nodes
 from .supports import fixed_conditions
 
 
@@ -46,20 +48,27 @@ class Model:
     _growth_form: object = field(default=None, repr=False)  # its linear load, compiled on first use
     _growth_vector: object = field(default=None, repr=False)
     _growth_scale: tuple = field(default=(None, 0.0), repr=False)  # (t, |load|): Newton asks it often
+    constraints: Constraints | None = None  # supports and septa as one projector (constraints.py)
+
+    def __post_init__(self):
+        if self.constraints is None:
+            self.constraints = Constraints(self.V, self.bcs)
 
     @classmethod
     def create(cls, mesh, degree: int, E: float, nu: float, density: float, gravity, supports=(),
                fluid: FluidSettings | None = None, cuts=(), lumped: bool | None = None,
-               material_model: str = "linear", swelling=()) -> "Model":
+               material_model: str = "linear", swelling=(), septa=()) -> "Model":
         """A model on ``mesh``: Lagrange ``degree`` 1 or 2, a material (E Pa, nu; "linear",
         "neo-hookean" or "saint-venant-kirchhoff"), density (kg/m3), gravity (m/s2, 3-vector),
         supports (supports.Support), an optional fluid, cuts (resection.Cut); lumped mass by
         default for P1 (consistent for P2); swelling: (select: cell centroids (N, 3) -> bool,
-        t -> volume change) pairs, the regions that shrink or swell."""
+        t -> volume change) pairs, the regions that shrink or swell; septa (septa.Septum): rigid
+        membranes the tissue slides along."""
         if material_model not in MODELS:
             raise ValueError(f"material_model must be one of {', '.join(MODELS)} (got {material_model!r})")
         V = compat.vector_space(mesh, degree)
         bcs = fixed_conditions(V, supports)
+        constraints = Constraints(V, bcs, [(s.name, *septum_nodes(V, s)) for s in septa])
         mu, lmbda = lame_parameters(E, nu)
         tissue = Tissue(mesh, cuts) if cuts else None
         rho = PETSc.ScalarType(density) * (tissue.indicator if tissue is not None else 1.0)
@@ -69,7 +78,8 @@ class Model:
             centroids = cell_centroids(mesh)
             growth = Growth(mesh, [(np.asarray(select(centroids), dtype=bool), change) for select, change in swelling])
         return cls(mesh, V, bcs, mu, lmbda, density, degree == 1 if lumped is None else lumped,
-                   GravityLoad(V, rho, gravity), fluid_load, tissue, material_model, growth=growth)
+                   GravityLoad(V, rho, gravity), fluid_load, tissue, material_model, growth=growth,
+                   constraints=constraints)
 
     @property
     def comm(self):
@@ -121,13 +131,15 @@ class Model:
         return c_mass * self.mass_form() + c_stiff * self.stiffness_form()
 
     def assemble(self, ufl_form, with_bcs: bool) -> PETSc.Mat:
-        """A matrix; with_bcs: rows and columns of fixed dofs replaced by the identity, and
-        (after a resection) a unit diagonal on rows with no tissue left, so the matrix that
-        is solved stays regular."""
+        """A matrix; with_bcs: rows and columns of fixed dofs replaced by the identity, (after
+        a resection) a unit diagonal on rows with no tissue left, so the matrix that is solved
+        stays regular, and the septa's normal parts taken out (constraints.py)."""
         A = assemble_matrix(fem.form(ufl_form), bcs=self.bcs if with_bcs else [])
         A.assemble()
         if with_bcs and self.tissue is not None:
             fill_empty_diagonal(A)
+        if with_bcs:
+            self.constraints.matrix(A, supports=False)
         return A
 
     def mass_matrix(self) -> PETSc.Mat:

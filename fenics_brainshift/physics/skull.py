@@ -114,6 +114,7 @@ class RigidSkull:
         self._tree = _BoxTree(tri)
         # round-off allowance of the bounds: no triangle tied for nearest is left out
         self._slack = 1e-12 * (1.0 + np.abs(tri).max(initial=0.0))
+        self._size = float(np.ptp(tri.reshape(-1, 3), axis=0).max(initial=0.0))
 
     def _disk_distance(self, p: np.ndarray, triangle: np.ndarray) -> np.ndarray:
         """A lower bound of the distance from each point p to its triangle: to the disk in the
@@ -159,7 +160,11 @@ class RigidSkull:
         # to round-off, and the direction from its point on the edge would turn as if at one
         gap = y[point] - q
         offsets = np.einsum("ni,ni->n", gap, self.normals[triangle])
-        tied = dist <= best[point] * (1 + 1e-9) + 1e-15
+        # tied: equal to round-off. Relative to the distance near the surface; far from it
+        # (a diverged iterate 1e11 m out) relative to the surface's size, or every face of a
+        # small body would tie and the farthest plane's side win: "inside"
+        slack = 1e-9 * np.minimum(best, self._size) + 1e-15 + 1e-14 * np.linalg.norm(y, axis=1)
+        tied = dist <= best[point] + slack[point]
         aside = np.zeros(len(point))
         aside[tied] = np.linalg.norm(gap[tied] - offsets[tied, None] * self.normals[triangle[tied]], axis=1)
         strongest = np.lexsort((aside, -np.where(tied, np.abs(offsets), -1.0), point))[starts]

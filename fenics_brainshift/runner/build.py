@@ -20,6 +20,7 @@ from ..outputs.fine_surface import load_fine_surface
 from ..meshing.voxelize import VoxelizeError, read_surface
 from ..physics import Cut, FluidSettings, Model, Support
 from ..physics.contact import SkullContact
+from ..physics.septa import Septum
 from ..physics.skull import RigidSkull, closed_surface_problem, gathered_outward_surface, outward
 from ..physics.surface import surface_facets
 from ..scene import Scene
@@ -74,7 +75,7 @@ def skull_contact(scene: Scene, model):
             raise InputError(f"[skull] file '{Path(spec.file).name}' is not a closed surface: {problem}; close it "
                              f"(e.g. fill holes in 3D Slicer or MeshLab) or use gap = ... instead")
         skull = RigidSkull(points, outward(points, triangles))
-    contact = SkullContact(model.V, facets, skull, scene.material.E, spec.tolerance)
+    contact = SkullContact(model.V, facets, skull, scene.material.E, spec.tolerance, model.constraints)
     clearance = contact.clearance(fem.Function(model.V))  # at rest
     if spec.file is not None:
         _check_skull_size(scene, skull.triangles.reshape(-1, 3), model.V.mesh, clearance)
@@ -153,13 +154,33 @@ def _check_swelling(scene: Scene, model: Model) -> None:
                              f"check the region (metres, mesh frame)")
 
 
+def septa(scene: Scene) -> list[Septum]:
+    """The enabled [[septum]]s as septa on the mesh's frame (m)."""
+    out = []
+    for spec in scene.septa:
+        if spec.normal is not None:
+            out.append(Septum.plane(spec.title, spec.point, spec.normal, spec.predicate, spec.reach))
+            continue
+        if spec.file is not None:
+            try:
+                points, triangles = read_surface(Path(spec.file), scene.mesh.scale)
+            except VoxelizeError as exc:
+                raise InputError(f"[[septum]] {spec.title} file: {exc}") from None
+        else:
+            points, triangles = label_surface(scene.mesh.file, [spec.label], scene.mesh.scale,
+                                              f"[[septum]] {spec.title} label")
+        out.append(Septum.surface(spec.title, points, triangles, spec.predicate, spec.reach))
+    return out
+
+
 def build_model(scene: Scene, comm) -> Model:
     """Mesh, space, supports, material and loads of a scene; every input check happens here."""
     mesh = build_mesh(scene, comm)
     mat = scene.material
     model = Model.create(mesh, scene.element.degree, mat.E, mat.nu, mat.density, scene.gravity.vector,
                          supports(scene), fluid_settings(scene), cuts(scene),
-                         lumped=scene.element.mass == "lumped", material_model=mat.model, swelling=swelling(scene))
+                         lumped=scene.element.mass == "lumped", material_model=mat.model, swelling=swelling(scene),
+                         septa=septa(scene))
     _check_swelling(scene, model)
     return model
 

@@ -44,6 +44,7 @@ class Plan:
     material: str = ""  # with [material] model = "auto": which model, and why
     contact: str = ""  # with [skull]: when contact is solved, when skipped
     swelling: str = ""  # with [[swelling]]: the regions, and how their growth enters
+    septa: str = ""  # with [[septum]]: which, and how they hold the tissue
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -59,6 +60,8 @@ class Plan:
             lines.append(f"plan: contact {self.contact}")
         if self.swelling:
             lines.append(f"plan: swelling {self.swelling}")
+        if self.septa:
+            lines.append(f"plan: septa {self.septa}")
         return lines
 
 
@@ -154,8 +157,13 @@ def make_plan(scene: Scene, mesh) -> Plan:
         growth = (f"{len(scene.swelling)} region(s) ({where}): " + (
             "the eigenstrain's load, assembled again when a schedule moves" if scene.material.model == "linear"
             else "the growth in the internal force (F = F_e F_g)"))
+    septa = ""
+    if scene.septa:
+        septa = (f"{len(scene.septa)} ({'; '.join(f'{s.title}: {s.describe()}' for s in scene.septa)}): the "
+                 f"tissue slides along them; their nodes' normal motion is held exactly (every matrix projected "
+                 f"once per assembly, P A P + I - P)")
     return Plan(mode, reasons, period, change, fluid_load=fluid, fields=fields, stiffness_band=band, contact=contact,
-                swelling=growth)
+                swelling=growth, septa=septa)
 
 
 def stiffness_band(scene: Scene, plan: Plan, max_displacement: float, probes: dict) -> dict | None:

@@ -10,8 +10,13 @@
 from __future__ import annotations
 
 import numpy as np
+import ufl
+from dolfinx import fem
+from dolfinx.fem.petsc import assemble_vector
 from mpi4py import MPI
+from petsc4py import PETSc
 
+from .. import compat
 from ..linalg import rigid_body_modes
 from ..outputs.probes import Probes, SurfaceAverages
 from ..outputs.validity import StrainMeter
@@ -149,3 +154,33 @@ class Simulation:
                 "fluid_force_N": hydro.force if hydro else np.zeros(3),
                 "submerged_volume_m3": hydro.submerged_volume if hydro else 0.0,
                 "final_level_m": self.level}
+
+    def septa_report(self) -> list[dict]:
+        """What each septum carries at the current state (physics/constraints.py): its
+        reaction is what the equation of motion leaves unbalanced at its nodes,
+        f_int(u) + M (a + a_d v) + b_d K v - F(t, u) - the skull's forces (a settled state:
+        no inertia)."""
+        model, st = self.model, self.state
+        v = ufl.TestFunction(model.V)
+        r = assemble_vector(fem.form(model.constitutive.internal_force(st.u, v)))
+        r.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        loads = r.duplicate()
+        model.load_into(st.t, loads, st.u)
+        if self.contact is not None:
+            loads.axpy(1.0, self.contact.assemble(st.u))
+        r.axpy(-1.0, loads)
+        r.scale(1.0 / model.load_scale)  # the loads were scaled for a stiffness fitted on the same factor
+        if self.is_dynamic:
+            M, K = model.mass_matrix(), model.assemble(model.stiffness_form(), with_bcs=False)
+            velocity = compat.petsc_vec(st.v)
+            motion = velocity.duplicate()
+            motion.waxpy(self.scene.damping.a, velocity, compat.petsc_vec(st.a))
+            M.multAdd(motion, r, r)
+            motion.array[:] = self.scene.damping.b * velocity.array_r
+            K.multAdd(motion, r, r)
+            for part in (M, K, motion):
+                part.destroy()
+        report = model.constraints.report(r, st.u)
+        for part in (r, loads):
+            part.destroy()
+        return report

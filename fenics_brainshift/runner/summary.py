@@ -68,6 +68,8 @@ def summary(sim, h, stopped, setup_s: float) -> dict:
                                 "multiplier_updates": getattr(solver, "contact_rounds", 0),
                                 "states_without_contact": getattr(solver, "skipped", 0),
                                 "contact_from_s": getattr(solver, "engaged_at", None)}
+    if model.constraints.labels:
+        out["septa"] = sim.septa_report()
     if model.tissue is not None:
         out["removals"] = sim.dynamic.removals if sim.dynamic is not None else []
         out["removed_fraction"] = model.tissue.removed_fraction

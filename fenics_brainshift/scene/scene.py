@@ -10,6 +10,7 @@ from .checks import vector3
 from .loads import Fluid, Gravity
 from .numerics import Damping, Element, Output, SolverConfig, TimeScheme
 from .predicates import Predicate, PredicateError, parse_predicate
+from .septum import SeptumSpec
 from .skull import Skull
 
 MAX_RHO_INF_WITH_CONTACT = 0.5  # a block bouncing on the floor kept its energy bounded at 0.5, not at 0.8
@@ -25,6 +26,7 @@ class Scene:
     fixed: tuple[FixedRegion, ...] = ()
     remove: tuple[Removal, ...] = ()
     swelling: tuple[Swelling, ...] = ()
+    septa: tuple[SeptumSpec, ...] = ()  # the enabled [[septum]] entries
     time: TimeScheme = field(default_factory=TimeScheme)
     damping: Damping = field(default_factory=Damping)
     solver: SolverConfig = field(default_factory=SolverConfig)
@@ -40,9 +42,13 @@ class Scene:
         if self.fluid is not None and self.fluid.rule == "paper" and self.element.degree != 1:
             raise InputError("[fluid] rule = \"paper\" shares forces among triangle vertices: degree 1 only; use \"consistent\"")
         glued = self.skull is not None and self.skull.glue is not None
-        if self.time.mode == "quasi-static" and not self.fixed and not glued:
+        if self.time.mode == "quasi-static" and not self.fixed and not glued and not self.septa:
             raise InputError("[[fixed]] a quasi-static scene needs at least one fixed region (K alone is singular; "
-                             "with a [skull], its fixed_where also holds)")
+                             "with a [skull], its fixed_where also holds; septa that hold every rigid motion do)")
+        for s in self.septa:
+            if s.label is not None and not formats.is_label_volume(self.mesh.file or ""):
+                raise InputError(f"[[septum]] {s.title} label needs [mesh] file to be a label volume (.nii, .nii.gz, "
+                                 f".nrrd); give a plane (point, normal) or a file otherwise")
         for r in self.remove:
             if self.time.mode == "quasi-static":
                 raise InputError("[[remove]] needs [time] mode = \"dynamic\" (or \"auto\"): a freed piece makes K "

@@ -11,6 +11,7 @@ from ..errors import InputError
 from .body import FixedRegion, Material, MeshSpec, Removal, Swelling
 from .loads import Fluid, Gravity
 from .numerics import Damping, Element, Output, SolverConfig, TimeScheme
+from .septum import SeptumSpec
 from .skull import Skull
 from .scene import Scene
 
@@ -38,7 +39,7 @@ def _build(cls, table: Any, where: str):
 
 def scene_from_dict(data: dict, base: Path | None = None) -> Scene:
     """Build a Scene from parsed TOML; relative mesh files resolve against ``base``."""
-    known = list(_SECTIONS) + ["fixed", "remove", "swelling", "probes", "surfaces", "name"]
+    known = list(_SECTIONS) + ["fixed", "remove", "swelling", "septum", "probes", "surfaces", "name"]
     for key in data:
         if key not in known:
             raise InputError(f"unknown section [{key}]; known sections: {', '.join(known)}")
@@ -59,6 +60,21 @@ def scene_from_dict(data: dict, base: Path | None = None) -> Scene:
     if not isinstance(swelling, list):
         raise InputError("[[swelling]] must be an array of tables: [[swelling]] where = \"...\", volume_change = -0.02")
     kwargs["swelling"] = tuple(_build(Swelling, r, "[[swelling]]") for r in swelling)
+    septa = data.get("septum", [])
+    if not isinstance(septa, list):
+        raise InputError("[[septum]] must be an array of tables: [[septum]] name = \"falx\", point = [0, 0, 0], "
+                         "normal = [1, 0, 0]")
+    septa = [_build(SeptumSpec, r, "[[septum]]") for r in septa]
+    for septum in septa:
+        if septum.file is not None:
+            if base is not None and not Path(septum.file).is_absolute():
+                septum.file = str((base / septum.file).resolve())
+            if not Path(septum.file).is_file():
+                raise InputError(f"[[septum]] {septum.title} file not found: {septum.file}")
+    names = [s.name for s in septa if s.name is not None]
+    if len(set(names)) != len(names):
+        raise InputError(f"[[septum]] names must differ (got {', '.join(names)})")
+    kwargs["septa"] = tuple(s for s in septa if s.enabled)
     probes = data.get("probes", {})
     if not isinstance(probes, dict):
         raise InputError("[probes] must be a table of name = [x, y, z]")
@@ -92,7 +108,8 @@ FILE_KEYS = ("mesh.file", "mesh.surface", "skull.file", "probes.markups")
 
 
 def apply_override(data: dict, assignment: str) -> None:
-    """Apply ``section.key=value`` (``fixed.0.where=...`` indexes arrays) to parsed TOML.
+    """Apply ``section.key=value`` (``fixed.0.where=...`` indexes arrays, ``septum.falx.enabled``
+    names an entry by its ``name``) to parsed TOML.
 
     The value is read as a TOML value (numbers, booleans, strings, arrays); a bare word that
     is not valid TOML is taken as a string, so ``solver.kind=cholesky`` works unquoted."""
@@ -103,15 +120,21 @@ def apply_override(data: dict, assignment: str) -> None:
         value = tomllib.loads(f"v = {text.strip()}")["v"]
     except tomllib.TOMLDecodeError:
         value = text.strip()
-    if key.strip() in FILE_KEYS and isinstance(value, str):
+    if (key.strip() in FILE_KEYS or key.strip().startswith("septum.") and key.strip().endswith(".file")) \
+            and isinstance(value, str):
         value = str(Path(value).resolve())  # typed in a shell: relative to where it was typed
     node: Any = data
     parts = key.strip().split(".")
     for i, part in enumerate(parts):
         last = i == len(parts) - 1
         if isinstance(node, list):
+            named = [j for j, entry in enumerate(node) if isinstance(entry, dict) and entry.get("name") == part]
+            if named:
+                part = str(named[0])
             if not part.isdigit() or int(part) >= len(node):
-                raise InputError(f"--set '{key}': '{part}' is not an index of that array (0..{len(node) - 1})")
+                names = [entry["name"] for entry in node if isinstance(entry, dict) and isinstance(entry.get("name"), str)]
+                known = f" or a name ({', '.join(names)})" if names else ""
+                raise InputError(f"--set '{key}': '{part}' is not an index of that array (0..{len(node) - 1}){known}")
             if last:
                 node[int(part)] = value
             else:

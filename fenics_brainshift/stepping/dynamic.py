@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import dolfinx.la
 from dolfinx import fem
-from dolfinx.fem.petsc import set_bc
 
 from .. import compat
 from ..linalg import LinearSolver, PairProduct, solve_preconditioned_by
@@ -42,7 +41,7 @@ class DynamicStepper:
         self._F_old, self._rhs, self._tmp, self._wm, self._wk, self._base, self._K_u, self._K_wk = (
             self._F.duplicate() for _ in range(8))
         self._K_wk_of_step = -1
-        self.settle = Settle(self._F, model.bcs, model.fluid, follower_tolerance)
+        self.settle = Settle(self._F, model.constraints, model.fluid, follower_tolerance)
         newmark = integrator.alpha_m == 0.0 and integrator.alpha_f == 0.0
         self.energy = EnergyBalance(tolerance=1e-2 if newmark else 1.0)
         self.check_energy = True
@@ -110,7 +109,7 @@ class DynamicStepper:
         rhs.axpy(-1.0, self._tmp)
         self.K.mult(self._wk, self._tmp)
         rhs.axpy(-1.0, self._tmp)
-        set_bc(rhs, m.bcs)
+        m.constraints.vector(rhs)
         its = self._solve_averaged_mass(rhs, compat.petsc_vec(st.a))
         log.debug("initial acceleration: %d CG iterations", its)
         st.a.x.scatter_forward()
@@ -195,7 +194,7 @@ class DynamicStepper:
         jump = self._F.duplicate()
         self._unbalanced_force(jump)  # g' - M' a, with a still the old one
         jump.axpy(-1.0, kept)  # g' - g - (M' - M) a
-        set_bc(jump, self.model.bcs)
+        self.model.constraints.vector(jump)
         change = jump.duplicate()
         self._solve_averaged_mass(jump, change)
         compat.petsc_vec(self.state.a).axpy(1.0, change)

@@ -15,7 +15,7 @@ import dolfinx.la
 import numpy as np
 import ufl
 from dolfinx import fem
-from dolfinx.fem.petsc import assemble_matrix, assemble_vector, create_matrix, set_bc
+from dolfinx.fem.petsc import assemble_matrix, assemble_vector, create_matrix
 from mpi4py import MPI
 from petsc4py import PETSc
 
@@ -54,22 +54,20 @@ def tangent_settings(settings: dict) -> dict:
     return {**settings, "options": {"ksp_type": "gmres", "ksp_pc_side": "right", **settings.get("options", {})}}
 
 
-def reassemble(matrix: PETSc.Mat | None, compiled_form) -> PETSc.Mat:
-    """The form's matrix, assembled into ``matrix`` (made on the first call, in 3x3 blocks:
+def tangent_type(model) -> str:
+    """3x3 blocks, but scalar AIJ where septa project it (PETSc's PtAP takes no BAIJ)."""
+    return "aij" if model.constraints.has_septa else TANGENT_TYPE
+
+
+def reassemble(matrix: PETSc.Mat | None, compiled_form, kind: str = TANGENT_TYPE) -> PETSc.Mat:
+    """The form's matrix, assembled into ``matrix`` (made on the first call, of type ``kind``:
     the sparsity pattern is built once, not every Newton iteration)."""
     if matrix is None:
-        matrix = create_matrix(compiled_form, TANGENT_TYPE)
+        matrix = create_matrix(compiled_form, kind)
     matrix.zeroEntries()
     assemble_matrix(matrix, compiled_form)
     matrix.assemble()
     return matrix
-
-
-def fixed_dofs(bcs) -> np.ndarray:
-    """The local (unrolled) indices of every dof the supports hold, for zeroRowsColumnsLocal."""
-    if not bcs:
-        return np.zeros(0, dtype=np.int32)
-    return np.unique(np.concatenate([bc.dof_indices()[0] for bc in bcs])).astype(np.int32)
 
 
 class NewtonStatic:
@@ -93,7 +91,7 @@ class NewtonStatic:
         self._K = None  # K with supports: the preconditioner at rest
         self._P = None  # an LU copy of a tangent, when GMRES failed with the factor it had
         self._stale = False  # GMRES needed many iterations with it: rebuild before the next solve
-        self._fixed = fixed_dofs(model.bcs)
+        self._fixed = model.constraints.fixed
         self.follower = model.fluid is not None and model.fluid.follower
         self.load_tangent = load_tangent  # False: the follower load's tangent left out (a baseline)
         self.contact = contact  # a SkullContact (physics/contact.py) or None
@@ -124,7 +122,7 @@ class NewtonStatic:
         self._R.axpy(-factor, self._F)
         if self.contact is not None:  # the skull's reaction: not scaled with the loads
             self._R.axpy(-1.0, self.contact.assemble(u))
-        set_bc(self._R, self.model.bcs)
+        self.model.constraints.vector(self._R)
         self._load_norm = factor * self._F.norm() + self.model.growth_scale(t)
         norm = self._R.norm()
         return norm if np.isfinite(norm) else np.inf
@@ -132,11 +130,11 @@ class NewtonStatic:
     def _tangent_matrix(self, factor: float, with_load: bool = True) -> PETSc.Mat:
         """The tangent with supports, into the one matrix kept for it (its sparsity built once)."""
         if self.model.nonlinear:
-            A = self._A = reassemble(self._A, self._tangent)
+            A = self._A = reassemble(self._A, self._tangent, tangent_type(self.model))
         else:  # the linear material's part never changes: copied, not assembled again
             if self._K0 is None:
-                self._K0 = reassemble(None, self._tangent)
-                self._A = reassemble(None, self._tangent)  # (a duplicate lacks the local numbering)
+                self._K0 = reassemble(None, self._tangent, tangent_type(self.model))
+                self._A = reassemble(None, self._tangent, tangent_type(self.model))  # (a duplicate lacks the local numbering)
             A = self._A
             self._K0.copy(A, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
         fluid = self.model.fluid
@@ -144,7 +142,7 @@ class NewtonStatic:
             add_load_tangent(A, fluid.hydro, fluid.level, self.state.u, -factor * self.model.load_scale)
         if self.contact is not None:
             self.contact.add_tangent(A, self.state.u)
-        A.zeroRowsColumnsLocal(self._fixed, 1.0)
+        self.model.constraints.matrix(A)
         return A
 
     def _preconditioner_at_rest(self) -> None:
@@ -286,7 +284,7 @@ class NewtonStatic:
         try:
             self.model.load_into(t, rhs, u)
             rhs.axpy(1.0, self.model.growth_load(t))
-            set_bc(rhs, self.model.bcs)
+            self.model.constraints.vector(rhs)
             solve_preconditioned_by(self._K, self.solves.solver, rhs, compat.petsc_vec(u), rtol=1e-10,
                                     name="linear start")
             u.x.scatter_forward()

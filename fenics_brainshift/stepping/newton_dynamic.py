@@ -19,7 +19,7 @@ from dataclasses import replace
 import numpy as np
 import ufl
 from dolfinx import fem
-from dolfinx.fem.petsc import assemble_vector, set_bc
+from dolfinx.fem.petsc import assemble_vector
 from mpi4py import MPI
 from petsc4py import PETSc
 
@@ -31,7 +31,7 @@ from ..physics.surface import surface_facets
 from .contact_preconditioner import ContactPreconditioner
 from .dynamic import DynamicStepper
 from .lagged_contact import LaggedContact
-from .newton import MAX_CONTACT_ROUNDS, STALL_WITH_CONTACT, fixed_dofs, reassemble, tangent_settings
+from .newton import MAX_CONTACT_ROUNDS, STALL_WITH_CONTACT, reassemble, tangent_settings, tangent_type
 from .newton_iteration import newton_iterate
 
 log = get_logger("newton")
@@ -87,7 +87,7 @@ class NewtonDynamicStepper(DynamicStepper):
         # every step of one dt: copied (3 ms on the 5 mm brain) instead of assembled (51 ms)
         self._J_fixed, self._J_fixed_key = None, None
         self._update = fem.Function(V)  # a Newton update of du
-        self._fixed = fixed_dofs(model.bcs)
+        self._fixed = model.constraints.fixed
         if contact is not None:
             self._contact_pc = ContactPreconditioner(solves, contact, lambda: self.A, self._fixed)
         self.newton_history: list[float] = []
@@ -275,7 +275,7 @@ class NewtonDynamicStepper(DynamicStepper):
             R.axpy(cb, self._tmp)
             R.axpy(am_f, self._f)
             R.axpy(-am_f, self._F)
-            set_bc(R, self.model.bcs)
+            self.model.constraints.vector(R)
             norm = R.norm()
             return norm if np.isfinite(norm) else np.inf
 
@@ -332,7 +332,7 @@ class NewtonDynamicStepper(DynamicStepper):
         else:
             for part, value in (("f", am_f), ("M", cM), ("K0", cb)):
                 self._coefficient[part].value = value
-            J = self._J = reassemble(self._J, self._tangent)
+            J = self._J = reassemble(self._J, self._tangent, tangent_type(self.model))
             if self._mass_diagonal is not None:
                 self._tmp.array[:] = cM * self._mass_diagonal.array_r
                 J.setDiagonal(self._tmp, addv=PETSc.InsertMode.ADD_VALUES)
@@ -346,7 +346,7 @@ class NewtonDynamicStepper(DynamicStepper):
         if self.contact is not None:
             self._blocks = self.contact.tangent_blocks(self._x, am_f)
             self.contact.add_tangent(J, self._x, blocks=self._blocks)
-        J.zeroRowsColumnsLocal(self._fixed, 1.0)
+        self.model.constraints.matrix(J)
         return J
 
     def energies(self, K_u=None) -> tuple[float, float]:

@@ -7,8 +7,6 @@ because the surface has not moved (then the map's value is the last solve's answ
 """
 from __future__ import annotations
 
-from dolfinx.fem.petsc import set_bc
-
 from .. import compat
 from ..errors import SolverError
 from .anderson import AndersonAcceleration
@@ -17,8 +15,8 @@ from .anderson import AndersonAcceleration
 class Settle:
     """The fixed-point loop around a solver, for one model's supports and fluid load."""
 
-    def __init__(self, template, bcs, fluid, tolerance: float = 1e-4, max_iterations: int = 100):
-        self.bcs = bcs
+    def __init__(self, template, constraints, fluid, tolerance: float = 1e-4, max_iterations: int = 100):
+        self.constraints = constraints  # physics/constraints.py: the supports and septa
         self.fluid = fluid  # a FluidLoad or None
         self.follower = fluid is not None and fluid.follower
         self.tolerance = tolerance  # relative to |u| ([fluid] follower_tol)
@@ -45,7 +43,7 @@ class Settle:
                 trial.copy(x_vec)  # same load as the last solve: its answer is the fixed point
                 x.x.scatter_forward()
                 break
-            set_bc(rhs, self.bcs)
+            self.constraints.vector(rhs)
             x_vec.copy(trial)  # warm start from the current iterate
             its = solve(rhs, trial, t)
             if not (self.follower or depends_on_x):

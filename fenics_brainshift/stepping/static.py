@@ -16,7 +16,7 @@ class StaticSolver:
         self.model, self.state, self.solves = model, state, solves
         V = model.V
         self._rhs = dolfinx.la.create_petsc_vector(V.dofmap.index_map, V.dofmap.index_map_bs)
-        self.settle = Settle(self._rhs, model.bcs, model.fluid, follower_tolerance)
+        self.settle = Settle(self._rhs, model.constraints, model.fluid, follower_tolerance)
         self.K = None
 
     def setup(self) -> None:
