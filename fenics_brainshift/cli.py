@@ -182,7 +182,7 @@ def main(argv: list[str] | None = None) -> int:
     from mpi4py import MPI
 
     from . import logs
-    from .errors import InputError, SolverError
+    from .errors import InputError, Interrupted, SolverError
 
     logs.configure(args.log_level, args.log_all_ranks)
     if args.no_progress:
@@ -198,6 +198,14 @@ def main(argv: list[str] | None = None) -> int:
         if comm.rank == 0:
             print(f"brainshift: error: {exc}", file=sys.stderr)
         return 2
+    except Interrupted as exc:  # Ctrl-C during the run: its last good state was written
+        if comm.rank == 0:
+            print(f"brainshift: {exc}", file=sys.stderr)
+        return 130
+    except KeyboardInterrupt:  # Ctrl-C before or after the run's loop
+        if comm.rank == 0:
+            print("brainshift: interrupted (Ctrl-C)", file=sys.stderr)
+        return 130
     except SolverError as exc:  # the run stopped: the last good state was written
         if comm.rank == 0:
             print(f"brainshift: stopped: {exc}", file=sys.stderr)

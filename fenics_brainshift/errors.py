@@ -5,10 +5,12 @@
   prints it and exits with code 2, and nothing has been written.
 - SolverError: a run that went wrong (a diverged solve, a guard that fired). The CLI exits
   with code 3, and the last good state is kept.
+- Interrupted: the user stopped the run (Ctrl-C): the last good state is kept, the summary
+  says "interrupted", and the CLI exits with code 130 (as a shell does for SIGINT).
 """
 from __future__ import annotations
 
-__all__ = ["BrainshiftError", "InputError", "SolverError"]
+__all__ = ["BrainshiftError", "InputError", "Interrupted", "SolverError"]
 
 
 class BrainshiftError(Exception):
@@ -21,3 +23,7 @@ class InputError(BrainshiftError, ValueError):
 
 class SolverError(BrainshiftError, RuntimeError):
     """A run stopped: a solve diverged or a guard fired; the message says why."""
+
+
+class Interrupted(SolverError):
+    """The run was interrupted (Ctrl-C); the last good state was kept."""

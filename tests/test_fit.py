@@ -174,6 +174,7 @@ def test_fit_command_writes_a_scene_that_runs_and_agrees_on_two_ranks(tmp_path, 
         summary = json.loads((out / "summary.json").read_text())
         fitted = load_scene(out / "fitted.toml")
         assert fitted.material.G == pytest.approx(fits[ranks]["parameters"]["material.G"]["fitted"])
+        assert fitted.output.folder == str(out.resolve())  # run again, it writes there, not over out_brain
         assert summary["status"] == "ok"
     for name, p in fits[1]["parameters"].items():
         assert fits[2]["parameters"][name]["fitted"] == pytest.approx(p["fitted"], rel=1e-4, abs=1e-4), name
@@ -184,7 +185,7 @@ def test_fit_command_writes_a_scene_that_runs_and_agrees_on_two_ranks(tmp_path, 
     (["--params", "material.G,material.G"], "given twice"),
     (["--target", "missing.mrk.json"], "--target: no file"),
     (["--pre", "other.mrk.json"], "no namesake in --pre"),
-    (["--noise", "0"], "--noise must be > 0"),
+    (["--noise", "0"], "--noise must be a finite number of mm > 0"),
 ])
 def test_bad_fit_input_is_one_line(tmp_path, capsys, args, words):
     from fenics_brainshift.cli import main

@@ -144,3 +144,68 @@ def _cube_toml():
     from fenics_brainshift.data import scene_path
 
     return scene_path("cube")
+
+
+def _layered_segmentation(path):
+    """A segmentation as Slicer writes one whose segments overlap: a 4D .seg.nrrd of layers
+    (kinds list, domain x 3; the list axis has no space direction), each segment its layer and
+    label value. The brain (layer 0, value 1) holds the tumour (layer 1, value 1); the skull
+    shell is layer 0, value 2."""
+    layers = np.zeros((2, 20, 16, 12), dtype=np.uint8)
+    layers[0, 1:19, 1:15, 1:11] = 2  # the skull, a shell one voxel thick around ...
+    layers[0, 2:18, 2:14, 2:10] = 1  # ... the brain: 16 x 12 x 8 voxels
+    layers[1, 6:10, 6:10, 4:8] = 1  # the tumour, inside the brain: 4 x 4 x 4
+    directions = np.full((4, 3), np.nan)
+    directions[1:] = np.diag([2.0, 2.0, 2.0])
+    header = {"space": "left-posterior-superior", "space directions": directions,
+              "space origin": [10.0, 20.0, -5.0], "kinds": ["list", "domain", "domain", "domain"]}
+    for n, (name, layer, value) in enumerate((("skull", 0, 2), ("brain", 0, 1), ("tumour", 1, 1))):
+        header.update({f"Segment{n}_Name": name, f"Segment{n}_Layer": str(layer),
+                       f"Segment{n}_LabelValue": str(value), f"Segment{n}_ID": f"Segment_{n}"})
+    nrrd.write(str(path), layers, header)
+
+
+@pytest.mark.parametrize("segment, voxels", [("brain", 16 * 12 * 8), ("tumour", 4 * 4 * 4)])
+def test_a_layered_segmentation_is_meshed_by_segment_name(tmp_path, segment, voxels, serial_only):
+    """Overlapping segments (a tumour inside the brain) are read from their layer and label
+    value, as Slicer reads them: the brain keeps the tumour's voxels, the tumour is its own."""
+    from fenics_brainshift.cli import main
+
+    _layered_segmentation(tmp_path / "head.seg.nrrd")
+    out = tmp_path / f"{segment}.xdmf"
+    assert main(["mesh", str(tmp_path / "head.seg.nrrd"), "--voxel", "2", "--labels", segment, "-o", str(out)]) == 0
+    assert _mesh_volume(out) == pytest.approx(voxels * 8e-9, rel=1e-9)
+
+
+def test_a_segmentation_of_several_segments_needs_labels(tmp_path, capsys, serial_only):
+    """No labels chosen: a brain, a tumour and a skull would be meshed as one body (+ the skull's
+    volume); refused, the segments listed; a plain label map of the same voxels still meshes."""
+    from fenics_brainshift.cli import main
+
+    _layered_segmentation(tmp_path / "head.seg.nrrd")
+    assert main(["mesh", str(tmp_path / "head.seg.nrrd"), "--voxel", "2", "-o", str(tmp_path / "x.xdmf")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "3 segments (skull, brain, tumour)" in err and "labels" in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "x.xdmf").exists()
+    _segmentation(tmp_path / "flat.seg.nrrd")  # two segments, side by side
+    assert main(["mesh", str(tmp_path / "flat.seg.nrrd"), "--voxel", "2", "-o", str(tmp_path / "y.xdmf")]) == 2
+    assert "2 segments (brain, tumour)" in capsys.readouterr().err
+
+
+def test_warp_refuses_a_layered_segmentation_in_one_line(tmp_path):
+    _layered_segmentation(tmp_path / "head.seg.nrrd")
+    with pytest.raises(Exception, match="overlapping segments .2 layers.; export the segments needed as a labelmap"):
+        read_volume(tmp_path / "head.seg.nrrd", "warp: --image")
+
+
+def _mesh_volume(path) -> float:
+    from dolfinx.io import XDMFFile
+    from mpi4py import MPI
+
+    from fenics_brainshift import compat
+
+    with XDMFFile(MPI.COMM_SELF, str(path), "r") as f:
+        mesh = f.read_mesh(name="mesh")
+    corners = mesh.geometry.x[compat.geometry_dofmap(mesh)]
+    return float(np.abs(np.einsum("ij,ij->i", np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]),
+                                  corners[:, 3] - corners[:, 0])).sum() / 6)

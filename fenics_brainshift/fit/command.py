@@ -20,8 +20,8 @@ def fit_command(args, comm) -> list[str]:
     check_writable(out, comm)
     names = [n.strip() for n in args.params.split(",") if n.strip()]
     check_names(names)
-    if not args.noise > 0:
-        raise InputError(f"--noise must be > 0 mm (got {args.noise:g})")
+    if not 0 < args.noise < float("inf"):
+        raise InputError(f"--noise must be a finite number of mm > 0 (got {args.noise:g})")
     target = read_target(args.target, args.pre)
     scene = load_scene(args.scene, args.set)
     forward = ForwardModel(load_scene(args.scene, args.set + ["time.mode=quasi-static"]), comm)

@@ -28,6 +28,8 @@ def write_fitted_scene(scene_path, overrides: list[str], changes: dict, out: Pat
             table.pop(key, None)
         else:
             table[key] = value
+    # its run goes where the fit wrote it, not over the scene's own folder (out_brain)
+    data.setdefault("output", {})["folder"] = str(Path(out).resolve())
     path = out / "fitted.toml"
     tmp = path.with_suffix(".toml.tmp")
     tmp.write_text("# written by brainshift fit: the scene with the fitted parameters (fit.json says how well)\n"

@@ -78,11 +78,22 @@ def _read_csv(path: Path) -> Target:
     if not {"x", "y", "z"} <= columns:
         raise InputError(f"--target: '{path.name}' needs columns x, y, z (mm; and x_pre, y_pre, z_pre for point "
                          f"to point); it has {', '.join(sorted(columns))}")
-    try:
-        measured = np.array([[float(r[k]) for k in "xyz"] for r in rows])
-        pre = (np.array([[float(r[f"{k}_pre"]) for k in "xyz"] for r in rows])
-               if {"x_pre", "y_pre", "z_pre"} <= columns else None)
-    except ValueError as exc:
-        raise InputError(f"--target: '{path.name}': {exc}") from None
+    keys = list("xyz") + ([f"{k}_pre" for k in "xyz"] if {"x_pre", "y_pre", "z_pre"} <= columns else [])
+    values = np.zeros((len(rows), len(keys)))
+    for i, row in enumerate(rows):
+        line = i + 2  # the header is line 1
+        if None in row:  # more values than the header names
+            raise InputError(f"--target: '{path.name}' line {line} has more values than the header's columns")
+        for j, key in enumerate(keys):
+            text = row[key]
+            try:
+                values[i, j] = float(text)
+            except (TypeError, ValueError):
+                what = "is missing" if text is None or not text.strip() else f"is not a number ({text!r})"
+                raise InputError(f"--target: '{path.name}' line {line}: {key} {what}") from None
+            if not np.isfinite(values[i, j]):
+                raise InputError(f"--target: '{path.name}' line {line}: {key} = {text} is not a finite number")
+    measured = values[:, :3]
+    pre = values[:, 3:] if len(keys) == 6 else None
     labels = [r.get("label") or f"p{i + 1}" for i, r in enumerate(rows)]
     return Target(measured * 1e-3, None if pre is None else pre * 1e-3, labels)

@@ -1,6 +1,7 @@
 """`brainshift warp RUN_DIR --image PRE -o INTRA`: the command around warp.py."""
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +16,8 @@ def warp_command(args, comm) -> list[str]:
     """`brainshift warp` (arguments: cli.py); returns the report's lines (cli prints them)."""
 
     output = Path(args.output)
+    if not 0 < args.blend < float("inf"):
+        raise InputError(f"warp: --blend must be a finite number of mm > 0 (got {args.blend:g})")
     if not is_volume(output):
         raise InputError(f"warp: -o '{output.name}': use a .nii.gz or .nrrd file name")
     if args.transform and not args.transform.lower().endswith((".h5", ".hdf5")):
@@ -27,11 +30,19 @@ def warp_command(args, comm) -> list[str]:
     if not warp.inside.any():
         raise InputError(f"warp: the run's brain does not overlap '{Path(args.image).name}' (mesh {body.points.min(0)} "
                          f"to {body.points.max(0)} mm RAS); is the image in the mesh's frame? (--mesh-frame)")
-    if comm.rank == 0:
+    if comm.rank == 0:  # both or neither: the transform to a temporary file first, then the image
         warped = warp.apply(labels=args.labels)
-        write_like(volume, warped, output)
-        if args.transform:
-            write_itk_transform(warp, args.transform)
+        transform = Path(args.transform) if args.transform else None
+        pending = transform.with_name(f".{transform.name}.tmp.h5") if transform else None
+        try:
+            if pending is not None:
+                write_itk_transform(warp, pending)
+            write_like(volume, warped, output)
+            if pending is not None:
+                os.replace(pending, transform)
+        finally:
+            if pending is not None and pending.exists():
+                pending.unlink()
     comm.barrier()
     moved = warp.moved()
     return [f"warp: {int(moved.sum())} of {moved.size} voxels moved (largest {warp.largest_mm():.2f} mm, "

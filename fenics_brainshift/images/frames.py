@@ -51,11 +51,19 @@ def read_markups(path: str | Path, what: str = "markups") -> tuple[list[str], np
         units = str(markup.get("coordinateUnits", "mm"))
         if units != "mm":
             raise InputError(f"{what}: '{path.name}': coordinateUnits '{units}'; millimetres are expected")
-        for n, point in enumerate(markup.get("controlPoints") or []):
-            position = point.get("position")
-            if position is None or len(position) != 3:
-                raise InputError(f"{what}: '{path.name}': control point {n} has no 3D position")
+        points_in_file = markup.get("controlPoints") or []
+        if not isinstance(points_in_file, list):
+            raise InputError(f"{what}: '{path.name}': \"controlPoints\" is not a list")
+        for n, point in enumerate(points_in_file):
+            position = point.get("position") if isinstance(point, dict) else None
+            if not isinstance(position, list) or len(position) != 3 or not all(
+                    isinstance(c, (int, float)) and not isinstance(c, bool) for c in position):
+                raise InputError(f"{what}: '{path.name}': control point {n} has no position of 3 numbers "
+                                 f"(got {position!r})")
             xyz = np.asarray(position, dtype=float)
+            if not np.isfinite(xyz).all():
+                raise InputError(f"{what}: '{path.name}': control point {n} ('{point.get('label', '')}') has a "
+                                 f"position that is not finite ({position}); delete or place it again in Slicer")
             points.append(lps_to_ras(xyz) if frame == "LPS" else xyz)
             labels.append(str(point.get("label") or f"P-{len(labels) + 1}"))
     if not points:

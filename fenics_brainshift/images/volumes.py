@@ -38,6 +38,10 @@ class Volume:
     affine: np.ndarray  # 4x4: (i, j, k, 1) -> RAS mm
     header: object = field(repr=False, default=None)  # the reader's header, for write_like
     segments: dict[int, str] = field(default_factory=dict)  # .seg.nrrd: label value -> segment name
+    # a .seg.nrrd whose segments overlap, as Slicer writes it: [layer, i, j, k] (data is layer 0),
+    # and each segment's (layer, label value)
+    layers: np.ndarray | None = field(repr=False, default=None)
+    segment_layers: dict[str, tuple[int, int]] = field(default_factory=dict)
 
     @property
     def kind(self) -> str:
@@ -56,9 +60,10 @@ class Volume:
         return ras @ inverse[:3, :3].T + inverse[:3, 3]
 
 
-def read_volume(path: str | Path, what: str = "--image") -> Volume:
+def read_volume(path: str | Path, what: str = "--image", layered: bool = False) -> Volume:
     """A 3D NIfTI or NRRD volume (a 4D file with one volume is squeezed); InputError names
-    ``what`` for a missing, unreadable or non-3D file."""
+    ``what`` for a missing, unreadable or non-3D file. ``layered``: a Slicer segmentation
+    whose segments overlap (a 4D .seg.nrrd of layers) is read too, for label_mask."""
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{what}: no file '{path}'")
@@ -73,9 +78,13 @@ def read_volume(path: str | Path, what: str = "--image") -> Volume:
     data = volume.data
     while data.ndim > 3 and data.shape[-1] == 1:
         data = data[..., 0]
+    if volume.layers is not None and not layered:
+        raise InputError(f"{what}: '{path.name}' is a segmentation with overlapping segments ({data.shape[0]} "
+                         f"layers); export the segments needed as a labelmap in Slicer")
+    if volume.layers is not None:
+        data = data[0]
     if data.ndim != 3:
-        raise InputError(f"{what}: '{path.name}' has {data.ndim} dimensions {data.shape}; a 3D volume is needed "
-                         f"(a segmentation with overlapping layers: export it as a labelmap in Slicer)")
+        raise InputError(f"{what}: '{path.name}' has {data.ndim} dimensions {data.shape}; a 3D volume is needed")
     volume.data = data
     return volume
 
@@ -97,23 +106,59 @@ def _read_nrrd(path: Path) -> Volume:
                          f"save it from 3D Slicer (space RAS or LPS)")
     directions = np.asarray(header["space directions"], dtype=float)
     directions = directions[~np.isnan(directions).any(axis=1)]  # a .seg.nrrd's layer axis has none
-    if data.ndim == 4 and directions.shape[0] == 3 and data.shape[0] == 1:  # one layer first
-        data = data[0]
+    layers = None
+    if data.ndim == 4 and directions.shape[0] == 3:  # Slicer's layers first (kinds: list, domain x 3)
+        if data.shape[0] == 1:
+            data = data[0]
+        else:
+            layers = data
     flip = _NRRD_SPACES[space]
     affine = np.eye(4)
     affine[:3, :3] = flip @ directions.T  # columns: the i, j, k steps
     affine[:3, 3] = flip @ np.asarray(header["space origin"], dtype=float)
-    return Volume(path, data, affine, header, _segments(header))
+    segments, segment_layers = _segments(header)
+    return Volume(path, data, affine, header, segments if layers is None else {}, layers, segment_layers)
 
 
-def _segments(header: dict) -> dict[int, str]:
-    """Slicer's .seg.nrrd metadata: SegmentN_Name and SegmentN_LabelValue."""
-    segments, n = {}, 0
+def _segments(header: dict) -> tuple[dict[int, str], dict[str, tuple[int, int]]]:
+    """Slicer's .seg.nrrd metadata: SegmentN_Name, SegmentN_LabelValue and SegmentN_Layer, as
+    (label value -> name, name -> (layer, label value))."""
+    segments, layers, n = {}, {}, 0
     while f"Segment{n}_Name" in header:
         value = int(header.get(f"Segment{n}_LabelValue", n + 1))
-        segments[value] = str(header[f"Segment{n}_Name"])
+        name = str(header[f"Segment{n}_Name"])
+        segments[value] = name
+        layers[name] = (int(header.get(f"Segment{n}_Layer", 0)), value)
         n += 1
-    return segments
+    return segments, layers
+
+
+def segment_names(volume: Volume) -> list[str]:
+    """The segments a Slicer segmentation names (none for a plain label map)."""
+    return list(volume.segment_layers) if volume.layers is not None else list(volume.segments.values())
+
+
+def label_mask(volume: Volume, labels, what: str = "labels") -> np.ndarray:
+    """The voxels (bool, [i, j, k]) in any of ``labels`` (values or segment names); in a
+    layered segmentation a name is its layer's voxels of its value, as Slicer reads it, and a
+    value is that value in any layer. None: every labelled voxel."""
+    if volume.layers is None:
+        if labels is None:
+            return volume.data > 0
+        return np.isin(volume.data, label_values(volume, labels, what))
+    if labels is None:
+        return (volume.layers > 0).any(axis=0)
+    mask = np.zeros(volume.data.shape, dtype=bool)
+    for label in labels:
+        if isinstance(label, str) and not label.isdigit():
+            if label not in volume.segment_layers:
+                known = ", ".join(f"'{n}'" for n in volume.segment_layers)
+                raise InputError(f"{what}: no segment '{label}' in '{volume.path.name}'; its segments: {known}")
+            layer, value = volume.segment_layers[label]
+            mask |= volume.layers[layer] == value
+        else:
+            mask |= (volume.layers == int(label)).any(axis=0)
+    return mask
 
 
 def label_values(volume: Volume, labels, what: str = "labels") -> list[int]:

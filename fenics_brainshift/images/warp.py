@@ -72,8 +72,8 @@ class Warp:
     @classmethod
     def compute(cls, volume: Volume, body: DeformedMesh, blend_mm: float = 10.0, comm=None) -> "Warp":
         """Lay the deformed mesh on the volume's grid; comm: ranks share the tetrahedra."""
-        if not blend_mm > 0:
-            raise InputError(f"--blend must be > 0 mm (got {blend_mm:g})")
+        if not 0 < blend_mm < float("inf"):
+            raise InputError(f"--blend must be a finite number of mm > 0 (got {blend_mm:g})")
         t0 = time.perf_counter()
         shape = volume.data.shape
         X = volume.ras_to_index(body.points)  # reference positions, index coordinates

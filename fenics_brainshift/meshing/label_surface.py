@@ -14,7 +14,7 @@ import numpy as np
 from skimage.measure import marching_cubes
 
 from ..errors import InputError
-from ..images.volumes import label_values, read_volume
+from ..images.volumes import label_mask, read_volume
 from ..physics.skull import outward
 
 
@@ -22,11 +22,10 @@ def label_surface(path: str | Path, labels, scale: float, what: str = "[skull] l
     """(points (m), triangles with outward normals) of the boundary of the voxels whose label
     is one of ``labels`` (values or segment names; None: any label but 0) in the volume at
     ``path``, whose unit times ``scale`` is m."""
-    volume = read_volume(path, "[mesh] file")
-    values = label_values(volume, labels, what) if labels is not None else None
-    mask = np.isin(volume.data, values) if values is not None else volume.data > 0
+    volume = read_volume(path, "[mesh] file", layered=True)
+    mask = label_mask(volume, labels, what)
     if not mask.any():
-        wanted = ", ".join(map(str, values)) if values is not None else "other than 0"
+        wanted = ", ".join(map(str, labels)) if labels is not None else "other than 0"
         raise InputError(f"{what}: no voxel of '{Path(path).name}' has label {wanted}; "
                          f"its labels: {', '.join(map(str, np.unique(volume.data)[:20]))}")
     padded = np.pad(mask, 1).astype(np.float32)

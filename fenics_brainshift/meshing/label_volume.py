@@ -5,20 +5,18 @@ from pathlib import Path
 
 import numpy as np
 
-from ..images.volumes import label_values, read_volume
+from ..images.volumes import label_mask, read_volume
 
 
 def labels_at(path: str | Path, points_m: np.ndarray, scale: float, label=None) -> np.ndarray:
     """The label of a label volume (NIfTI or NRRD) at each point (m; the file's unit times
     ``scale`` is m); 0 outside the image. With ``label`` (a value or a segment name): whether
     each point lies in it."""
-    volume = read_volume(path, "[mesh] file")
-    data = volume.data
+    volume = read_volume(path, "[mesh] file", layered=True)
+    data = volume.data if label is None else label_mask(volume, [label], "label")
     inverse = np.linalg.inv(volume.affine)
     ijk = np.rint((points_m / scale) @ inverse[:3, :3].T + inverse[:3, 3]).astype(np.int64)
     inside = np.all((ijk >= 0) & (ijk < np.array(data.shape[:3])), axis=1)
-    labels = np.zeros(len(points_m), dtype=np.int64)
+    labels = np.zeros(len(points_m), dtype=data.dtype if label is not None else np.int64)
     labels[inside] = data[tuple(ijk[inside].T)]
-    if label is not None:
-        return labels == label_values(volume, [label], "[[remove]] label")[0]
     return labels

@@ -151,15 +151,17 @@ def label_occupancy(path: Path, voxel: float, scale: float, labels=None):
     """Fill fraction of coarse voxels by the object's image voxels (any affine); labels:
     values or segment names (a Slicer .seg.nrrd), default every label > 0."""
     from ..errors import InputError
-    from ..images.volumes import label_values, read_volume
+    from ..images.volumes import label_mask, read_volume, segment_names
 
     try:
-        volume = read_volume(path, "label volume")
-        values = label_values(volume, labels, "labels") if labels else None
+        volume = read_volume(path, "label volume", layered=True)
+        names = segment_names(volume)
+        if not labels and len(names) > 1:  # a brain, a tumour and a skull meshed as one body
+            raise InputError(f"'{path.name}' holds {len(names)} segments ({', '.join(names)}): choose the body's, "
+                             f"e.g. [mesh] labels = [\"{names[0]}\"] (brainshift mesh --labels {names[0]})")
+        inside = label_mask(volume, labels or None, "labels")
     except InputError as exc:
         raise VoxelizeError(str(exc)) from None
-    data = volume.data
-    inside = np.isin(data, values) if values else data > 0
     ijk = np.argwhere(inside)
     if len(ijk) == 0:
         raise VoxelizeError(f"'{path.name}' has no voxel with label {labels or '> 0'}")
@@ -204,15 +206,18 @@ def read_surface(path: Path, scale: float) -> tuple[np.ndarray, np.ndarray]:
         raise
     except Exception as exc:
         raise VoxelizeError(f"'{path.name}' could not be read as a surface: {exc}") from None
-    points = np.asarray(points, dtype=float)[:, :3] * scale
+    points = np.asarray(points, dtype=float)
     triangles = np.asarray(triangles, dtype=np.int64)
-    if len(triangles) == 0:
+    if len(triangles) == 0 or points.size == 0:
         raise VoxelizeError(f"'{path.name}' holds no triangles")
+    points = points.reshape(len(points), -1)[:, :3] * scale
     # bad triangles (degenerate, out-of-range indices) are dropped, not fatal
     ok = np.all((triangles >= 0) & (triangles < len(points)), axis=1)
     triangles = triangles[ok]
     p = points[triangles]
     area = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+    if not np.any(area > 0):
+        raise VoxelizeError(f"'{path.name}' holds no triangle with an area (all degenerate or out of range)")
     return points, triangles[area > 0]
 
 

@@ -40,6 +40,24 @@ def _can_create_in(folder: Path) -> bool:
     return True
 
 
+# what a run writes into its folder (outputs/xdmf.py, pictures.py, runner/driver.py): cleared
+# before a run writes there, so that a re-run never sits beside an earlier run's files
+RUN_FILES = ("summary.json", "probes.csv", "probes_final.mrk.json", "displacement.xdmf", "displacement.h5",
+             "deformed.png", "probes.png", "surface_final.vtk", "surface_final.stl")
+RUN_SERIES = ("surface_[0-9][0-9][0-9][0-9].vtk", "surface_[0-9][0-9][0-9][0-9].stl")
+
+
+def clear_run(out: Path, comm, scene_name: str) -> None:
+    """Remove an earlier run's files from ``out`` (only those a run writes), then mark the
+    folder's summary.json "running": a run killed from here on never leaves the earlier
+    run's "ok" beside its own partial files."""
+    if comm.rank == 0:
+        for path in [out / name for name in RUN_FILES] + [p for pattern in RUN_SERIES for p in out.glob(pattern)]:
+            if path.is_file():
+                path.unlink()
+    write_json(out / "summary.json", {"scene": scene_name, "status": "running"}, comm)
+
+
 def write_json(path: Path, data: dict, comm) -> None:
     """Written by rank 0 via a temporary file and a rename: never half a file."""
     if comm.rank == 0:

@@ -128,18 +128,21 @@ class Constraints:
     def reactions(self, residual: PETSc.Vec) -> list[tuple[np.ndarray, np.ndarray]]:
         """Per septum: (its owned block dofs, the force (n, 3) N it exerts on the tissue at
         each), from the unconstrained residual r = f_int + inertia - F: the loads and the
-        septum's force together balance f_int + inertia, so that force is r along its normal. A node on several septa (or a
-        support) shares its reaction among their directions by least squares."""
+        septum's force together balance f_int + inertia, so that force is r along its normal.
+        At a node a support also holds, the support carries what lies along its axes; the
+        rest is shared among the node's septa by least squares."""
         r = residual.array.reshape(-1, 3)
         out = [([], []) for _ in self.labels]
         for node, dirs in zip(self.nodes, self.directions):
             if node >= self._owned:
                 continue
-            share = np.linalg.lstsq(np.array([d for _, d in dirs]).T, r[node], rcond=None)[0]
-            for (k, n), s in zip(dirs, share):
-                if k >= 0:
-                    out[k][0].append(node)
-                    out[k][1].append(s * n)
+            held = np.eye(3) - _projector([d for k, d in dirs if k < 0])  # onto the supports' axes
+            rest = r[node] - held @ r[node]
+            septa = [(k, n) for k, n in dirs if k >= 0]
+            share = np.linalg.lstsq(np.array([n for _, n in septa]).T, rest, rcond=None)[0]
+            for (k, n), s in zip(septa, share):
+                out[k][0].append(node)
+                out[k][1].append(s * n)
         return [(np.array(nodes, dtype=np.int32), np.array(forces).reshape(-1, 3)) for nodes, forces in out]
 
     def report(self, residual: PETSc.Vec, u) -> list[dict]:
@@ -161,6 +164,36 @@ class Constraints:
                         "largest_slide_m": c.allreduce(float(slide.max(initial=0.0)), op=MPI.MAX),
                         "largest_motion_across_m": c.allreduce(float(np.abs(across).max(initial=0.0)), op=MPI.MAX)})
         return out
+
+    def free_rigid_motion(self) -> str | None:
+        """A rigid motion the supports and septa together leave free (a settled state then has
+        no unique answer: K is singular), in words; None when they hold all six. Each held
+        direction d at a point x sees the motions t + w x (x - c) through d . t + (x - c) x d . w."""
+        X = self.V.tabulate_dof_coordinates()
+        owned = self._owned
+        rows = [(X[dof // 3], np.eye(3)[dof % 3]) for dof in self.fixed if dof // 3 < owned]
+        rows += [(X[node], n) for node, dirs in zip(self.nodes, self.directions) if node < owned
+                 for k, n in dirs if k >= 0]
+        c = self.comm
+        count = c.allreduce(len(X[:owned]))
+        centre = c.allreduce(X[:owned].sum(axis=0)) / max(count, 1)
+        size = max(c.allreduce(float(np.abs(X[:owned] - centre).max(initial=0.0)), op=MPI.MAX), 1e-300)
+        G = np.zeros((6, 6))
+        for x, d in rows:
+            g = np.concatenate([d, np.cross((x - centre) / size, d)])
+            G += np.outer(g, g)
+        G = c.allreduce(G)
+        values, vectors = np.linalg.eigh(G)
+        if values[-1] > 0 and values[0] > 1e-10 * values[-1]:
+            return None
+        def words(v):
+            v = v / np.linalg.norm(v)
+            v = v * np.sign(v[np.argmax(np.abs(v))])
+            return ", ".join(f"{c:.2g}" for c in np.where(np.abs(v) < 1e-6, 0.0, v))
+        moves, along = np.linalg.eigh(G[:3, :3])  # the translations alone
+        if moves[0] <= 1e-10 * values[-1]:
+            return f"move along ({words(along[:, 0])})"
+        return f"turn about an axis along ({words(vectors[3:, 0])})"
 
     def destroy(self) -> None:
         if self._matrix is not None:

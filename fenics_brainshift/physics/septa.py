@@ -29,11 +29,16 @@ from .skull import RigidSkull
 # the reference tetrahedron's edges in DOLFINx's order: P2's dof 4 + e sits on edge e
 TETRA_EDGES = ((2, 3), (1, 3), (1, 2), (0, 3), (0, 2), (0, 1))
 ON_SURFACE = 1e-9  # a node this close to a septum (relative to the mesh's size) lies on it
+# over a surface: the way from a point to its nearest point within 26 degrees of that face's
+# normal (beyond a sheet's free edge it turns towards the edge; at a curved surface's triangle
+# edges it stays within half the angle between the faces)
+OVER = 0.9
 
 
 @dataclass(frozen=True)
 class Septum:
-    """``side``: points (N, 3) -> (signed distance (N,) m, unit normal (N, 3)); ``region``:
+    """``side``: points (N, 3) -> (signed distance (N,) m, unit normal (N, 3), over (N,): the
+    point's nearest point on the septum is inside a face, not on its rim); ``region``:
     points -> bool (N,), the part of space it spans (None: everywhere); ``reach``: None for
     the nearest layer of nodes, else every node within that distance (m) of it; ``name``
     names it in messages ([[septum]] NAME) and in the summary."""
@@ -47,18 +52,26 @@ class Septum:
     def plane(cls, name: str, point, normal, region=None, reach=None) -> "Septum":
         p = np.asarray(point, dtype=float)
         n = np.asarray(normal, dtype=float)
+        n = n / np.abs(n).max()  # first: the square of 1e200 overflows, of 1e-170 underflows
         n = n / np.linalg.norm(n)
-        return cls(name, lambda x: ((np.asarray(x) - p) @ n, np.broadcast_to(n, np.shape(x))), region, reach)
+        return cls(name, lambda x: ((np.asarray(x) - p) @ n, np.broadcast_to(n, np.shape(x)),
+                                    np.ones(len(x), dtype=bool)), region, reach)
 
     @classmethod
     def surface(cls, name: str, points, triangles, region=None, reach=None) -> "Septum":
         """A triangulated surface (points m, triangles): the side of each point is that of
-        the nearest triangle's normal (physics/skull.py's exact distances)."""
+        the nearest triangle's normal (physics/skull.py's exact distances). A point whose
+        nearest point lies on an open surface's rim (beyond a falx's free edge) is not over it:
+        the sign flips across the surface's extended plane there, which crosses no tissue."""
         skull = RigidSkull(points, triangles)
 
         def side(x):
             dist, sign, direction = skull.distance(x)
-            return sign * dist, direction
+            closest = np.asarray(x) - (sign * dist)[:, None] * direction
+            _, _, normal = skull.distance(closest)  # on the surface: its triangle's normal
+            over = (dist <= ON_SURFACE * skull_size) | (np.abs(np.einsum("ni,ni->n", direction, normal)) > OVER)
+            return sign * dist, normal, over
+        skull_size = float(np.ptp(np.asarray(points, dtype=float), axis=0).max())
         return cls(name, side, region, reach)
 
 
@@ -74,18 +87,18 @@ def septum_nodes(V, septum: Septum) -> tuple[np.ndarray, np.ndarray]:
     X[corners.ravel()] = mesh.geometry.x[geo[:, :4].ravel()]
     vertex = np.zeros(n_blocks, dtype=bool)
     vertex[corners.ravel()] = True
-    distance, normals = np.zeros(n_blocks), np.zeros((n_blocks, 3))
-    distance[vertex], normals[vertex] = septum.side(X[vertex])
+    distance, over = np.zeros(n_blocks), np.zeros(n_blocks, dtype=bool)
+    distance[vertex], _, over[vertex] = septum.side(X[vertex])
     size = mesh.comm.allreduce(float(np.ptp(X[vertex], axis=0).max(initial=0.0)) if vertex.any() else 0.0,
                                op=MPI.MAX)
     marked = np.zeros(n_blocks)
     if septum.reach is not None:
-        marked[vertex & (np.abs(distance) <= septum.reach)] = 1.0
+        marked[vertex & over & (np.abs(distance) <= septum.reach)] = 1.0
     else:
         marked[vertex & (np.abs(distance) <= ON_SURFACE * size)] = 1.0
         for a, b in TETRA_EDGES:
             da, db = distance[corners[:, a]], distance[corners[:, b]]
-            crossed = da * db < 0.0
+            crossed = (da * db < 0.0) & over[corners[:, a]] & over[corners[:, b]]
             nearer = np.where(np.abs(da) <= np.abs(db), corners[:, a], corners[:, b])
             marked[nearer[crossed]] = 1.0
     if septum.region is not None and vertex.any():
@@ -104,7 +117,7 @@ def septum_nodes(V, septum: Septum) -> tuple[np.ndarray, np.ndarray]:
     if mesh.comm.allreduce(int(np.count_nonzero(nodes < owned))) == 0:
         raise InputError(f"[[septum]] {septum.name} holds no node of the mesh; check its position and region "
                          f"(metres, mesh frame)")
-    _, normal = septum.side(X[nodes]) if len(nodes) else (None, np.zeros((0, 3)))
+    normal = septum.side(X[nodes])[1] if len(nodes) else np.zeros((0, 3))
     return nodes, np.asarray(normal, dtype=float).reshape(-1, 3)
 
 

@@ -59,6 +59,7 @@ def skull_contact(scene: Scene, model):
     if scene.skull is None:
         return None
     spec = scene.skull
+    _check_skull_values(scene, model.mesh)
     facets = surface_facets(model.V)
     if spec.gap is not None:
         points, triangles = gathered_outward_surface(facets, model.comm)
@@ -86,17 +87,51 @@ def skull_contact(scene: Scene, model):
 
 
 SKULL_SIZE = (0.5, 5.0)  # a skull file's size over the body's outside this range: a unit slip, not a skull
+BODY_SIZE = (2e-3, 3.0)  # m across: a body outside this range is a unit slip (a brain is 0.1-0.2 m)
+
+
+def body_diagonal(mesh) -> float:
+    """The diagonal of the body's bounding box (m), on every rank."""
+    comm, x = mesh.comm, mesh.geometry.x
+    lo = [comm.allreduce(float(v), op=MPI.MIN) for v in x.min(axis=0, initial=np.inf)]
+    hi = [comm.allreduce(float(v), op=MPI.MAX) for v in x.max(axis=0, initial=-np.inf)]
+    return float(np.linalg.norm(np.subtract(hi, lo)))
+
+
+def _check_body_size(scene: Scene, mesh) -> None:
+    """InputError for a body whose size no soft-tissue scene has: a mesh file in another unit
+    than [mesh] unit says (a mm brain read as metres is 170 m across), named with the unit
+    that would make it 0.02-0.5 m."""
+    size = body_diagonal(mesh)
+    small, large = BODY_SIZE
+    if small <= size <= large:
+        return
+    spec = scene.mesh
+    what = f"[mesh] file '{Path(spec.file).name}'" if spec.file else "[mesh] size"
+    guesses = [u for u, f in LENGTH_UNITS.items() if u != spec.unit and 0.02 <= size * f / spec.scale <= 0.5]
+    hint = (f"is it in {guesses[0]}? give [mesh] unit = \"{guesses[0]}\"" if guesses and spec.file
+            else "check [mesh] unit and the sizes (metres)")
+    raise InputError(f"{what}: the body is {size:.3g} m across with [mesh] unit = \"{spec.unit}\" ({small:g}-{large:g} m "
+                     f"expected; a brain is 0.1-0.2 m): {hint}")
+
+
+def _check_skull_values(scene: Scene, mesh) -> None:
+    """[skull] gap and tolerance against the body's size: metres meant as mm are refused."""
+    spec, body = scene.skull, body_diagonal(mesh)
+    if spec.gap is not None and spec.gap >= 0.5 * body:
+        raise InputError(f"[skull] gap = {spec.gap:g} m against a {body:.3g} m body: the CSF layer is a few mm "
+                         f"(gap = 0.003 for 3 mm; metres)")
+    limit = min(0.1 * spec.gap if spec.gap is not None else np.inf, 0.01 * body)
+    if spec.tolerance > limit:
+        raise InputError(f"[skull] tolerance = {spec.tolerance:g} m would let the body pass {spec.tolerance * 1e3:g} mm "
+                         f"into the skull ({limit:.3g} m at most here; metres, default 1e-5)")
 
 
 def _check_skull_size(scene: Scene, skull_points, mesh, clearance: float) -> None:
     """InputError for a skull file in another unit than the mesh: smaller than half the body
     (by bounding-box diagonal), or more than 5x its size and farther from it at rest than the
     body's own size (a wide box standing in for a floor is fine: the body rests on it)."""
-    comm = mesh.comm
-    x = mesh.geometry.x
-    lo = [comm.allreduce(float(v), op=MPI.MIN) for v in x.min(axis=0, initial=np.inf)]
-    hi = [comm.allreduce(float(v), op=MPI.MAX) for v in x.max(axis=0, initial=-np.inf)]
-    body = float(np.linalg.norm(np.subtract(hi, lo)))
+    body = body_diagonal(mesh)
     size = float(np.linalg.norm(skull_points.max(axis=0) - skull_points.min(axis=0)))
     small, large = SKULL_SIZE
     if small * body <= size and (size <= large * body or clearance <= body):
@@ -176,6 +211,7 @@ def septa(scene: Scene) -> list[Septum]:
 def build_model(scene: Scene, comm) -> Model:
     """Mesh, space, supports, material and loads of a scene; every input check happens here."""
     mesh = build_mesh(scene, comm)
+    _check_body_size(scene, mesh)
     mat = scene.material
     model = Model.create(mesh, scene.element.degree, mat.E, mat.nu, mat.density, scene.gravity.vector,
                          supports(scene), fluid_settings(scene), cuts(scene),

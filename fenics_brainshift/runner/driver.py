@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 from mpi4py import MPI
 
-from ..errors import SolverError
+from ..errors import Interrupted, SolverError
 from ..logs import get_logger
-from ..outputs.files import check_writable, write_csv, write_json
+from ..outputs.files import check_writable, clear_run, write_csv, write_json
 from ..outputs.fine_surface import SurfaceEmbedding
 from ..outputs.xdmf import FieldWriter
 from ..scene import Scene
@@ -71,6 +71,7 @@ def run(scene: Scene, out: str | Path | None = None, comm=MPI.COMM_WORLD, raise_
         if comm.rank == 0:
             out.mkdir(parents=True, exist_ok=True)
         comm.barrier()
+        clear_run(out, comm, scene.name)
         m = sim.model
         writer = FieldWriter(out, m.mesh, m.V, scene.output.fields, m.constitutive, embedding,
                              m.tissue.indicator if m.tissue is not None else None, sim.contact)
@@ -100,6 +101,8 @@ def run(scene: Scene, out: str | Path | None = None, comm=MPI.COMM_WORLD, raise_
     sim.destroy()
     if stopped is not None and raise_on_stop:
         where = f", is in {out}" if out is not None else ""
+        if isinstance(stopped, Interrupted):
+            raise Interrupted(f"{stopped}; the last good state, t = {sim.t:g} s{where}")
         raise SolverError(f"{stopped} (stopped; the last good state, t = {sim.t:g} s{where})")
     return result
 
@@ -108,6 +111,8 @@ def _log_start(sim: Simulation, setup_s: float) -> None:
     scene, sizes = sim.scene, sim.model.sizes()
     for line in sim.plan.log_lines():
         log.info(line)
+    for line in sim.plan.warnings:
+        log.warning("%s: %s", scene.name, line)
     log.info("%s: %d nodes, %d cells, %d dofs, P%d, %s, solver %s, %d rank(s); setup %.2f s",
              scene.name, sizes["nodes"], sizes["cells"], sizes["dofs"], scene.element.degree,
              f"{scene.time.scheme} dt={scene.time.dt:g} s" if sim.is_dynamic else "quasi-static",

@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import SolverError
+from ..errors import Interrupted, SolverError
 from ..logs import get_logger
 from ..outputs.progress import progress
 from ..outputs.validity import StrainReport
@@ -76,6 +76,7 @@ def march(sim, writer=None) -> tuple[History, SolverError | None]:
         written = sim.t
     plan = events(sim)
     bar = progress(plan, sim.scene.name, total=len(plan))
+    snapshot = sim.state.snapshot()
     try:
         for n, (t, due) in enumerate(bar, start=1):
             snapshot = sim.state.snapshot()
@@ -92,8 +93,8 @@ def march(sim, writer=None) -> tuple[History, SolverError | None]:
             if not sim.is_dynamic or n % max(1, len(plan) // 10) == 0 or n == len(plan):
                 log.info("  t=%.3f s  level=%s  its=%d  follower iterations=%d  |u|max=%.3e m", sim.t,
                          _level(sim.level), its, sim.follower_iterations, sim.state.max_displacement())
-    except SolverError as exc:  # keep the last good state, then say why
-        stopped = exc
+    except (SolverError, KeyboardInterrupt) as exc:  # keep the last good state, then say why
+        stopped = exc if isinstance(exc, SolverError) else Interrupted("interrupted (Ctrl-C)")
         sim.restore(snapshot)
         if not h.times or h.times[-1] != sim.t:
             h.record(sim)

@@ -29,6 +29,9 @@ from mpi4py import MPI
 from ..scene import Scene
 
 SLOW_FACTOR = 10.0  # a load change lasting this many lowest periods is quasi-static
+# P1 tetrahedra lock as nu nears 0.5: the paper's cube moves 0.90x of P2's at 0.499, 0.71x at
+# 0.4999 and 0.02x at 0.4999999 (benchmarks/results/locking.md); the brain's 0.4925 is 0.96x
+LOCKING_NU = 0.499
 
 
 @dataclass
@@ -45,6 +48,7 @@ class Plan:
     contact: str = ""  # with [skull]: when contact is solved, when skipped
     swelling: str = ""  # with [[swelling]]: the regions, and how their growth enters
     septa: str = ""  # with [[septum]]: which, and how they hold the tissue
+    warnings: list[str] = field(default_factory=list)  # what the scene may get wrong, logged as warnings
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -162,8 +166,12 @@ def make_plan(scene: Scene, mesh) -> Plan:
         septa = (f"{len(scene.septa)} ({'; '.join(f'{s.title}: {s.describe()}' for s in scene.septa)}): the "
                  f"tissue slides along them; their nodes' normal motion is held exactly (every matrix projected "
                  f"once per assembly, P A P + I - P)")
+    warnings = []
+    if scene.element.degree == 1 and scene.material.nu >= LOCKING_NU:
+        warnings.append(f"P1 tetrahedra lock at nu = {scene.material.nu:g}: the body comes out too stiff (the paper's "
+                        f"cube moves 0.71x of P2's at nu = 0.4999, 0.02x at 0.4999999); use [element] degree = 2")
     return Plan(mode, reasons, period, change, fluid_load=fluid, fields=fields, stiffness_band=band, contact=contact,
-                swelling=growth, septa=septa)
+                swelling=growth, septa=septa, warnings=warnings)
 
 
 def stiffness_band(scene: Scene, plan: Plan, max_displacement: float, probes: dict) -> dict | None:

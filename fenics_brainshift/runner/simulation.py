@@ -43,6 +43,12 @@ class Simulation:
         self.model = model if model is not None else build.build_model(scene, comm)
         self.plan = make_plan(scene, self.model.mesh)
         self.contact = build.skull_contact(scene, self.model)  # checked now: a bad skull stops before any output
+        if self.plan.mode == "quasi-static" and self.contact is None:  # (the skull may hold it; the mass does)
+            free = self.model.constraints.free_rigid_motion()
+            if free is not None:
+                raise InputError(f"[[fixed]] / [[septum]]: the supports and septa leave the body free to {free}, so a "
+                                 f"settled state has no unique answer; hold it there (a [[fixed]] region or another "
+                                 f"septum), or use [time] mode = \"dynamic\"")
         self.state = State(self.model.V)
         self.probes = Probes(self.model.mesh, scene.probes)
         self.surfaces = SurfaceAverages(self.state.u, scene.surfaces)
@@ -51,6 +57,8 @@ class Simulation:
         self.strain_meter = StrainMeter(self.state.u, fixed, tissue)
         nullspace = rigid_body_modes(self.model.V) if scene.solver.kind == "cg-gamg" else None
         self.solves = Solves(build.solver_settings(scene), nullspace)
+        if self.model.constraints.has_septa:  # every answer kept on the septa exactly
+            self.solves.project = self.model.constraints.project_owned
         self.dynamic: DynamicStepper | None = None
         self.static: StaticSolver | None = None
 

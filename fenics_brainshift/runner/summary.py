@@ -6,6 +6,7 @@ import statistics
 import numpy as np
 
 from .. import compat, formats
+from ..errors import Interrupted
 from ..outputs.validity import assessment
 from .plan import stiffness_band
 
@@ -29,7 +30,7 @@ def summary(sim, h, stopped, setup_s: float) -> dict:
         "scene": scene.name,
         # a mesh from an image (NIfTI / NRRD) is in its RAS frame: pictures label the anatomy
         "frame": "RAS" if scene.mesh.file and formats.is_label_volume(scene.mesh.file) else None,
-        "status": "ok" if stopped is None else f"stopped: {stopped}",
+        "status": "ok" if stopped is None else "interrupted" if isinstance(stopped, Interrupted) else f"stopped: {stopped}",
         "dolfinx_version": compat.DOLFINX_VERSION,
         "ranks": model.comm.size,
         **model.sizes(),

@@ -76,11 +76,24 @@ class Scene:
                              f"rho_inf <= {MAX_RHO_INF_WITH_CONTACT:g} (its damping of the highest modes keeps "
                              f"impacts from adding energy); or use mode = \"quasi-static\"")
         self.remove = tuple(sorted(self.remove, key=lambda r: r.at))
-        self.probes = {str(k): vector3(f"[probes] {k}", v) for k, v in self.probes.items()}
+        probes = {}
+        for k, v in self.probes.items():
+            probes[_column_name(str(k), probes)] = vector3(f"[probes] {k}", v)
+        self.probes = probes
         surfaces = {}
         for k, v in self.surfaces.items():
             try:
-                surfaces[str(k)] = v if isinstance(v, Predicate) else parse_predicate(v)
+                surfaces[_column_name(str(k), surfaces)] = v if isinstance(v, Predicate) else parse_predicate(v)
             except PredicateError as exc:
                 raise InputError(f"[surfaces] {k}: {exc}") from None
         self.surfaces = surfaces
+
+
+def _column_name(name: str, taken: dict) -> str:
+    """A probe's or surface's name as probes.csv's columns can hold it: commas, quotes and line
+    breaks (a Slicer label "A,1" or with a newline would split the header) become "_", and a
+    name taken already gets a prime."""
+    safe = "".join("_" if c in ',"\r\n' else c for c in name).strip() or "_"
+    while safe in taken:
+        safe += "'"
+    return safe

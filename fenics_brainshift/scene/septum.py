@@ -16,7 +16,7 @@ class SeptumSpec:
     ``where`` limits it to a region (a condition on the nodes' x, y, z); ``reach`` (m): on a
     mesh with a fissure, every node within it of the septum touches it (default: the layer of
     nodes nearest to it); ``name`` for messages, the summary and --set septum.NAME.KEY;
-    ``enabled = false`` leaves it out."""
+    ``enabled = false`` leaves it out. Unnamed, it is "septumN" (its place in the file)."""
 
     name: str | None = None
     point: tuple[float, float, float] | None = None
@@ -38,7 +38,7 @@ class SeptumSpec:
                 raise InputError(f"[[septum]] {self.title}: a plane needs point = [x, y, z] (m) as well as normal")
             self.point = vector3(f"[[septum]] {self.title} point", self.point)
             self.normal = vector3(f"[[septum]] {self.title} normal", self.normal)
-            if sum(v * v for v in self.normal) == 0.0:
+            if max(abs(v) for v in self.normal) == 0.0:
                 raise InputError(f"[[septum]] {self.title} normal must not be zero")
         elif self.point is not None:
             raise InputError(f"[[septum]] {self.title}: point belongs to a plane (with normal); a file or label "

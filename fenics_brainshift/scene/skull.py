@@ -39,7 +39,7 @@ class Skull:
                                  f"[1, 2] (got {self.label!r})")
             self.label = labels
         if self.gap is not None:
-            if isinstance(self.gap, bool) or not isinstance(self.gap, (int, float)) or not self.gap > 0:
+            if isinstance(self.gap, bool) or not isinstance(self.gap, (int, float)) or not 0 < self.gap < float("inf"):
                 raise InputError(f"[skull] gap must be a positive distance in m, such as 0.003 (got {self.gap!r})")
             self.gap = float(self.gap)
         if self.file is not None:

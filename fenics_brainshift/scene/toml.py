@@ -64,7 +64,9 @@ def scene_from_dict(data: dict, base: Path | None = None) -> Scene:
     if not isinstance(septa, list):
         raise InputError("[[septum]] must be an array of tables: [[septum]] name = \"falx\", point = [0, 0, 0], "
                          "normal = [1, 0, 0]")
-    septa = [_build(SeptumSpec, r, "[[septum]]") for r in septa]
+    septa = [_build(SeptumSpec, {"name": f"septum{i + 1}", **r} if isinstance(r, dict) else r,
+                    f"[[septum]] {r.get('name', f'septum{i + 1}') if isinstance(r, dict) else i + 1}")
+             for i, r in enumerate(septa)]
     for septum in septa:
         if septum.file is not None:
             if base is not None and not Path(septum.file).is_absolute():

@@ -167,6 +167,8 @@ class ContactPreconditioner:
         its = self.solves.by_factor(rhs, x, t)
         if self._update is not None:
             self._update.correct(x)
+            if self.solves.project is not None:
+                self.solves.project(x)
         return its
 
     def factor_is_base(self) -> bool:

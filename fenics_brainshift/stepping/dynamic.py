@@ -128,6 +128,7 @@ class DynamicStepper:
             M_bc = m.assemble(m.combined(1.0, weight), with_bcs=True)
             its = solve_preconditioned_by(M_bc, self.solves.solver, rhs, a, rtol=1e-12, name="acceleration")
         M_bc.destroy()
+        m.constraints.project_owned(a)
         return its
 
     def _unbalanced_force(self, out) -> None:

@@ -287,6 +287,7 @@ class NewtonStatic:
             self.model.constraints.vector(rhs)
             solve_preconditioned_by(self._K, self.solves.solver, rhs, compat.petsc_vec(u), rtol=1e-10,
                                     name="linear start")
+            self.model.constraints.project_owned(compat.petsc_vec(u))
             u.x.scatter_forward()
             return self._newton(t, 1.0)
         except SolverError:

@@ -24,6 +24,9 @@ class Solves:
         self.seconds = 0.0
         self.last_seconds = 0.0  # of the last solve
         self.iterations: list[int] = []
+        # x <- P x after every solve (physics/constraints.py), or None: an inexact Krylov solve
+        # (Newton's forcing) with a preconditioner that does not keep range(P) leaves it
+        self.project = None
 
     def reset(self, A: PETSc.Mat) -> None:
         """A new matrix: its solver is set up now (factor or preconditioner)."""
@@ -41,6 +44,8 @@ class Solves:
     def __call__(self, rhs: PETSc.Vec, x: PETSc.Vec, t: float) -> int:
         t0 = time.perf_counter()
         its = self.solver.solve(rhs, x)
+        if self.project is not None:
+            self.project(x)
         self.last_seconds = time.perf_counter() - t0
         self.seconds += self.last_seconds
         self.count += 1
@@ -56,6 +61,8 @@ class Solves:
         apply it twice). Counted as a solve of one iteration."""
         t0 = time.perf_counter()
         self.solver.ksp.getPC().apply(rhs, x)
+        if self.project is not None:
+            self.project(x)
         self.last_seconds = time.perf_counter() - t0
         self.seconds += self.last_seconds
         self.count += 1

@@ -1,0 +1,161 @@
+"""Slips a user makes that used to pass (exit 0 and a wrong answer, a traceback, or a message
+naming the wrong fix): each is now one line naming the field and the likely slip, before
+anything is written (issue 30). Every row but the NaN gap failed on the code before it."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from conftest import COMM, shared_tmp  # noqa: F401  (fixture)
+from fenics_brainshift.data import MESHES
+from fenics_brainshift.errors import InputError
+from fenics_brainshift.fit.targets import read_target
+from fenics_brainshift.images import read_markups
+from fenics_brainshift.runner import Simulation, run
+from fenics_brainshift.scene import load_scene, scene_from_dict
+
+CUBE = {"name": "cube", "mesh": {"shape": "box", "size": [0.05, 0.05, 0.025], "cells": [4, 4, 2]},
+        "material": {"E": 3000.0, "nu": 0.45}, "fixed": [{"where": "z < 1e-9"}], "time": {"mode": "quasi-static"}}
+
+
+def _markups(path, position) -> str:
+    path.write_text(json.dumps({"markups": [{"type": "Fiducial", "coordinateSystem": "LPS", "controlPoints": [
+        {"label": "F-1", "position": [1.0, 2.0, 3.0]}, {"label": "F-2", "position": position}]}]}))
+    return str(path)
+
+
+@pytest.mark.parametrize("position, words", [
+    (float("nan"), "no position of 3 numbers"),  # json writes NaN as a bare word Python reads back
+    ([1.0, float("nan"), 3.0], "not finite"),
+    ([1.0, float("inf"), 3.0], "not finite"),
+    (["1", "2", "3"], "no position of 3 numbers"),
+    ([1.0, 2.0], "no position of 3 numbers")])
+def test_markups_whose_positions_are_not_three_finite_numbers(tmp_path, position, words):
+    with pytest.raises(InputError, match=words):
+        read_markups(_markups(tmp_path / "p.mrk.json", position), "--target")
+
+
+@pytest.mark.parametrize("rows, words", [
+    ("x,y,z\n1,2,3\nnan,2,3\n", "line 3: x = nan is not a finite number"),
+    ("x,y,z\n1,2,3\n1,inf,3\n", "line 3: y = inf is not a finite number"),
+    ("x,y,z\n1,2,3\n1,2\n", "line 3: z is missing"),
+    ("x,y,z\n1,2,3,4\n", "line 2 has more values than the header"),
+    ("x,y,z\n1,two,3\n", "line 2: y is not a number"),
+    ("x,y,z,x_pre,y_pre,z_pre\n1,2,3,1,2,\n", "line 2: z_pre is missing")])
+def test_csv_targets_with_bad_rows(tmp_path, rows, words):
+    """A NaN in a CSV target crashed inside PETSc (signal 11); short rows raised a TypeError."""
+    path = tmp_path / "t.csv"
+    path.write_text(rows)
+    with pytest.raises(InputError, match=words):
+        read_target(path)
+
+
+@pytest.mark.parametrize("override, words", [
+    ("skull.gap=inf", "gap must be a positive distance"),
+    ("skull.gap=nan", "gap must be a positive distance"),
+    ("skull.gap=3", "gap = 3 m against a 0.075 m body"),
+    ("skull.tolerance=0.5", "tolerance = 0.5 m would let the body pass 500 mm"),
+    ("skull.tolerance=0.0005", "tolerance = 0.0005 m would let the body pass"),  # a tenth of the 3 mm gap at most
+    ("mesh.size=[170.0, 170.0, 85.0]", "the body is 255 m across"),
+    ("mesh.size=[0.0005, 0.0005, 0.0005]", "the body is 0.000866 m across")])
+def test_absurd_values_are_refused_before_the_solve(override, words):
+    data = json.loads(json.dumps(CUBE))
+    data["skull"] = {"gap": 0.003}
+    section, rest = override.split(".", 1)
+    key, value = rest.split("=")
+    data[section][key] = json.loads(value.replace("inf", "Infinity").replace("nan", "NaN"))
+    if section == "mesh":
+        del data["skull"]
+    with pytest.raises(InputError, match=words):
+        Simulation(scene_from_dict(data), COMM)
+
+
+def test_a_mesh_file_in_mm_read_as_metres_names_the_unit():
+    """The phantom's .msh in mm, declared m: a 0.17 km body, which used to end in "use [fluid]
+    follower = false"."""
+    data = dict(CUBE, mesh={"file": str(MESHES / "phantom_ellipsoid_mm.msh"), "unit": "m"}, fixed=[{"where": "z < 0"}])
+    with pytest.raises(InputError, match=r"is it in mm\? give \[mesh\] unit = \"mm\""):
+        Simulation(scene_from_dict(data), COMM)
+
+
+def test_probe_names_keep_probes_csv_readable(shared_tmp):
+    """A Slicer label with a comma or a line break split probes.csv's header."""
+    data = dict(CUBE, probes={"A,1": [0.025, 0.025, 0.025], "B\n2": [0.0, 0.0, 0.025]})
+    run(scene_from_dict(data), shared_tmp / "out", COMM)
+    header = (shared_tmp / "out" / "probes.csv").read_text().splitlines()[0].split(",")
+    assert header[:2] == ["t", "level"] and "A_1_x" in header and "B_2_z" in header and len(header) == 8
+
+
+@pytest.mark.parametrize("nu, degree, warned", [(0.4999, 1, True), (0.499, 1, True), (0.4925, 1, False),
+                                                (0.4999, 2, False)])
+def test_p1_near_incompressibility_is_warned(nu, degree, warned):
+    """P1 at nu = 0.4999999 made the paper's cube 57x too stiff with exit 0 and no word."""
+    sim = Simulation(load_scene("cube", [f"material.nu={nu}", f"element.degree={degree}", "mesh.cells=[4, 4, 2]"]),
+                     COMM)
+    assert bool(sim.plan.warnings) == warned
+    if warned:
+        assert "degree = 2" in sim.plan.warnings[0]
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["fit", "cube", "--target", "t.csv", "--params", "material.G", "--noise", "inf"], "--noise must be a finite"),
+    (["fit", "cube", "--target", "t.csv", "--params", "material.G", "--noise", "nan"], "--noise must be a finite"),
+    (["warp", "run", "--image", "x.nii.gz", "-o", "y.nii.gz", "--blend", "inf"], "--blend must be a finite"),
+    (["warp", "run", "--image", "x.nii.gz", "-o", "y.nii.gz", "--blend", "nan"], "--blend must be a finite")])
+def test_command_line_numbers_that_are_not_finite(tmp_path, monkeypatch, capsys, argv, words, serial_only):
+    from fenics_brainshift.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "t.csv").write_text("x,y,z\n1,2,3\n")
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert words in err and len(err.splitlines()) == 1
+
+
+def _interrupt_at(monkeypatch, number: int) -> None:
+    """Ctrl-C (KeyboardInterrupt) in the run's time step ``number``."""
+    from fenics_brainshift.runner.simulation import Simulation as Sim
+
+    original, calls = Sim.step, {"n": 0}
+
+    def step(self):
+        calls["n"] += 1
+        if calls["n"] == number:
+            raise KeyboardInterrupt
+        return original(self)
+    monkeypatch.setattr(Sim, "step", step)
+
+
+def test_ctrl_c_keeps_the_last_good_state_says_interrupted_and_exits_130(tmp_path, monkeypatch, capsys, serial_only):
+    """Ctrl-C printed a 30-line traceback and left no summary.json, or the earlier run's "ok"."""
+    from fenics_brainshift.cli import main
+
+    out = tmp_path / "out"
+    args = ["run", "cube", "--out", str(out), "--set", "mesh.cells=[4, 4, 2]", "--set", "time.dt=0.1"]
+    assert main(args + ["--set", "time.end=0.5"]) == 0  # a complete run first, into the same folder
+    assert json.loads((out / "summary.json").read_text())["status"] == "ok"
+    _interrupt_at(monkeypatch, 4)
+    assert main(args + ["--set", "time.end=2.0"]) == 130
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("brainshift: interrupted (Ctrl-C); the last good state, t = 0.3 s")
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "interrupted" and summary["final_time"] == pytest.approx(0.3)
+    times = np.loadtxt(out / "probes.csv", delimiter=",", skiprows=1)[:, 0]
+    assert times[-1] == pytest.approx(0.3)  # the new run's rows only
+
+
+def test_a_re_run_clears_the_earlier_runs_files_and_only_those(shared_tmp):
+    """A fine-surface series of an earlier, longer run survived a re-run (ParaView's series then
+    mixed two runs); the user's own files stay."""
+    out = shared_tmp / "out"
+    if COMM.rank == 0:
+        out.mkdir()
+        for name in ("surface_0007.vtk", "surface_0007.stl", "deformed.png", "notes.txt"):
+            (out / name).write_text("earlier")
+    COMM.barrier()
+    run(scene_from_dict(CUBE), out, COMM)
+    assert not any((out / n).exists() for n in ("surface_0007.vtk", "surface_0007.stl", "deformed.png"))
+    assert (out / "notes.txt").read_text() == "earlier"
+    assert json.loads((out / "summary.json").read_text())["status"] == "ok"
