@@ -84,8 +84,8 @@ def main(argv=None) -> int:
                   f"{np.linalg.norm(force) * 1e3:.0f} mN in all ({septum['normal_force_sum_N'] * 1e3:.0f} mN summed "
                   f"over its nodes, from both sides); the tissue slides up to {septum['largest_slide_m'] * 1e3:.2f} mm "
                   f"along it and {septum['largest_motion_across_m'] * 1e3:.1g} mm across")
-        print(f"  results in {out}/: displacement.xdmf (ParaView), surface_final.vtk/.stl "
-              f"(3D Slicer), probes.csv, summary.json, frontal_pole.png")
+        print(f"  results in {out}/: displacement.xdmf and surface_final.vtk (ParaView), surface_final.stl "
+              f"(3D Slicer, mm), probes.csv, summary.json, frontal_pole.png")
         plot_probe(out)
     comm.barrier()
     return 0

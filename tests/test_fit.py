@@ -223,3 +223,48 @@ def test_in_place_stiffness_with_the_skull_equals_a_rebuilt_scene():
     assert contact.report(forward.sim.u)["max_penetration_m"] <= contact.tolerance
     forward.destroy()
     reference.destroy()
+
+
+def test_a_parameter_on_its_bound_is_flagged_not_measured():
+    """A true head turn of 45 degrees against the +-30 degree bound came back as 29.997 +- 8.5,
+    "constrained"; it is now at its upper bound, with no standard deviation."""
+    turned = dict(TRUTH, **{"gravity.angle_z": 45.0})
+    sim = _settled(_true_scene(turned))
+    surface = _surface_points(sim)
+    pre = surface[surface[:, 1] > 0.03][::9][:20]
+    measured = pre + PointEvaluator(sim.model.mesh, pre).values(sim.u)
+    sim.destroy()
+    forward = ForwardModel(load_scene("brain", COARSE))
+    params = parameters(forward.scene, list(TRUTH), forward.heights())
+    result = fit(forward, Target(measured, pre, [str(i) for i in range(len(pre))]), params, noise=0.5e-3)
+    forward.destroy()
+    entry = result.as_dict()["parameters"]["gravity.angle_z"]
+    assert entry["at_bound"] == "upper" and entry["fitted"] == pytest.approx(30.0, abs=0.01)
+    assert entry["constrained"] is False and entry["std"] is None
+
+
+def test_a_fit_that_does_not_explain_the_data_says_so(truth):
+    """Points 55 mm off (a frame slip) at a stated noise of 0.5 mm: a fitted scene with exit 0
+    and no word; now a warning in fit.json and the report."""
+    pre, measured, _, _ = truth
+    forward = ForwardModel(load_scene("brain", COARSE))
+    params = parameters(forward.scene, ["fluid.level", "material.G"], forward.heights())
+    result = fit(forward, Target(measured[:20] + [0.055, 0.0, 0.0], pre[:20], [str(i) for i in range(20)]), params,
+                 noise=0.5e-3)
+    assert "does not explain the data" in result.as_dict()["warning"]
+    clean = fit(forward, Target(measured[:20], pre[:20], [str(i) for i in range(20)]), params, noise=0.5e-3)
+    assert "warning" not in clean.as_dict()
+    forward.destroy()
+
+
+def test_pre_points_outside_the_body_are_refused(truth):
+    """Points 30 mm above the cube had their shift extrapolated from the nearest cell, silently."""
+    from fenics_brainshift.errors import InputError
+
+    pre, measured, _, _ = truth
+    forward = ForwardModel(load_scene("brain", COARSE))
+    params = parameters(forward.scene, ["material.G"], forward.heights())
+    away = pre[:10] + [0.0, 0.05, 0.0]  # 50 mm in front of the exposed cortex
+    with pytest.raises(InputError, match=r"--pre: 10 point\(s\) .* lie outside the body"):
+        fit(forward, Target(measured[:10], away, [f"P{i}" for i in range(10)]), params, noise=0.5e-3)
+    forward.destroy()

@@ -209,3 +209,33 @@ def _mesh_volume(path) -> float:
     corners = mesh.geometry.x[compat.geometry_dofmap(mesh)]
     return float(np.abs(np.einsum("ij,ij->i", np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]),
                                   corners[:, 3] - corners[:, 0])).sum() / 6)
+
+
+def _read_model_as_slicer_does(path) -> np.ndarray:
+    """Points (mm, RAS) of a binary STL by 3D Slicer's rule (vtkMRMLModelStorageNode): the
+    frame is the header's SPACE= tag, LPS when there is none (flip x and y); millimetres."""
+    raw = path.read_bytes()
+    header = raw[:80].decode("ascii", "replace")
+    count = int(np.frombuffer(raw[80:84], "<u4")[0])
+    record = np.dtype([("normal", "<f4", 3), ("vertices", "<f4", (3, 3)), ("attribute", "<u2")])
+    vertices = np.frombuffer(raw[84:84 + count * record.itemsize], record)["vertices"].reshape(-1, 3).astype(float)
+    return vertices if "SPACE=RAS" in header else vertices * [-1.0, -1.0, 1.0]
+
+
+def test_a_run_writes_its_surface_as_slicer_reads_it(tmp_path):
+    """surface_final.stl: read by Slicer's rule it lies where the run put it, in RAS mm (it was
+    in metres with no tag: 1000x too small and mirrored in x and y); the .vtk stays in metres for
+    ParaView, and both carry the same deformed surface."""
+    import meshio
+
+    from fenics_brainshift import load_scene, run
+
+    out = tmp_path / "out"
+    run(load_scene("brain", ["mesh.voxel=0.012", "time.mode=quasi-static", "output.pictures=false"]), out)
+    slicer = _read_model_as_slicer_does(out / "surface_final.stl")
+    vtk = meshio.read(out / "surface_final.vtk")
+    expected = vtk.points[vtk.cells_dict["triangle"]].reshape(-1, 3) * 1e3  # m -> mm, RAS
+    np.testing.assert_allclose(slicer, expected, atol=1e-3)  # float32 in the STL: a micrometre
+    assert 120 < np.ptp(slicer[:, 1]) < 200  # a brain, front to back, in mm
+    surface = meshio.read(out / "surface_final.stl")  # and other readers (meshio) read it too
+    assert len(surface.cells_dict["triangle"]) == len(vtk.cells_dict["triangle"])

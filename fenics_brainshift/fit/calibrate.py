@@ -20,6 +20,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from ..errors import InputError, SolverError
+from ..outputs.points import PointEvaluator
 from .forward import ForwardModel
 from .parameters import Parameter
 from .targets import Target
@@ -31,6 +32,8 @@ UNCONSTRAINED = 0.25
 # the residual (m) of parameters with no settled state: far worse than any fit, so the trust
 # region shrinks away from them
 NO_EQUILIBRIUM = 1.0
+# a fitted residual RMS above this many times the stated noise: the model does not explain the data
+UNEXPLAINED = 10.0
 
 
 @dataclass
@@ -46,12 +49,15 @@ class FitResult:
     message: str
     singular_values: list[float] = field(default_factory=list)
     without_equilibrium: int = 0  # evaluations whose parameters gave no settled state
+    at_bound: list[str | None] = field(default_factory=list)  # "lower" / "upper": the points want it beyond
+    warning: str | None = None  # the fit does not explain the data
 
     def as_dict(self) -> dict:
-        return {
+        bounds = self.at_bound or [None] * len(self.parameters)
+        out = {
             "parameters": {p.name: {"prior": p.prior, "fitted": float(v), "std": (float(s) if c else None),
-                                    "constrained": c, "bounds": [p.lower, p.upper], "unit": p.unit}
-                           for p, v, s, c in zip(self.parameters, self.values, self.std, self.constrained)},
+                                    "constrained": c, "at_bound": b, "bounds": [p.lower, p.upper], "unit": p.unit}
+                           for p, v, s, c, b in zip(self.parameters, self.values, self.std, self.constrained, bounds)},
             "residual_rms_mm": float(np.sqrt(np.mean(self.residuals**2)) * 1e3),
             "residual_max_mm": float(np.abs(self.residuals).max() * 1e3),
             "prior_residual_rms_mm": float(np.sqrt(np.mean(self.prior_residuals**2)) * 1e3),
@@ -62,6 +68,9 @@ class FitResult:
             "evaluations_without_equilibrium": self.without_equilibrium,
             "scaled_jacobian_singular_values": self.singular_values,
         }
+        if self.warning:
+            out["warning"] = self.warning
+        return out
 
 
 def fit(forward: ForwardModel, target: Target, parameters: list[Parameter], noise: float = 1e-3) -> FitResult:
@@ -89,6 +98,12 @@ def fit(forward: ForwardModel, target: Target, parameters: list[Parameter], nois
             return (forward.positions(target.pre) - target.measured).ravel()
         return forward.signed_distances(target.measured)
 
+    if target.pre is not None:  # a point outside the body would be extrapolated, silently
+        outside = PointEvaluator(forward.model.mesh, target.pre).far_outside()
+        if len(outside):
+            labels = ", ".join(target.labels[i] for i in outside[:5])
+            raise InputError(f"--pre: {len(outside)} point(s) ({labels}) lie outside the body, farther than a cell "
+                             f"from it: a frame or unit slip (RAS or LPS, mm)? or points not on the brain")
     x0 = np.array([p.prior for p in parameters]) / scale
     prior = None
     prior = residuals(x0)  # the scene itself must have a settled state
@@ -100,9 +115,21 @@ def fit(forward: ForwardModel, target: Target, parameters: list[Parameter], nois
     values = result.x * scale
     std, constrained, singular = _uncertainty(result, final, scale, upper - lower, noise)
     per_point = _per_point(final, target)
+    # a parameter on its bound is where the points would take it past: not a measurement (the
+    # trust-region iterates stay strictly inside, so "on" is within 1e-4 of the range too)
+    near = 1e-4 * (upper - lower)
+    at_bound = [("lower" if a < 0 or x - lo <= d else "upper" if a > 0 or hi - x <= d else None)
+                for a, x, lo, hi, d in zip(result.active_mask, result.x, lower, upper, near)]
+    constrained = [c and b is None for c, b in zip(constrained, at_bound)]
+    rms = float(np.sqrt(np.mean(per_point**2)))
+    warning = None
+    if rms > UNEXPLAINED * noise:
+        warning = (f"the model does not explain the data: the fitted residual RMS {rms * 1e3:.3g} mm is "
+                   f"{rms / noise:.0f}x the stated noise ({noise * 1e3:g} mm); a frame or unit slip (RAS or LPS, "
+                   f"mm), points mismatched between --pre and --target, or a cause the parameters lack")
     return FitResult(parameters, values, std, constrained, per_point, _per_point(prior, target),
                      forward.solves - solves0, time.perf_counter() - t0, result.message, singular,
-                     len(no_equilibrium))
+                     len(no_equilibrium), at_bound, warning)
 
 
 def _per_point(r: np.ndarray, target: Target) -> np.ndarray:

@@ -41,8 +41,14 @@ def fit_command(args, comm) -> list[str]:
     lines = [f"fit: {target.kind}, {len(target.measured)} points; {result.solves} settled states in "
              f"{result.seconds:.1f} s; residual RMS {report['prior_residual_rms_mm']:.2f} mm (scene) -> "
              f"{report['residual_rms_mm']:.2f} mm (fitted)"]
-    for p, v, sd, ok in zip(params, result.values, result.std, result.constrained):
-        spread = f"+- {sd:.3g}" if ok else "NOT CONSTRAINED by these points (the value is not a measurement)"
+    for p, v, sd, ok, bound in zip(params, result.values, result.std, result.constrained, result.at_bound):
+        if bound is not None:
+            spread = (f"AT ITS {bound.upper()} BOUND: the points would take it past {p.lower if bound == 'lower' else p.upper:g} "
+                      f"(not a measurement)")
+        else:
+            spread = f"+- {sd:.3g}" if ok else "NOT CONSTRAINED by these points (the value is not a measurement)"
         lines.append(f"  {p.name:16s} {p.prior:10.4g} -> {v:10.4g} {p.unit:4s} {spread}")
+    if result.warning:
+        lines.append(f"  WARNING: {result.warning}")
     lines.append(f"wrote {out}/fitted.toml, fit.json" + ("" if args.no_run else " and the fitted run"))
     return lines

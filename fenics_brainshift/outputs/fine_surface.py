@@ -9,6 +9,7 @@ everywhere. Works under MPI: each vertex is evaluated by one rank, the result ga
 """
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -27,16 +28,38 @@ class SurfaceEmbedding(PointEvaluator):
         self.triangles = np.asarray(triangles, dtype=np.int64)
 
     def write(self, folder: Path, stem: str, u) -> None:
-        """folder/stem.vtk and folder/stem.stl of the deformed surface (rank 0 writes), with the
-        displacement as point data in the VTK file."""
+        """folder/stem.vtk (m, with the displacement as point data: ParaView, beside
+        displacement.xdmf) and folder/stem.stl (mm, tagged RAS: 3D Slicer) of the deformed
+        surface (rank 0 writes)."""
         import meshio
 
         d = self.values(u)  # (N, 3) displacement of the fine surface's vertices, on every rank
         if self.comm.rank == 0:
             mesh = meshio.Mesh(self.points + d, [("triangle", self.triangles)], point_data={"displacement": d})
             mesh.write(folder / f"{stem}.vtk")
-            meshio.Mesh(self.points + d, [("triangle", self.triangles)]).write(folder / f"{stem}.stl", binary=True)
+            write_slicer_stl(folder / f"{stem}.stl", (self.points + d) * 1e3, self.triangles)
         self.comm.barrier()
+
+
+def write_slicer_stl(path: Path, points_mm: np.ndarray, triangles: np.ndarray) -> Path:
+    """A binary STL as 3D Slicer reads it: millimetres, and the frame in its 80-byte header
+    ("SPACE=RAS", as Slicer writes it: an STL without the tag is taken as LPS, which mirrored
+    ours in x and y, and metres made it 1000x too small). Via a temporary file and a rename."""
+    p = np.asarray(points_mm, dtype=np.float64)[np.asarray(triangles)]  # (T, 3, 3)
+    normals = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    lengths = np.linalg.norm(normals, axis=1)[:, None]
+    normals = np.divide(normals, lengths, out=np.zeros_like(normals), where=lengths > 0)
+    record = np.dtype([("normal", "<f4", 3), ("vertices", "<f4", (3, 3)), ("attribute", "<u2")])
+    data = np.zeros(len(p), dtype=record)
+    data["normal"], data["vertices"] = normals, p
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp")
+    with open(tmp, "wb") as f:
+        f.write(b"fenics-brainshift output. SPACE=RAS".ljust(80, b" "))
+        f.write(np.uint32(len(p)).tobytes())
+        f.write(data.tobytes())
+    os.replace(tmp, path)
+    return path
 
 
 def load_fine_surface(file: str | None, surface: str | None, scale: float, labels=None):
