@@ -59,16 +59,19 @@ class Constraints:
             self.directions[self._index[dof // 3]].append((-1, np.eye(3)[dof % 3]))
         self.P = np.array([_projector([d for _, d in dirs]) for dirs in self.directions]).reshape(-1, 3, 3)
         self.has_septa = self.comm.allreduce(len(self.nodes), op=MPI.SUM) > 0
-        self._matrix = self._projector_matrix() if self.has_septa else None
+        self._matrix = self._block_matrix(self.P) if self.has_septa else None
+        # I - P, added after the product: zero but at the septum nodes' diagonal blocks
+        self._complement = self._block_matrix(np.eye(3) - self.P, identity=False) if self.has_septa else None
 
     # -- the projector as a PETSc matrix ----------------------------------------------------
-    def _projector_matrix(self) -> PETSc.Mat:
-        """P (AIJ, block size 3): the identity but at the owned septum nodes' blocks."""
+    def _block_matrix(self, at_nodes: np.ndarray, identity: bool = True) -> PETSc.Mat:
+        """A block-diagonal AIJ matrix (block size 3): ``at_nodes`` (per local septum node) at
+        the owned septum nodes' blocks, the identity (or zero) elsewhere."""
         n = self._owned
         start = self.V.dofmap.index_map.local_range[0]
-        blocks = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
+        blocks = np.broadcast_to(np.eye(3) if identity else np.zeros((3, 3)), (n, 3, 3)).copy()
         owned = self.nodes < n
-        blocks[self.nodes[owned]] = self.P[owned]
+        blocks[self.nodes[owned]] = at_nodes[owned]
         columns = 3 * (start + np.arange(n))[:, None, None] + np.arange(3)[None, None, :]
         indices = np.broadcast_to(columns, (n, 3, 3)).reshape(-1).astype(PETSc.IntType)
         indptr = np.arange(0, 9 * n + 1, 3, dtype=PETSc.IntType)
@@ -88,12 +91,7 @@ class Constraints:
             else:
                 A.PtAP(self._matrix, result=product)
             product.copy(A, PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
-            owned = self.nodes < self._owned
-            start = self.V.dofmap.index_map.local_range[0]
-            for node, block in zip(self.nodes[owned], self.P[owned]):
-                row = start + int(node)
-                A.setValuesBlocked([row], [row], (np.eye(3) - block).ravel(), addv=PETSc.InsertMode.ADD_VALUES)
-            A.assemble()
+            A.axpy(1.0, self._complement, PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
         if supports:  # collective: every rank calls it, with or without rows of its own
             A.zeroRowsColumnsLocal(self.fixed, 1.0)
         return A
@@ -171,18 +169,17 @@ class Constraints:
         direction d at a point x sees the motions t + w x (x - c) through d . t + (x - c) x d . w."""
         X = self.V.tabulate_dof_coordinates()
         owned = self._owned
-        rows = [(X[dof // 3], np.eye(3)[dof % 3]) for dof in self.fixed if dof // 3 < owned]
-        rows += [(X[node], n) for node, dirs in zip(self.nodes, self.directions) if node < owned
+        fixed = self.fixed[self.fixed // 3 < owned]
+        septa = [(node, n) for node, dirs in zip(self.nodes, self.directions) if node < owned
                  for k, n in dirs if k >= 0]
+        points = np.concatenate([X[fixed // 3], X[[node for node, _ in septa]].reshape(-1, 3)])
+        held = np.concatenate([np.eye(3)[fixed % 3], np.array([n for _, n in septa]).reshape(-1, 3)])
         c = self.comm
-        count = c.allreduce(len(X[:owned]))
+        count = c.allreduce(owned)
         centre = c.allreduce(X[:owned].sum(axis=0)) / max(count, 1)
         size = max(c.allreduce(float(np.abs(X[:owned] - centre).max(initial=0.0)), op=MPI.MAX), 1e-300)
-        G = np.zeros((6, 6))
-        for x, d in rows:
-            g = np.concatenate([d, np.cross((x - centre) / size, d)])
-            G += np.outer(g, g)
-        G = c.allreduce(G)
+        g = np.hstack([held, np.cross((points - centre) / size, held)])  # a row per held direction
+        G = c.allreduce(g.T @ g)
         values, vectors = np.linalg.eigh(G)
         if values[-1] > 0 and values[0] > 1e-10 * values[-1]:
             return None
@@ -196,8 +193,9 @@ class Constraints:
         return f"turn about an axis along ({words(vectors[3:, 0])})"
 
     def destroy(self) -> None:
-        if self._matrix is not None:
-            self._matrix.destroy()
+        for matrix in (self._matrix, self._complement):
+            if matrix is not None:
+                matrix.destroy()
 
 
 def _projector(directions: list[np.ndarray]) -> np.ndarray:
