@@ -90,6 +90,9 @@ def _add_fit(sub) -> None:
     fit.add_argument("--pre", help="the same points before the shift (.mrk.json, matched by label): point to point")
     fit.add_argument("--params", required=True, help="comma-separated: fluid.level, material.G, gravity.angle_x, "
                                                      "gravity.angle_y, gravity.angle_z")
+    fit.add_argument("--frame", type=str.upper, choices=["RAS", "LPS"], default=None,
+                     help="the frame of a CSV target and of a surface target whose header does not say (Slicer "
+                          "writes SPACE= in it); default RAS. Markups files carry their own")
     fit.add_argument("--noise", type=float, default=1.0, help="measurement noise (mm): the robust loss's scale")
     fit.add_argument("--out", default="out_fit", help="output folder")
     fit.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", help="scene overrides")

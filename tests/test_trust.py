@@ -52,6 +52,7 @@ def test_csv_targets_with_bad_rows(tmp_path, rows, words):
         read_target(path)
 
 
+@pytest.mark.mpi
 @pytest.mark.parametrize("override, words", [
     ("skull.gap=inf", "gap must be a positive distance"),
     ("skull.gap=nan", "gap must be a positive distance"),
@@ -72,6 +73,7 @@ def test_absurd_values_are_refused_before_the_solve(override, words):
         Simulation(scene_from_dict(data), COMM)
 
 
+@pytest.mark.mpi
 def test_a_mesh_file_in_mm_read_as_metres_names_the_unit():
     """The phantom's .msh in mm, declared m: a 0.17 km body, which used to end in "use [fluid]
     follower = false"."""
@@ -80,6 +82,7 @@ def test_a_mesh_file_in_mm_read_as_metres_names_the_unit():
         Simulation(scene_from_dict(data), COMM)
 
 
+@pytest.mark.mpi
 def test_probe_names_keep_probes_csv_readable(shared_tmp):
     """A Slicer label with a comma or a line break split probes.csv's header."""
     data = dict(CUBE, probes={"A,1": [0.025, 0.025, 0.025], "B\n2": [0.0, 0.0, 0.025]})
@@ -146,6 +149,7 @@ def test_ctrl_c_keeps_the_last_good_state_says_interrupted_and_exits_130(tmp_pat
     assert times[-1] == pytest.approx(0.3)  # the new run's rows only
 
 
+@pytest.mark.mpi
 def test_a_re_run_clears_the_earlier_runs_files_and_only_those(shared_tmp):
     """A fine-surface series of an earlier, longer run survived a re-run (ParaView's series then
     mixed two runs); the user's own files stay."""

@@ -22,11 +22,12 @@ def fit_command(args, comm) -> list[str]:
     check_names(names)
     if not 0 < args.noise < float("inf"):
         raise InputError(f"--noise must be a finite number of mm > 0 (got {args.noise:g})")
-    target = read_target(args.target, args.pre)
+    target = read_target(args.target, args.pre, args.frame)
     scene = load_scene(args.scene, args.set)
     forward = ForwardModel(load_scene(args.scene, args.set + ["time.mode=quasi-static"]), comm)
     params = parameters(scene, names, forward.heights())
     result = fit(forward, target, params, args.noise * 1e-3)
+    surface = forward.measured_surface if target.pre is None else None
     forward.destroy()
     if comm.rank == 0:
         out.mkdir(parents=True, exist_ok=True)
@@ -34,11 +35,12 @@ def fit_command(args, comm) -> list[str]:
     values = dict(zip(names, (float(v) for v in result.values)))
     fitted = write_fitted_scene(args.scene, args.set, scene_changes(scene, values), out) if comm.rank == 0 else None
     fitted = comm.bcast(fitted, root=0)
-    write_fit_json(out, result, target, comm)
+    write_fit_json(out, result, target, comm, surface)
     if not args.no_run:
         run(load_scene(fitted), out, comm)
     report = result.as_dict()
-    lines = [f"fit: {target.kind}, {len(target.measured)} points; {result.solves} settled states in "
+    kind = target.kind + (f" (to {surface})" if surface else "")
+    lines = [f"fit: {kind}, {len(target.measured)} points; {result.solves} settled states in "
              f"{result.seconds:.1f} s; residual RMS {report['prior_residual_rms_mm']:.2f} mm (scene) -> "
              f"{report['residual_rms_mm']:.2f} mm (fitted)"]
     for p, v, sd, ok, bound in zip(params, result.values, result.std, result.constrained, result.at_bound):

@@ -17,7 +17,8 @@ from mpi4py import MPI
 
 from ..errors import SolverError
 from ..outputs.points import PointEvaluator
-from ..physics.skull import RigidSkull, gathered_outward_surface
+from ..outputs.fine_surface import SurfaceEmbedding
+from ..physics.skull import RigidSkull, gathered_outward_surface, outward
 from ..physics.surface import surface_facets
 from .parameters import rotated_gravity
 
@@ -52,6 +53,7 @@ class ForwardModel:
         self._located: tuple[np.ndarray, PointEvaluator] | None = None  # the last points and their cells
         fluid = self.model.fluid
         self._facets = fluid.hydro.facets if fluid is not None else surface_facets(self.model.V)
+        self._fine = None  # the fine surface, located when first needed (False: the scene has none)
 
     def heights(self) -> tuple[float, float]:
         """The lowest and highest surface point along up (m): the level's bounds."""
@@ -106,9 +108,33 @@ class ForwardModel:
             self._located = (np.array(points, copy=True), PointEvaluator(self.model.mesh, points))
         return points + self._located[1].values(self.sim.u)
 
+    @property
+    def measured_surface(self) -> str:
+        """What point-to-surface distances are measured to (fit.json says it)."""
+        fine = self._fine_surface()
+        if fine is None:
+            return "the mesh's boundary (the scene has no fine surface)"
+        return f"the fine surface ({len(fine.triangles)} triangles)"
+
+    def _fine_surface(self):
+        """The scene's fine surface located in the mesh once, or None: the real cortex's shape,
+        where the mesh's boundary (a voxel model's staircase) is up to half a voxel's diagonal
+        off it, so points measured on the cortex could not be matched by the right parameters."""
+        if self._fine is None:
+            from ..runner import build
+
+            fine = build.fine_surface(self.scene)
+            self._fine = False if fine is None else SurfaceEmbedding(self.model.mesh, fine[0], outward(*fine))
+        return self._fine or None
+
     def signed_distances(self, points: np.ndarray) -> np.ndarray:
-        """Signed distance (m, + outside) of points to the current deformed surface."""
-        surface, triangles = gathered_outward_surface(self._facets, self.model.comm, self.sim.u)
+        """Signed distance (m, + outside) of points to the current deformed surface: the fine
+        surface where the scene has one, else the mesh's boundary."""
+        fine = self._fine_surface()
+        if fine is not None:
+            surface, triangles = fine.points + fine.values(self.sim.u), fine.triangles
+        else:
+            surface, triangles = gathered_outward_surface(self._facets, self.model.comm, self.sim.u)
         distance, side, _ = RigidSkull(surface, triangles).distance(points)
         return side * distance
 

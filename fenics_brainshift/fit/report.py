@@ -38,8 +38,11 @@ def write_fitted_scene(scene_path, overrides: list[str], changes: dict, out: Pat
     return path
 
 
-def write_fit_json(out: Path, result, target, comm) -> Path:
+def write_fit_json(out: Path, result, target, comm, surface: str | None = None) -> Path:
+    """fit.json; ``surface``: what point-to-surface distances were measured to."""
     data = {"target": {"kind": target.kind, "points": len(target.measured), "labels": target.labels},
             **result.as_dict()}
+    if target.pre is None and surface is not None:
+        data["target"]["measured_to"] = surface
     write_json(out / "fit.json", data, comm)
     return out / "fit.json"

@@ -8,7 +8,9 @@
   (.vtk, .stl, .ply, ...: its vertices); the residual is the signed distance to the predicted
   surface of the brain.
 
-Millimetres in every file (what Slicer and trackers write), RAS (markups in LPS are turned).
+Millimetres in every file (what Slicer and trackers write). Frames: a markups file declares its
+own (coordinateSystem), a surface file in its header (SPACE=LPS, as Slicer writes it); a CSV
+file and an untagged surface are in ``--frame`` (default RAS). Everything is turned to RAS.
 """
 from __future__ import annotations
 
@@ -36,16 +38,25 @@ class Target:
         return "point-to-point" if self.pre is not None else "point-to-surface"
 
 
-def read_target(target: str | Path, pre: str | Path | None = None) -> Target:
+def read_target(target: str | Path, pre: str | Path | None = None, frame: str | None = None) -> Target:
+    """The measurements in RAS m; ``frame`` (RAS / LPS, None: RAS) is that of a CSV file and of
+    a surface file whose header does not declare one; a markups file declares its own."""
     target = Path(target)
     if not target.is_file():
         raise InputError(f"--target: no file '{target}'")
     name = target.name.lower()
+    if name.endswith(".mrk.json") and frame is not None:
+        raise InputError("--frame is for a CSV or surface target: a markups file declares its own coordinateSystem")
     if name.endswith(".mrk.json"):
         labels, points = read_markups(target, "--target")
         if pre is None:
             return Target(points * 1e-3, None, labels)
         pre_labels, pre_points = read_markups(pre, "--pre")
+        for option, names, path in (("--target", labels, target), ("--pre", pre_labels, Path(pre))):
+            twice = sorted({label for label in names if names.count(label) > 1})
+            if twice:  # matching by label would pair one of them at random
+                raise InputError(f"{option}: '{path.name}': the label(s) {', '.join(twice[:5])} name more than one "
+                                 f"point; give each point its own label (points are matched by label)")
         where = {label: i for i, label in enumerate(pre_labels)}
         missing = [label for label in labels if label not in where]
         if missing:
@@ -56,11 +67,11 @@ def read_target(target: str | Path, pre: str | Path | None = None) -> Target:
         raise InputError("--pre goes with a .mrk.json --target (points matched by label); a CSV target carries "
                          "x_pre, y_pre, z_pre itself")
     if name.endswith(".csv"):
-        return _read_csv(target)
+        return _read_csv(target, frame)
     if formats.is_surface(target):
         from ..meshing.voxelize import read_surface
 
-        points, _ = read_surface(target, 1e-3)
+        points, _ = read_surface(target, 1e-3, frame)
         points = np.unique(points, axis=0)
         if len(points) > MAX_SURFACE_POINTS:
             points = points[np.linspace(0, len(points) - 1, MAX_SURFACE_POINTS).astype(int)]
@@ -69,7 +80,7 @@ def read_target(target: str | Path, pre: str | Path | None = None) -> Target:
                      f"surface ({', '.join(formats.SURFACE_SUFFIXES)})")
 
 
-def _read_csv(path: Path) -> Target:
+def _read_csv(path: Path, frame: str | None) -> Target:
     with open(path, newline="") as f:
         rows = list(csv.DictReader(f))
     if not rows:
@@ -93,6 +104,8 @@ def _read_csv(path: Path) -> Target:
                 raise InputError(f"--target: '{path.name}' line {line}: {key} {what}") from None
             if not np.isfinite(values[i, j]):
                 raise InputError(f"--target: '{path.name}' line {line}: {key} = {text} is not a finite number")
+    if frame == "LPS":  # to RAS: x and y negated
+        values *= np.tile([-1.0, -1.0, 1.0], len(keys) // 3)
     measured = values[:, :3]
     pre = values[:, 3:] if len(keys) == 6 else None
     labels = [r.get("label") or f"p{i + 1}" for i, r in enumerate(rows)]

@@ -30,6 +30,11 @@ def lps_to_ras(points: np.ndarray) -> np.ndarray:
 ras_to_lps = lps_to_ras  # the same sign flip
 
 
+# several points all within this many mm of the origin: metres written where mm belong (a
+# brain's landmarks in metres are all within 0.2 "mm" of it)
+METRES_LOOK = 1.0
+
+
 def read_markups(path: str | Path, what: str = "markups") -> tuple[list[str], np.ndarray]:
     """(labels, RAS points in mm, shape (n, 3)) of every control point in a .mrk.json file."""
     path = Path(path)
@@ -68,7 +73,11 @@ def read_markups(path: str | Path, what: str = "markups") -> tuple[list[str], np
             labels.append(str(point.get("label") or f"P-{len(labels) + 1}"))
     if not points:
         raise InputError(f"{what}: '{path.name}' holds no control points")
-    return labels, np.array(points)
+    points = np.array(points)
+    if len(points) > 1 and np.abs(points).max() < METRES_LOOK:
+        raise InputError(f"{what}: '{path.name}': every position is within {METRES_LOOK:g} mm of the origin "
+                         f"(largest {np.abs(points).max():.3g}): positions in metres? Slicer markups are in mm")
+    return labels, points
 
 
 def write_markups(path: str | Path, labels: list[str], ras_mm: np.ndarray) -> Path:

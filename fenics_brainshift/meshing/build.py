@@ -12,7 +12,9 @@ import numpy as np
 from .. import compat, formats
 from ..errors import InputError
 from ..logs import get_logger
+from ..scene.body import LENGTH_UNITS
 from .budget import require, run_bytes
+from .extent import body_diagonal, size_problem
 from .hexgrid import structured_box
 from .shapes import read_msh
 from .voxelize import VoxelizeError, voxelize
@@ -120,6 +122,11 @@ def write_voxel_mesh(path: Path, comm, input_file: str, voxel: float, scale: flo
     import dolfinx.mesh
 
     mesh, model = voxelized_mesh(comm, input_file, voxel, scale, fill, parts, labels, degree=None)
+    problem = size_problem(body_diagonal(mesh), scale)
+    if problem is not None:  # before writing: a mm file under --scale 1 is a 170 m brain
+        what, unit = problem
+        hint = f"is it in {unit}? give --scale {LENGTH_UNITS[unit]:g}" if unit else "check --scale (input units to metres)"
+        raise InputError(f"mesh: {what} with --scale {scale:g}: {hint}")
     tet_voxel = comm.bcast(model.tet_voxel if model else None, root=0)
     n_owned = mesh.topology.index_map(3).size_local
     original = np.asarray(mesh.topology.original_cell_index)[:n_owned]

@@ -29,6 +29,7 @@ from .hexgrid import voxel_mesh
 from .. import formats
 from ..errors import InputError
 from .budget import GRID_BYTES_PER_VOXEL, SAMPLE_BYTES, require
+from .surface_file import read_polygons, to_ras
 
 
 class VoxelizeError(InputError):
@@ -179,29 +180,12 @@ def label_occupancy(path: Path, voxel: float, scale: float, labels=None):
 
 
 # ----------------------------------------------------------------- surfaces
-def read_surface(path: Path, scale: float) -> tuple[np.ndarray, np.ndarray]:
-    """Points (m) and triangles of a surface file; polygons are fanned into triangles."""
-    name = path.name.lower()
+def read_surface(path: Path, scale: float, frame: str | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Points (m, RAS) and triangles of a surface file, degenerate triangles dropped. The
+    frame is the one the file's header declares (SPACE=LPS as 3D Slicer writes it), else
+    ``frame`` (None: RAS). See surface_file.py."""
     try:
-        if name.endswith(".gii"):
-            import nibabel as nib
-
-            gii = nib.load(str(path))
-            points = gii.agg_data("pointset")
-            triangles = gii.agg_data("triangle")
-        else:
-            import meshio
-
-            mesh = meshio.read(str(path))
-            points = mesh.points
-            chunks = []
-            for block in mesh.cells:
-                if block.type == "triangle":
-                    chunks.append(block.data)
-                elif block.type in ("quad", "polygon") or block.type.startswith("polygon"):
-                    d = block.data
-                    chunks += [d[:, [0, k, k + 1]] for k in range(1, d.shape[1] - 1)]
-            triangles = np.concatenate(chunks) if chunks else np.zeros((0, 3), int)
+        points, triangles = read_polygons(path)
     except VoxelizeError:
         raise
     except Exception as exc:
@@ -210,7 +194,7 @@ def read_surface(path: Path, scale: float) -> tuple[np.ndarray, np.ndarray]:
     triangles = np.asarray(triangles, dtype=np.int64)
     if len(triangles) == 0 or points.size == 0:
         raise VoxelizeError(f"'{path.name}' holds no triangles")
-    points = points.reshape(len(points), -1)[:, :3] * scale
+    points = to_ras(points.reshape(len(points), -1)[:, :3] * scale, path, frame)
     # bad triangles (degenerate, out-of-range indices) are dropped, not fatal
     ok = np.all((triangles >= 0) & (triangles < len(points)), axis=1)
     triangles = triangles[ok]

@@ -15,9 +15,14 @@ from pathlib import Path
 import numpy as np
 
 from .. import formats
+from ..errors import InputError
 from ..meshing.label_surface import label_surface
 from ..meshing.voxelize import read_surface
 from .points import PointEvaluator
+
+# a fine surface with more of its vertices than this far outside the coarse mesh does not
+# follow it (a thin gyrus the voxels miss is a few vertices, a unit slip all of them)
+FAR_VERTICES = 0.01
 
 
 class SurfaceEmbedding(PointEvaluator):
@@ -26,6 +31,13 @@ class SurfaceEmbedding(PointEvaluator):
     def __init__(self, mesh, points: np.ndarray, triangles: np.ndarray):
         super().__init__(mesh, points)
         self.triangles = np.asarray(triangles, dtype=np.int64)
+        far = self.far_outside()
+        if len(far) > FAR_VERTICES * len(self.points):  # a surface of another object, unit or frame
+            extent = np.ptp(self.points, axis=0) * 1e3
+            raise InputError(f"[mesh] surface: {len(far)} of its {len(self.points)} vertices lie farther than two "
+                             f"cells from the mesh (the surface spans {extent[0]:.3g} x {extent[1]:.3g} x "
+                             f"{extent[2]:.3g} mm in [mesh] unit): is it in another unit or frame (RAS / LPS) than "
+                             f"the mesh, or of another object?")
 
     def write(self, folder: Path, stem: str, u) -> None:
         """folder/stem.vtk (m, with the displacement as point data: ParaView, beside

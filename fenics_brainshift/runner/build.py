@@ -10,10 +10,10 @@ from pathlib import Path
 
 import numpy as np
 from dolfinx import fem
-from mpi4py import MPI
 
 from ..errors import InputError
 from ..meshing import box_mesh, gmsh_shape, read_mesh_file, voxelized_mesh
+from ..meshing.extent import body_diagonal, size_problem
 from ..meshing.label_surface import label_surface
 from ..meshing.label_volume import labels_at
 from ..outputs.fine_surface import load_fine_surface
@@ -87,32 +87,20 @@ def skull_contact(scene: Scene, model):
 
 
 SKULL_SIZE = (0.5, 5.0)  # a skull file's size over the body's outside this range: a unit slip, not a skull
-BODY_SIZE = (2e-3, 3.0)  # m across: a body outside this range is a unit slip (a brain is 0.1-0.2 m)
-
-
-def body_diagonal(mesh) -> float:
-    """The diagonal of the body's bounding box (m), on every rank."""
-    comm, x = mesh.comm, mesh.geometry.x
-    lo = [comm.allreduce(float(v), op=MPI.MIN) for v in x.min(axis=0, initial=np.inf)]
-    hi = [comm.allreduce(float(v), op=MPI.MAX) for v in x.max(axis=0, initial=-np.inf)]
-    return float(np.linalg.norm(np.subtract(hi, lo)))
 
 
 def _check_body_size(scene: Scene, mesh) -> None:
     """InputError for a body whose size no soft-tissue scene has: a mesh file in another unit
-    than [mesh] unit says (a mm brain read as metres is 170 m across), named with the unit
-    that would make it 0.02-0.5 m."""
-    size = body_diagonal(mesh)
-    small, large = BODY_SIZE
-    if small <= size <= large:
+    than [mesh] unit says, named with the unit that would make it a plausible body."""
+    problem = size_problem(body_diagonal(mesh), scene.mesh.scale)
+    if problem is None:
         return
+    what, unit = problem
     spec = scene.mesh
-    what = f"[mesh] file '{Path(spec.file).name}'" if spec.file else "[mesh] size"
-    guesses = [u for u, f in LENGTH_UNITS.items() if u != spec.unit and 0.02 <= size * f / spec.scale <= 0.5]
-    hint = (f"is it in {guesses[0]}? give [mesh] unit = \"{guesses[0]}\"" if guesses and spec.file
+    where = f"[mesh] file '{Path(spec.file).name}'" if spec.file else "[mesh] size"
+    hint = (f"is it in {unit}? give [mesh] unit = \"{unit}\"" if unit and spec.file
             else "check [mesh] unit and the sizes (metres)")
-    raise InputError(f"{what}: the body is {size:.3g} m across with [mesh] unit = \"{spec.unit}\" ({small:g}-{large:g} m "
-                     f"expected; a brain is 0.1-0.2 m): {hint}")
+    raise InputError(f"{where}: {what} with [mesh] unit = \"{spec.unit}\": {hint}")
 
 
 def _check_skull_values(scene: Scene, mesh) -> None:

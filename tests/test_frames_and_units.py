@@ -1,0 +1,125 @@
+"""Unit and frame slips on the way in (issue 30): each used to pass with exit 0 and a wrong
+answer; now the frame a file declares is honoured and a unit slip is one line naming it,
+before anything is written. References are hand-built: the points written, with x and y
+negated by hand for LPS."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from conftest import COMM, shared_tmp  # noqa: F401  (fixture)
+from fenics_brainshift.data import MESHES
+from fenics_brainshift.errors import InputError
+from fenics_brainshift.fit.targets import read_target
+from fenics_brainshift.meshing.voxelize import read_surface
+from fenics_brainshift.outputs.fine_surface import write_slicer_stl
+from fenics_brainshift.runner import run
+from fenics_brainshift.scene import scene_from_dict
+
+BOX = {"name": "box", "mesh": {"shape": "box", "size": [0.05, 0.05, 0.025], "cells": [4, 4, 2]},
+       "material": {"E": 3000.0, "nu": 0.45}, "fixed": [{"where": "z < 1e-9"}], "time": {"mode": "quasi-static"}}
+# a tetrahedron's corners (mm), not symmetric in x or y: a mirror shows
+CORNERS = np.array([[10.0, 20.0, 30.0], [40.0, 25.0, 35.0], [15.0, 60.0, 32.0], [18.0, 28.0, 70.0]])
+FACES = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+LPS = np.array([-1.0, -1.0, 1.0])
+
+
+def _vtk(path, points, header: str) -> str:
+    """A legacy ASCII VTK polydata with ``header`` as its title line (where Slicer writes SPACE=)."""
+    lines = ["# vtk DataFile Version 3.0", header, "ASCII", "DATASET POLYDATA", f"POINTS {len(points)} double"]
+    lines += [" ".join(f"{c:.17g}" for c in p) for p in points]
+    lines += [f"POLYGONS {len(FACES)} {4 * len(FACES)}"] + [f"3 {a} {b} {c}" for a, b, c in FACES]
+    path.write_text("\n".join(lines) + "\n")
+    return str(path)
+
+
+@pytest.mark.parametrize("header, frame, expected", [
+    ("3D Slicer output. SPACE=LPS", None, LPS),   # Slicer 4.11+: models saved in LPS
+    ("3D Slicer output. SPACE=RAS", None, 1.0),
+    ("vtk output", None, 1.0),                     # untagged: RAS, this project's frame
+    ("vtk output", "LPS", LPS),                    # untagged, --frame LPS
+    ("3D Slicer output. SPACE=LPS", "LPS", LPS)])
+def test_a_surface_target_is_read_in_the_frame_its_header_declares(tmp_path, header, frame, expected):
+    target = read_target(_vtk(tmp_path / "scan.vtk", CORNERS, header), None, frame)
+    got = target.measured[np.lexsort(target.measured.T)]
+    want = CORNERS * expected * 1e-3
+    np.testing.assert_allclose(got, want[np.lexsort(want.T)], atol=1e-12)
+
+
+def test_a_slicer_stl_tagged_lps_reads_as_ras_and_ours_round_trips(tmp_path):
+    """The binary STL header (80 bytes) carries the tag; the STL this project writes (RAS, mm)
+    reads back where it was written."""
+    ours = write_slicer_stl(tmp_path / "ours.stl", CORNERS, FACES)
+    points, _ = read_surface(ours, 1e-3)
+    np.testing.assert_allclose(np.unique(points, axis=0), np.unique(CORNERS * 1e-3, axis=0), atol=1e-9)
+    slicer = tmp_path / "slicer.stl"
+    slicer.write_bytes(b"3D Slicer output. SPACE=LPS".ljust(80, b" ") + ours.read_bytes()[80:])
+    points, _ = read_surface(slicer, 1e-3)
+    np.testing.assert_allclose(np.unique(points, axis=0), np.unique(CORNERS * LPS * 1e-3, axis=0), atol=1e-9)
+
+
+@pytest.mark.parametrize("header, frame, words", [
+    ("SPACE=LPS", "RAS", "--frame RAS but 'scan.vtk' declares SPACE=LPS"),
+    ("SPACE=LPS and SPACE=RAS", None, "declares both SPACE=RAS and SPACE=LPS")])
+def test_contradicting_frames_are_refused(tmp_path, header, frame, words):
+    with pytest.raises(InputError, match=words):
+        read_target(_vtk(tmp_path / "scan.vtk", CORNERS, header), None, frame)
+
+
+def test_a_csv_target_in_lps_is_turned_to_ras(tmp_path):
+    path = tmp_path / "t.csv"
+    path.write_text("x,y,z,x_pre,y_pre,z_pre\n1,2,3,4,5,6\n")
+    target = read_target(path, None, "LPS")
+    np.testing.assert_allclose(target.measured, [[-1e-3, -2e-3, 3e-3]])
+    np.testing.assert_allclose(target.pre, [[-4e-3, -5e-3, 6e-3]])
+
+
+def test_markups_in_metres_are_refused(tmp_path):
+    """A brain's landmarks written in metres all lie within 0.2 "mm" of the origin: they
+    collapsed into one point inside the brain, exit 0."""
+    path = tmp_path / "m.mrk.json"
+    points = [{"label": f"F-{i}", "position": list(p * 1e-3)} for i, p in enumerate(CORNERS)]
+    path.write_text(json.dumps({"markups": [{"coordinateSystem": "LPS", "controlPoints": points}]}))
+    data = dict(BOX, probes={"markups": str(path)})
+    with pytest.raises(InputError, match=r"\[probes\] markups: 'm.mrk.json': .*positions in metres\?"):
+        scene_from_dict(data)
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("scale, refused", [(1e-3, True), (1.0, False)])
+def test_a_fine_surface_in_another_unit_than_the_mesh_is_refused(shared_tmp, scale, refused):
+    """The box's own surface written in mm under [mesh] unit = "m" came out 1000x too large,
+    exit 0; in metres it follows the mesh."""
+    x, y, z = BOX["mesh"]["size"]
+    corners = np.array([[i * x, j * y, k * z] for i in (0, 1) for j in (0, 1) for k in (0, 1)]) / scale
+    quads = [[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]]
+    triangles = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))])
+    surface = shared_tmp / "box.stl"
+    if COMM.rank == 0:
+        write_slicer_stl(surface, corners, triangles)  # (its header says RAS: no mirror)
+    COMM.barrier()
+    data = dict(BOX, mesh=dict(BOX["mesh"], surface=str(surface)))
+    out = shared_tmp / "out"
+    if refused:
+        with pytest.raises(InputError, match=r"\[mesh\] surface: 7 of its 8 vertices lie farther than two cells"):
+            run(scene_from_dict(data), out, COMM)
+        assert not out.exists()  # refused before anything is written
+    else:
+        assert run(scene_from_dict(data), out, COMM).summary["status"] == "ok"
+        assert (out / "surface_final.stl").is_file() or any(out.glob("surface_*.stl"))
+
+
+@pytest.mark.mpi
+def test_brainshift_mesh_with_the_wrong_scale_names_it(shared_tmp, capsys):
+    """`brainshift mesh --scale 1` on the mm brain mask wrote a 284 m, 2e12 ml mesh, exit 0."""
+    from fenics_brainshift.cli import main
+
+    output = shared_tmp / "brain.xdmf"
+    argv = ["mesh", str(MESHES / "mni152_brain_mask_2mm.nii.gz"), "--voxel", "10", "--scale", "1", "-o", str(output)]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    if COMM.rank == 0:
+        assert "the body is 284 m across" in err and "is it in mm? give --scale 0.001" in err
+    assert not output.exists()
