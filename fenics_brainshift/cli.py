@@ -286,6 +286,7 @@ def _compare(args, comm) -> int:
     if min(args.scales) <= 0 or min(args.radius, args.depth, args.search, args.spacing) <= 0:
         raise InputError("compare: --scales, --radius, --depth, --search and --spacing must be > 0")
     pre, intra, sim = (read_surface(Path(f), s)[0] for f, s in zip((args.pre, args.intra, args.sim), args.scales))
+    _check_compare_scales((pre, intra, sim), args.scales)
     mm = 1e-3
     roi = ((args.roi[0] * mm, args.roi[1] * mm), (args.roi[2] * mm, args.roi[3] * mm)) if args.roi else None
     try:
@@ -310,6 +311,23 @@ def _compare(args, comm) -> int:
         surface_error_plot(out.with_suffix(".png"), se)
     print(f"wrote {out}")
     return 0
+
+
+def _check_compare_scales(surfaces, scales) -> None:
+    """Three surfaces of one brain are about one size: one that is 10x or 1000x the others
+    has the wrong --scales entry (it used to end in "raise --search")."""
+    import numpy as np
+
+    from .errors import InputError
+
+    sizes = np.array([np.linalg.norm(np.ptp(p, axis=0)) for p in surfaces])
+    typical = float(np.median(sizes))
+    for name, size, scale in zip(("PRE", "INTRA", "SIM"), sizes, scales):
+        if not typical / 3.0 <= size <= 3.0 * typical:
+            fix = scale * 10.0 ** round(float(np.log10(typical / size)))
+            raise InputError(f"compare: {name} is {size:.3g} m across against the others' {typical:.3g} m with --scales "
+                             f"{' '.join(f'{v:g}' for v in scales)}: is its scale {fix:g}? (--scales: each file's unit "
+                             f"in metres, PRE INTRA SIM)")
 
 
 def _warp(args, comm) -> int:

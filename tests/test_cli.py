@@ -132,6 +132,9 @@ def _subcommand_failures(tmp: Path) -> list[tuple[list[str], str]]:
          "folder of -o"),
         (["compare", str(tmp / "garbage.stl"), str(BRAIN_SURFACE), str(BRAIN_SURFACE), "-o", str(tmp / "c.json")],
          "could not be read as a surface"),
+        # the default --scales take SIM in metres: a mm SIM is 1000x the others (it said "raise --search")
+        (["compare", str(BRAIN_SURFACE), str(BRAIN_SURFACE), str(BRAIN_SURFACE), "-o", str(tmp / "c.json")],
+         "compare: SIM is 284 m across against the others' 0.284 m with --scales 0.001 0.001 1: is its scale 0.001?"),
         (["bench", "--scene", "cube", "--smoke", "--out", str(tmp / "a_file")], "is an existing file"),
         (["bench", "--scene", "cube", "--smoke", "--out", str(tmp / "b"), "--only", "P9 nothing"],
          "--only: no configuration named 'P9 nothing'"),

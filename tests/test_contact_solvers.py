@@ -202,3 +202,48 @@ def test_the_updated_factor_is_that_of_the_matrix_with_the_pressed_nodes(floor):
     pc.solve(rhs, x, 0.0)
     expected = _cg(P, rhs)
     assert np.abs(x.getArray() - expected.getArray()).max() <= 1e-8 * np.abs(expected.getArray()).max()
+
+
+def test_a_cut_after_a_multiplier_update_steps_the_multipliers(shared_tmp, monkeypatch):
+    """After a multiplier update the loads at t are those the state settled with: a "load step
+    cut" solved the very same problem again (ten times) and the message named cuts that did
+    nothing. A cut now takes part of the multipliers' change: each retry solves with the
+    multipliers at that fraction between the old and the new. (A cube leaning into a closed box
+    1 mm around it; whether it then settles is another matter: docs/limits.md.)"""
+    from fenics_brainshift.errors import SolverError
+    from fenics_brainshift.stepping.newton import NewtonStatic
+
+    skull = _box_surface((-0.001, -0.001, -0.001), (L + 0.001, L + 0.001, H + 0.001), shared_tmp / "box.stl")
+    data = {"mesh": {"shape": "box", "size": [L, L, H], "cells": [6, 6, 3]},
+            "material": {"E": 729.0, "nu": 0.48, "density": 1048.0},
+            "gravity": {"vector": [9.81 * np.sin(0.35), 0.0, -9.81 * np.cos(0.35)]},
+            "fixed": [{"where": "z < 1e-9"}], "time": {"mode": "quasi-static"}, "skull": {"file": skull}}
+    seen = []  # (multipliers in use, old, new) of every Newton solve after an update
+    original = NewtonStatic._solve_loads
+
+    def spy(self, t, multipliers_before=None):
+        if multipliers_before is not None:
+            new = self.contact.multipliers.copy()
+            inner = self._newton
+
+            def newton(t_k, factor):
+                seen.append((self.contact.multipliers.copy(), multipliers_before, new))
+                return inner(t_k, factor)
+            monkeypatch.setattr(self, "_newton", newton)
+        return original(self, t, multipliers_before)
+    monkeypatch.setattr(NewtonStatic, "_solve_loads", spy)
+    sim = Simulation(scene_from_dict(data), COMM)
+    sim.setup()
+    try:
+        sim.solve_to_settled(0.0)
+    except SolverError as exc:
+        assert "the multipliers' update cut to" in str(exc)  # what was cut, named
+    fractions = []
+    for used, old, new in seen:
+        change = new - old
+        if np.abs(change).max() > 0:
+            s = np.dot(used - old, change) / np.dot(change, change)
+            assert np.allclose(used, old + s * change, atol=1e-9 * np.abs(new).max())
+            fractions.append(round(s, 6))
+    assert 0.5 in fractions and 1.0 in fractions  # the full update tried, then half of it
+    sim.destroy()

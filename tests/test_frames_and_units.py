@@ -123,3 +123,31 @@ def test_brainshift_mesh_with_the_wrong_scale_names_it(shared_tmp, capsys):
     if COMM.rank == 0:
         assert "the body is 284 m across" in err and "is it in mm? give --scale 0.001" in err
     assert not output.exists()
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("override, words", [
+    ("material.G=2.37", r"E = 7.074 Pa \(G = 2.37 Pa\): the body's weight alone would strain it about 259 .* is it in kPa\?"),
+    ("fluid.level=[[0, 85], [10, 30], [16, 30]]", r"\[fluid\] level = 85 at t = 0 s is 84.9 m above the body's top .* is it in mm\?"),
+    ("fluid.level=-30", r"\[fluid\] level = -30 at t = 0 s is 29.9 m below its bottom")])
+def test_moduli_in_kpa_and_levels_in_mm_are_refused_before_the_solve(override, words):
+    """Both ended in NaN and "reduce [time] dt" in a quasi-static run (no dt there)."""
+    from fenics_brainshift import Simulation, load_scene
+
+    with pytest.raises(InputError, match=words):
+        Simulation(load_scene("brain", ["mesh.voxel=0.01", "time.mode=quasi-static", override]), COMM)
+
+
+@pytest.mark.mpi
+def test_a_settled_state_that_diverges_does_not_blame_the_time_step():
+    """A linear brain too soft for its follower load (G = 237 Pa, weight strain 2.6: not a unit
+    slip) has no settled state: the message names the loads and moduli, not dt."""
+    from fenics_brainshift import Simulation, load_scene
+    from fenics_brainshift.errors import SolverError
+
+    sim = Simulation(load_scene("brain", ["mesh.voxel=0.01", "time.mode=quasi-static", "material.G=237"]), COMM)
+    sim.setup()
+    with pytest.raises(SolverError, match=r"no longer finite .*check the loads against the stiffness") as caught:
+        sim.solve_to_settled(16.0)
+    assert "dt" not in str(caught.value)
+    sim.destroy()

@@ -161,6 +161,14 @@ class Model:
             "dofs": int(im.size_global * self.V.dofmap.index_map_bs),
         }
 
+    def cell_size(self) -> float:
+        """A typical cell's size (m): the cube root of the mean cell volume, on every rank."""
+        n_owned = self.mesh.topology.index_map(3).size_local
+        x = self.mesh.geometry.x[compat.geometry_dofmap(self.mesh)[:n_owned, :4]]
+        volume = np.abs(np.linalg.det(x[:, 1:] - x[:, :1])).sum() / 6.0
+        total = self.comm.allreduce(float(volume))
+        return (total / max(self.sizes()["cells"], 1)) ** (1.0 / 3.0)
+
     def external_load(self, t: float, u=None) -> tuple[PETSc.Vec, PETSc.Vec | None]:
         """(F_gravity, F_fluid at time t on the geometry x + u) as assembled vectors; the
         fluid part is None when dry."""

@@ -24,6 +24,7 @@ from ..physics.septa import Septum
 from ..physics.skull import RigidSkull, closed_surface_problem, gathered_outward_surface, outward
 from ..physics.surface import surface_facets
 from ..scene import Scene
+from .load_checks import check_loads
 from ..scene.body import LENGTH_UNITS
 from ..stepping import TimeIntegrator
 
@@ -200,6 +201,7 @@ def build_model(scene: Scene, comm) -> Model:
     """Mesh, space, supports, material and loads of a scene; every input check happens here."""
     mesh = build_mesh(scene, comm)
     _check_body_size(scene, mesh)
+    check_loads(scene, mesh)
     mat = scene.material
     model = Model.create(mesh, scene.element.degree, mat.E, mat.nu, mat.density, scene.gravity.vector,
                          supports(scene), fluid_settings(scene), cuts(scene),

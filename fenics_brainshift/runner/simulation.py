@@ -86,6 +86,7 @@ class Simulation:
 
     def _dynamic(self) -> DynamicStepper:
         if self.dynamic is None:
+            self.solves.hint = "reduce [time] dt, or check the loads against the stiffness (moduli in Pa, levels in m)"
             common = (self.model, self.state, build.integrator(self.scene),
                       (self.scene.damping.a, self.scene.damping.b), self.solves, build.follower_tolerance(self.scene))
             if self.model.nonlinear or self.contact is not None:  # Newton in every step

@@ -25,7 +25,7 @@ from ..linalg import solve_preconditioned_by
 from ..logs import get_logger
 from ..physics.load_tangent import add_load_tangent
 from .contact_preconditioner import ContactPreconditioner
-from .newton_iteration import newton_iterate
+from .newton_iteration import newton_iterate, round_off_floor
 from .solves import Solves
 from .state import State
 
@@ -101,6 +101,7 @@ class NewtonStatic:
         self.history: list[float] = []  # residual norms of the last Newton solve
         self.cuts = 0  # load steps halved, over the run
         self._t_settled: float | None = None
+        self._floor = 0.0  # |R| round-off leaves (newton_iteration.round_off_floor), with K
 
     def setup(self) -> None:
         """The preconditioner at rest (a factor of K, or AMG), reused by every Newton step."""
@@ -150,6 +151,7 @@ class NewtonStatic:
         stiffness of the nodes touching the skull at rest (they may carry the body: K alone
         can be singular)."""
         self._K = self.model.assemble(self.model.stiffness_form(), with_bcs=True)
+        self._floor = round_off_floor(self._K, self.model.cell_size())
         if self.contact is not None:
             self._contact_pc.rebuild(self.contact.tangent_blocks(self.state.u))
         else:
@@ -161,6 +163,7 @@ class NewtonStatic:
         contact-free solve: the preconditioner at rest without building it again (the 5 mm
         brain's Cholesky factor takes 1.2 s). Only the Krylov method changes."""
         self._K = K
+        self._floor = round_off_floor(K, self.model.cell_size())
         ksp = self.solves.solver.ksp
         options = self.solves.settings["options"]
         ksp.setType(options["ksp_type"])
@@ -223,7 +226,8 @@ class NewtonStatic:
         state is then wherever it stopped: the caller restores it)."""
         converged, self.history = newton_iterate(
             self.state.u, self._du, lambda: self._residual(t, factor),
-            lambda forcing: self._solve_step(factor, t, forcing), lambda: self._load_norm, self.rtol,
+            lambda forcing: self._solve_step(factor, t, forcing), lambda: max(self._load_norm, self._floor / self.rtol),
+            self.rtol,
             self.solves.settings["rtol"], self.max_iterations, *self._globalisation())
         self.iterations = len(self.history) - 1
         return converged
@@ -266,10 +270,11 @@ class NewtonStatic:
                                   f"{self.contact.violation(self.state.u) * 1e3:.3g} mm after "
                                   f"{MAX_CONTACT_ROUNDS} multiplier updates; raise [skull] tolerance or check "
                                   f"that the loads can be carried by the skull")
+            before = self.contact.multipliers.copy()
             self.contact.update_multipliers(self.state.u)
             rounds += 1
             self.contact_rounds += 1
-            iterations = self._solve_loads(t)
+            iterations = self._solve_loads(t, before)
         return iterations
 
     def _linear_start(self, t: float) -> bool:
@@ -295,9 +300,15 @@ class NewtonStatic:
         finally:
             rhs.destroy()
 
-    def _solve_loads(self, t: float) -> int:
-        """Newton with load stepping to the loads at time t (see solve)."""
+    def _solve_loads(self, t: float, multipliers_before: np.ndarray | None = None) -> int:
+        """Newton with load stepping to the loads at time t (see solve). From a settled state
+        at t itself, after a multiplier update (``multipliers_before``: the ones it settled
+        with), the loads are the same: what is stepped is the multipliers' change (a cut of
+        the loads would solve the very same problem again)."""
         start, done, step = self._t_settled, 0.0, 1.0
+        stepping_multipliers = multipliers_before is not None and start == t
+        if stepping_multipliers:
+            after = self.contact.multipliers.copy()
         if start is None and self.model.growth is not None and self.model.nonlinear and self.contact is None:
             at_rest = self.state.u.x.array.copy()
             if self._linear_start(t):
@@ -307,6 +318,8 @@ class NewtonStatic:
         while done < 1.0:
             fraction = min(1.0, done + step)
             t_k, factor = (t, fraction) if start is None else (start + fraction * (t - start), 1.0)
+            if stepping_multipliers:
+                self.contact.multipliers = multipliers_before + fraction * (after - multipliers_before)
             saved = self.state.u.x.array.copy()
             if self._newton(t_k, factor):
                 done = fraction
@@ -317,12 +330,14 @@ class NewtonStatic:
             step *= 0.5
             self.cuts += 1
             if step < MIN_FRACTION:
-                raise SolverError(f"Newton did not converge at t = {t:g} s even with the load step cut to "
+                what = "the multipliers' update" if stepping_multipliers else "the load step"
+                raise SolverError(f"Newton did not converge at t = {t:g} s even with {what} cut to "
                                   f"{MIN_FRACTION:g} of it (residual {self.history[-1]:.2e}); the body may have "
                                   f"no equilibrium under these loads (a support missing?), or the material "
                                   f"lost stability (Saint Venant-Kirchhoff does under strong compression)"
                                   + self._contact_note(deepest))
-            log.info("  t=%g s: Newton did not converge; load step cut to %g", t, step)
+            log.info("  t=%g s: Newton did not converge; %s cut to %g", t,
+                     "the multipliers' update" if stepping_multipliers else "load step", step)
         self._t_settled = t
         self.state.t = t
         return self.iterations

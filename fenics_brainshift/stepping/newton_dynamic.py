@@ -32,7 +32,7 @@ from .contact_preconditioner import ContactPreconditioner
 from .dynamic import DynamicStepper
 from .lagged_contact import LaggedContact
 from .newton import MAX_CONTACT_ROUNDS, STALL_WITH_CONTACT, reassemble, tangent_settings, tangent_type
-from .newton_iteration import newton_iterate
+from .newton_iteration import newton_iterate, round_off_floor
 
 log = get_logger("newton")
 MAX_CUTS = 5  # a failed step is cut in halves, down to dt / 32
@@ -91,6 +91,7 @@ class NewtonDynamicStepper(DynamicStepper):
         if contact is not None:
             self._contact_pc = ContactPreconditioner(solves, contact, lambda: self.A, self._fixed)
         self.newton_history: list[float] = []
+        self._floor = None  # |R| round-off leaves (newton_iteration.round_off_floor)
         self.cuts = 0  # time steps cut in halves, over the run
         self.contact_rounds = 0  # multiplier updates over the run
         self.fixed_point_steps = 0  # steps a linear body with the skull took by the fixed point
@@ -290,9 +291,13 @@ class NewtonDynamicStepper(DynamicStepper):
             if self._contact_pc is not None:  # slow: a factor with the pressed nodes, if they changed
                 self._contact_pc.after_solve(iterations, self._blocks)
 
+        if self._floor is None:  # (K's entries set it: a resection changes it by little)
+            self._floor = round_off_floor(self.K, self.model.cell_size())
+
         def newton() -> bool:
             converged, self.newton_history = newton_iterate(
-                self.du, self._update, residual, solve, lambda: self._F.norm() + self.model.growth_scale(t_new), self.rtol,
+                self.du, self._update, residual, solve,
+                lambda: max(self._F.norm() + self.model.growth_scale(t_new), self._floor / self.rtol), self.rtol,
                 self.solves.settings["rtol"], self.max_iterations,
                 STALL_WITH_CONTACT if self.contact is not None else 1.0)
             return converged

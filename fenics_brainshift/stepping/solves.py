@@ -27,6 +27,8 @@ class Solves:
         # x <- P x after every solve (physics/constraints.py), or None: an inexact Krylov solve
         # (Newton's forcing) with a preconditioner that does not keep range(P) leaves it
         self.project = None
+        # what a non-finite answer suggests: the stepper in time sets its own (dt)
+        self.hint = "check the loads against the stiffness (moduli in Pa, levels in m)"
 
     def reset(self, A: PETSc.Mat) -> None:
         """A new matrix: its solver is set up now (factor or preconditioner)."""
@@ -51,8 +53,7 @@ class Solves:
         self.count += 1
         self.iterations.append(its)
         if not np.isfinite(x.norm()):
-            raise SolverError(f"the solution is no longer finite at t = {t:g} s (NaN or Inf); "
-                              f"reduce [time] dt or check the loads")
+            raise SolverError(f"the solution is no longer finite at t = {t:g} s (NaN or Inf): {self.hint}")
         return its
 
     def by_factor(self, rhs: PETSc.Vec, x: PETSc.Vec, t: float) -> int:
@@ -68,8 +69,7 @@ class Solves:
         self.count += 1
         self.iterations.append(1)
         if not np.isfinite(x.norm()):
-            raise SolverError(f"the solution is no longer finite at t = {t:g} s (NaN or Inf); "
-                              f"reduce [time] dt or check the loads")
+            raise SolverError(f"the solution is no longer finite at t = {t:g} s (NaN or Inf): {self.hint}")
         return 1
 
     def destroy(self) -> None:
