@@ -12,7 +12,7 @@ def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="brainshift",
         description="Predict brain shift (or any soft body sagging as its supporting fluid drains) with DOLFINx.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        formatter_class=_Defaults)
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     parser.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"],
                         help="how much to say (rank 0 only)")
@@ -29,7 +29,7 @@ def _parser() -> argparse.ArgumentParser:
 
 def _add_run(sub) -> None:
     run = sub.add_parser("run", help="run a scene file (also under mpirun -n N)",
-                         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                         formatter_class=_Defaults)
     run.add_argument("scene", help="scene TOML file, or a bundled scene by name (brainshift scenes)")
     run.add_argument("--out", help="output folder (default: the scene's [output] folder)")
     run.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
@@ -44,7 +44,7 @@ def _add_mesh(sub) -> None:
                           description="The paper's embedding mesher: voxels of SIZE over the object's bounding "
                                       "box, those the object fills kept, floating parts dropped, five "
                                       "conforming tetrahedra per voxel. Output in metres.",
-                          formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                          formatter_class=_Defaults)
     mesh.add_argument("input", help="label volume (.nii, .nii.gz, .nrrd, .seg.nrrd) or surface (.stl, .obj, .ply, "
                                     ".vtk, .vtp, .gii)")
     mesh.add_argument("--voxel", type=float, default=5.0, help="voxel size, in the input's units")
@@ -64,7 +64,7 @@ def _add_warp(sub) -> None:
                                       "last displacement (exact inversion of the P1 field); outside the brain the "
                                       "shift blends to zero over --blend mm. Optionally the same map as an ITK "
                                       "displacement-field transform for 3D Slicer (docs/slicer.md).",
-                          formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                          formatter_class=_Defaults)
     warp.add_argument("run_dir", metavar="RUN_DIR", help="a run's output folder (its displacement.xdmf)")
     warp.add_argument("--image", required=True, help="pre-operative volume (.nii, .nii.gz, .nrrd, .seg.nrrd), "
                                                      "in the frame of the run's mesh (mm)")
@@ -83,7 +83,7 @@ def _add_fit(sub) -> None:
                                      "after the drain (point to point with --pre, else point to the predicted "
                                      "surface); one factorisation for every evaluation. Writes OUT/fitted.toml, "
                                      "OUT/fit.json (values, uncertainties, residuals) and the fitted scene's run.",
-                         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                         formatter_class=_Defaults)
     fit.add_argument("scene", help="scene file or bundled scene name")
     fit.add_argument("--target", required=True, help="measured intra-operative points (mm): .mrk.json, .csv or a "
                                                      "surface (.vtk, .stl, ...)")
@@ -99,13 +99,24 @@ def _add_fit(sub) -> None:
     fit.add_argument("--no-run", action="store_true", help="fit only; do not run the fitted scene")
 
 
+class _Defaults(argparse.ArgumentDefaultsHelpFormatter):
+    """Defaults in the help where they say something: not for flags (False) or options with
+    none, nor twice where the help names its own."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        if action.default in (None, False, argparse.SUPPRESS) or "default" in text:
+            return text
+        return super()._get_help_string(action)
+
+
 def _add_compare(sub) -> None:
     cmp = sub.add_parser("compare", help="the paper's error measures: PRE, INTRA (measured) and SIM surfaces",
                          description="Landmarks A (farthest along --up) and B (farthest along --second) with "
-                                     "their 5 mm regions, d_MRI, d_MRI_bar, d_Sim and Error %% (eqs. 22-25), and "
+                                     "their 5 mm regions, d_MRI, d_MRI_bar, d_Sim and Error % (eqs. 22-25), and "
                                      "the surface error along --up over a rectangular ROI (section IV-D). SIM must be "
                                      "PRE moved by the simulation (a run's surface_final.vtk).",
-                         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                         formatter_class=_Defaults)
     cmp.add_argument("pre")
     cmp.add_argument("intra")
     cmp.add_argument("sim")
@@ -128,7 +139,7 @@ def _add_bench(sub) -> None:
                                        "(scene to answer) and its error against a fine P2 reference at fixed "
                                        "sample points go to DIR/time_vs_error_SCENE.csv, .md and .png, with the "
                                        "paper-equivalent configuration and a naive loop as baselines in the same run.",
-                           formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                           formatter_class=_Defaults)
     bench.add_argument("--scene", choices=["cube", "brain"], default="cube",
                        help="the gelatin cube at 10 ml, or the bundled brain after the CSF has drained")
     size = bench.add_mutually_exclusive_group()

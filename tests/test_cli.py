@@ -184,3 +184,15 @@ def test_progress_bar_only_on_a_terminal_or_when_asked(monkeypatch):
     bar.close()
     monkeypatch.setattr(prog, "ENABLED", False)
     assert type(prog.progress(range(3), "x")).__name__ == "_Silent"
+
+
+def test_help_says_each_default_once_and_prints_percent_as_percent(capsys, serial_only):
+    """`brainshift bench --help` showed "(default: False)" for flags, "(default: None)", and
+    compare's "Error %%" (argparse formats help strings, not descriptions)."""
+    for command in ("run", "mesh", "warp", "fit", "compare", "bench"):
+        with pytest.raises(SystemExit):
+            main([command, "--help"])
+        text = " ".join(capsys.readouterr().out.split())
+        assert "%%" not in text and "(default: False)" not in text and "(default: None)" not in text, command
+        for option in text.split(" --")[1:]:
+            assert option.count("default") <= 1, (command, option)

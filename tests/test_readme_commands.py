@@ -43,7 +43,7 @@ def smoke_size(argv: list[str]) -> list[str]:
     if command == "fit":
         return argv + SMALL_BRAIN + ["--set", "time.mode=quasi-static"]
     if command == "bench":
-        return [a if a != "--quick" else "--smoke" for a in argv] + ["--out", "bench_results"]
+        return [a if a != "--quick" else "--smoke" for a in argv]
     if command in ("mesh", "warp", "compare", "scenes", "info"):
         return argv  # their inputs are small already (made below)
     pytest.fail(f"README command 'brainshift {command}' has no smoke size in tests/test_readme_commands.py")
@@ -97,9 +97,15 @@ def test_every_quick_start_command_runs_at_smoke_size(tmp_path, monkeypatch, ser
         else:
             assert main(["--log-level", "WARNING", "--no-progress", *argv]) == 0, words
     # what the commands wrote, as the README says they do
-    for written in ("out_cube/summary.json", "brain5.xdmf", "T1_intra.nii.gz", "warp.h5", "out_fit/fit.json",
-                    "compare.json", "bench_results/time_vs_error_cube.csv"):
+    for written in ("out_cube/summary.json", "out_cube_hypre/summary.json", "out_brain_nh/summary.json",
+                    "out_brain_skull/summary.json", "out_mesh/brain5.xdmf", "out_warp/T1_intra.nii.gz",
+                    "out_warp/warp.h5", "out_fit/fit.json", "out_compare/compare.json",
+                    "out_bench/time_vs_error_cube.csv"):
         assert Path(written).is_file(), written
+    # every output in a folder of its own that git ignores (out_*/), none in the checkout's root
+    assert all(p.name.startswith("out_") for p in Path(".").iterdir() if p.is_dir()), sorted(Path(".").iterdir())
+    made = {"brain_mask.nii.gz", "T1.nii.gz", "pre.mrk.json", "intra.mrk.json", "PRE.stl", "INTRA.stl"}
+    assert {p.name for p in Path(".").iterdir() if p.is_file()} <= made
 
 
 def test_every_bench_configuration_is_a_scene_that_loads():

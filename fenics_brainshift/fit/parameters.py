@@ -18,6 +18,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..errors import InputError
+from ..scene.checks import did_you_mean
 
 NAMES = ("fluid.level", "material.G", "gravity.angle_x", "gravity.angle_y", "gravity.angle_z")
 MAX_ANGLE = 30.0  # degrees
@@ -40,7 +41,8 @@ def check_names(names: list[str]) -> None:
         raise InputError(f"--params: name at least one of {', '.join(NAMES)}")
     for i, name in enumerate(names):
         if name not in NAMES:
-            raise InputError(f"--params: '{name}' cannot be fitted; choose from {', '.join(NAMES)}")
+            raise InputError(f"--params: '{name}' cannot be fitted;{did_you_mean(name, NAMES)} choose from "
+                             f"{', '.join(NAMES)}")
         if name in names[:i]:
             raise InputError(f"--params: '{name}' is given twice")
 

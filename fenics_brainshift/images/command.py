@@ -34,6 +34,8 @@ def warp_command(args, comm) -> list[str]:
         warped = warp.apply(labels=args.labels)
         transform = Path(args.transform) if args.transform else None
         pending = transform.with_name(f".{transform.name}.tmp.h5") if transform else None
+        for path in [output] + ([transform] if transform else []):  # (check_writable allowed new folders)
+            path.parent.mkdir(parents=True, exist_ok=True)
         try:
             if pending is not None:
                 write_itk_transform(warp, pending)

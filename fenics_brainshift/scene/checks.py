@@ -1,6 +1,7 @@
 """Small validators for scene values: each raises InputError naming the field."""
 from __future__ import annotations
 
+import difflib
 import math
 from typing import Any
 
@@ -43,3 +44,9 @@ def integer(where: str, value: Any, minimum: int) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
         raise InputError(f"{where} must be an integer >= {minimum} (got {value!r})")
     return value
+
+
+def did_you_mean(name: str, known) -> str:
+    """" did you mean 'x'?" for the closest of ``known`` to a mistyped ``name``, or ""."""
+    close = difflib.get_close_matches(str(name), [str(k) for k in known], n=1, cutoff=0.6)
+    return f" did you mean '{close[0]}'?" if close else ""

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
+from .checks import did_you_mean
 
 _BINARY = {
     ast.Add: operator.add,
@@ -87,7 +88,8 @@ def _check(node: ast.AST, text: str) -> None:
         if not isinstance(sub, ok):
             raise PredicateError(f"'{text}' uses {type(sub).__name__}; allowed: {ALLOWED}")
         if isinstance(sub, ast.Name) and sub.id not in _NAMES and sub.id not in _FUNCTIONS:
-            raise PredicateError(f"'{text}' uses unknown name '{sub.id}'; allowed: {ALLOWED}")
+            hint = did_you_mean(sub.id, [*_NAMES, *_FUNCTIONS])
+            raise PredicateError(f"'{text}' uses unknown name '{sub.id}';{hint} allowed: {ALLOWED}")
         if isinstance(sub, ast.Constant) and (
             isinstance(sub.value, bool) or not isinstance(sub.value, (int, float))
         ):

@@ -8,6 +8,7 @@ from typing import Any
 
 from .. import formats
 from ..errors import InputError
+from .checks import did_you_mean
 from .body import FixedRegion, Material, MeshSpec, Removal, Swelling
 from .loads import Fluid, Gravity
 from .numerics import Damping, Element, Output, SolverConfig, TimeScheme
@@ -30,7 +31,7 @@ def _build(cls, table: Any, where: str):
     known = [f.name for f in fields(cls) if f.repr]  # (parsed forms such as a predicate are not keys)
     for key in table:
         if key not in known:
-            raise InputError(f"{where} unknown key '{key}'; known keys: {', '.join(known)}")
+            raise InputError(f"{where} unknown key '{key}';{did_you_mean(key, known)} known keys: {', '.join(known)}")
     try:
         return cls(**table)
     except TypeError as exc:  # a value of the wrong kind deep inside
@@ -42,7 +43,7 @@ def scene_from_dict(data: dict, base: Path | None = None) -> Scene:
     known = list(_SECTIONS) + ["fixed", "remove", "swelling", "septum", "probes", "surfaces", "name"]
     for key in data:
         if key not in known:
-            raise InputError(f"unknown section [{key}]; known sections: {', '.join(known)}")
+            raise InputError(f"unknown section [{key}];{did_you_mean(key, known)} known sections: {', '.join(known)}")
     for required in ("mesh", "material"):
         if required not in data:
             raise InputError(f"missing section [{required}]")
