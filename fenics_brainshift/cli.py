@@ -224,6 +224,12 @@ def main(argv: list[str] | None = None) -> int:
         if comm.rank == 0:
             print(f"brainshift: stopped: {exc}", file=sys.stderr)
         return 3
+    except OSError as exc:  # a file that could not be written mid-way: a full disk, a quota, a lost mount
+        if comm.rank == 0:
+            where = f" '{exc.filename}'" if exc.filename else ""
+            print(f"brainshift: error: {exc.strerror or exc}{where}: free space or choose another folder (a run's "
+                  f"summary.json says \"running\", not \"ok\": its files are incomplete)", file=sys.stderr)
+        return 1
 
 
 def _run(args, comm) -> int:

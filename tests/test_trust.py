@@ -163,3 +163,62 @@ def test_a_re_run_clears_the_earlier_runs_files_and_only_those(shared_tmp):
     assert not any((out / n).exists() for n in ("surface_0007.vtk", "surface_0007.stl", "deformed.png"))
     assert (out / "notes.txt").read_text() == "earlier"
     assert json.loads((out / "summary.json").read_text())["status"] == "ok"
+
+
+def test_a_second_run_into_a_folder_in_use_is_refused(tmp_path, capsys, serial_only):
+    """Two runs into one --out interleaved their files; the second is refused, naming the
+    first's process, and touches nothing. A run killed with SIGKILL leaves no stale lock."""
+    import fcntl
+    import signal
+    import subprocess
+    import sys
+
+    from fenics_brainshift.cli import main
+
+    out = tmp_path / "out"
+    args = ["run", "cube", "--out", str(out), "--set", "mesh.cells=[4, 4, 2]", "--set", "time.mode=quasi-static"]
+    assert main(args) == 0
+    holder = subprocess.Popen([sys.executable, "-c", f"""
+import fcntl, os, sys, time
+f = open({str(out / '.brainshift.lock')!r}, "a+")
+fcntl.flock(f, fcntl.LOCK_EX)
+f.truncate(0); f.write("pid %d" % os.getpid()); f.flush()
+print("held", flush=True)
+time.sleep(60)
+"""], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        before = {p.name: p.stat().st_mtime_ns for p in out.iterdir()}
+        assert main(args) == 2
+        err = capsys.readouterr().err.strip()
+        last = err.splitlines()[-1]  # (after the run's log lines)
+        assert f"another brainshift run (pid {holder.pid}) is writing into it" in last and "Traceback" not in err
+        assert {p.name: p.stat().st_mtime_ns for p in out.iterdir()} == before  # nothing touched
+    finally:
+        holder.send_signal(signal.SIGKILL)
+        holder.wait()
+    assert main(args) == 0  # the killed holder's lock went with it
+    with open(out / ".brainshift.lock") as f:  # and a finished run holds none
+        fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+
+
+def test_a_full_disk_mid_run_is_one_line_and_never_ok(tmp_path, monkeypatch, capsys, serial_only):
+    """No space left while writing the fields: a traceback before; now one line naming the file,
+    exit 1, and the folder's summary says "running" (not an earlier run's "ok")."""
+    import errno
+
+    from fenics_brainshift.cli import main
+    from fenics_brainshift.outputs.xdmf import FieldWriter
+
+    out = tmp_path / "out"
+    args = ["run", "cube", "--out", str(out), "--set", "mesh.cells=[4, 4, 2]", "--set", "time.mode=quasi-static"]
+    assert main(args) == 0
+
+    def full(self, *a, **k):
+        raise OSError(errno.ENOSPC, "No space left on device", str(out / "displacement.h5"))
+    monkeypatch.setattr(FieldWriter, "write", full)
+    assert main(args) == 1
+    err = capsys.readouterr().err.strip()
+    last = err.splitlines()[-1]  # (after the run's log lines)
+    assert "No space left on device" in last and "displacement.h5" in last and "Traceback" not in err
+    assert json.loads((out / "summary.json").read_text())["status"] == "running"

@@ -47,6 +47,43 @@ RUN_FILES = ("summary.json", "probes.csv", "probes_final.mrk.json", "displacemen
 RUN_SERIES = ("surface_[0-9][0-9][0-9][0-9].vtk", "surface_[0-9][0-9][0-9][0-9].stl")
 
 
+class RunLock:
+    """One run at a time in a folder: rank 0 holds an exclusive flock on OUT/.brainshift.lock
+    for the whole run (two runs into one --out interleaved their files). The kernel drops the
+    lock when the process ends, however it ends: a run killed with SIGKILL leaves no stale lock."""
+
+    NAME = ".brainshift.lock"
+
+    def __init__(self, out: Path, comm):
+        import fcntl
+
+        self.comm, self._file, problem = comm, None, None
+        if comm.rank == 0:
+            f = open(out / self.NAME, "a+")
+            try:
+                fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                f.seek(0)
+                holder = f.read().strip() or "another process"
+                f.close()
+                problem = (f"--out '{out}': another brainshift run ({holder}) is writing into it; wait for it to "
+                           f"end or choose another --out")
+            else:
+                f.seek(0)
+                f.truncate()
+                f.write(f"pid {os.getpid()}")
+                f.flush()
+                self._file = f
+        problem = comm.bcast(problem, root=0)
+        if problem:
+            raise InputError(problem)
+
+    def release(self) -> None:
+        if self._file is not None:
+            self._file.close()  # (closing drops the flock)
+            self._file = None
+
+
 def clear_run(out: Path, comm, scene_name: str) -> None:
     """Remove an earlier run's files from ``out`` (only those a run writes), then mark the
     folder's summary.json "running": a run killed from here on never leaves the earlier

@@ -14,7 +14,7 @@ from mpi4py import MPI
 
 from ..errors import Interrupted, SolverError
 from ..logs import get_logger
-from ..outputs.files import check_writable, clear_run, write_csv, write_json
+from ..outputs.files import RunLock, check_writable, clear_run, write_csv, write_json
 from ..outputs.fine_surface import SurfaceEmbedding
 from ..outputs.xdmf import FieldWriter
 from ..scene import Scene
@@ -66,39 +66,44 @@ def run(scene: Scene, out: str | Path | None = None, comm=MPI.COMM_WORLD, raise_
     surface = build.fine_surface(scene) if out is not None else None
     embedding = SurfaceEmbedding(sim.model.mesh, *surface) if surface is not None else None
     sim.setup()
-    writer = None
-    if out is not None:
-        if comm.rank == 0:
-            out.mkdir(parents=True, exist_ok=True)
-        comm.barrier()
-        clear_run(out, comm, scene.name)
-        m = sim.model
-        writer = FieldWriter(out, m.mesh, m.V, scene.output.fields, m.constitutive, embedding,
-                             m.tissue.indicator if m.tissue is not None else None, sim.contact)
-    setup_s = time.perf_counter() - t_start
-    _log_start(sim, setup_s)
-    h, stopped = march(sim, writer)
-    result = Result(sim, summary(sim, h, stopped, setup_s), h, out)
-    if "warning" in result.summary["validity"]:
-        log.warning("%s: %s", scene.name, result.summary["validity"]["warning"])
-    elif "note" in result.summary["validity"]:
-        log.info("%s: %s", scene.name, result.summary["validity"]["note"])
-    if out is not None:
-        writer.close()
-        write_csv(out / "probes.csv", *probe_table(sim, h), comm)
-        if scene.probes and comm.rank == 0:  # where the probes went, as a Slicer point list (RAS mm)
-            from ..images.frames import write_markups
+    writer, lock = None, None
+    try:
+        if out is not None:
+            if comm.rank == 0:
+                out.mkdir(parents=True, exist_ok=True)
+            comm.barrier()
+            lock = RunLock(out, comm)
+            clear_run(out, comm, scene.name)
+            m = sim.model
+            writer = FieldWriter(out, m.mesh, m.V, scene.output.fields, m.constitutive, embedding,
+                                 m.tissue.indicator if m.tissue is not None else None, sim.contact)
+        setup_s = time.perf_counter() - t_start
+        _log_start(sim, setup_s)
+        h, stopped = march(sim, writer)
+        result = Result(sim, summary(sim, h, stopped, setup_s), h, out)
+        if "warning" in result.summary["validity"]:
+            log.warning("%s: %s", scene.name, result.summary["validity"]["warning"])
+        elif "note" in result.summary["validity"]:
+            log.info("%s: %s", scene.name, result.summary["validity"]["note"])
+        if out is not None:
+            writer.close()
+            write_csv(out / "probes.csv", *probe_table(sim, h), comm)
+            if scene.probes and comm.rank == 0:  # where the probes went, as a Slicer point list (RAS mm)
+                from ..images.frames import write_markups
 
-            moved = [1e3 * (np.asarray(p) + result.summary["probes"][k]) for k, p in scene.probes.items()]
-            write_markups(out / "probes_final.mrk.json", list(scene.probes), np.array(moved))
-        write_json(out / "summary.json", result.summary, comm)
-        if scene.output.pictures and stopped is None and comm.rank == 0:
-            from ..outputs.pictures import render_in_subprocess
+                moved = [1e3 * (np.asarray(p) + result.summary["probes"][k]) for k, p in scene.probes.items()]
+                write_markups(out / "probes_final.mrk.json", list(scene.probes), np.array(moved))
+            write_json(out / "summary.json", result.summary, comm)
+            if scene.output.pictures and stopped is None and comm.rank == 0:
+                from ..outputs.pictures import render_in_subprocess
 
-            for path in render_in_subprocess(out):
-                log.info("  wrote %s", path)
-        comm.barrier()
-    sim.destroy()
+                for path in render_in_subprocess(out):
+                    log.info("  wrote %s", path)
+            comm.barrier()
+        sim.destroy()
+    finally:
+        if lock is not None:
+            lock.release()
     if stopped is not None and raise_on_stop:
         where = f", is in {out}" if out is not None else ""
         if isinstance(stopped, Interrupted):
