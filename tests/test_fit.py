@@ -286,3 +286,21 @@ def test_pre_points_outside_the_body_are_refused(truth):
     with pytest.raises(InputError, match=r"--pre: 10 point\(s\) .* lie outside the body"):
         fit(forward, Target(measured[:10], away, [f"P{i}" for i in range(10)]), params, noise=0.5e-3)
     forward.destroy()
+
+
+@pytest.mark.parametrize("kind", ["point-to-point", "point-to-surface"])
+def test_measurements_far_from_the_prediction_are_refused(truth, kind):
+    """Measured points 150 mm off (the scanner's frame, not the image's) were fitted and came
+    back as a warning at best; half of them past a quarter of the body from the prediction is
+    a frame or unit slip, refused before the fit."""
+    from fenics_brainshift.errors import InputError
+
+    pre, measured, _, scan = truth
+    forward = ForwardModel(load_scene("brain", COARSE))
+    params = parameters(forward.scene, ["material.G"], forward.heights())
+    off = np.array([0.0, 0.0, 0.15])
+    target = (Target(measured[:10] + off, pre[:10], [f"P{i}" for i in range(10)]) if kind == "point-to-point"
+              else Target(scan + off, None, [f"s{i}" for i in range(len(scan))]))
+    with pytest.raises(InputError, match=r"--target: half the points lie more than .* mm from .*a frame or unit slip"):
+        fit(forward, target, params, noise=0.5e-3)
+    forward.destroy()

@@ -34,6 +34,9 @@ UNCONSTRAINED = 0.25
 NO_EQUILIBRIUM = 1.0
 # a fitted residual RMS above this many times the stated noise: the model does not explain the data
 UNEXPLAINED = 10.0
+# measured points whose median distance from the prediction is past this fraction of the body's
+# diagonal (70 mm for the brain; shifts are at most 20-30 mm) are in another frame or unit
+FAR_FROM_PREDICTION = 0.25
 
 
 @dataclass
@@ -107,6 +110,7 @@ def fit(forward: ForwardModel, target: Target, parameters: list[Parameter], nois
     x0 = np.array([p.prior for p in parameters]) / scale
     prior = None
     prior = residuals(x0)  # the scene itself must have a settled state
+    _check_near(forward, target, _per_point(prior, target))
     if target.pre is None and len(target.measured) < len(parameters):
         raise InputError(f"--target: {len(target.measured)} points cannot fit {len(parameters)} parameters")
     result = least_squares(residuals, x0, bounds=(lower, upper), loss="soft_l1", f_scale=noise, method="trf",
@@ -130,6 +134,21 @@ def fit(forward: ForwardModel, target: Target, parameters: list[Parameter], nois
     return FitResult(parameters, values, std, constrained, per_point, _per_point(prior, target),
                      forward.solves - solves0, time.perf_counter() - t0, result.message, singular,
                      len(no_equilibrium), at_bound, warning)
+
+
+def _check_near(forward: ForwardModel, target: Target, prior: np.ndarray) -> None:
+    """Measured points half of them farther from the scene's prediction than a quarter of the
+    body (a shift is at most a few centimetres) are in another frame or unit: refused, as a fit
+    to them only reports that the model does not explain them."""
+    from ..meshing.extent import body_diagonal
+
+    body = body_diagonal(forward.model.mesh)
+    median = float(np.median(prior))
+    if median > FAR_FROM_PREDICTION * body:
+        what = "the predicted brain surface" if target.pre is None else "where --pre's points are predicted"
+        raise InputError(f"--target: half the points lie more than {median * 1e3:.3g} mm from {what} (the body is "
+                         f"{body * 1e3:.3g} mm across): a frame or unit slip (RAS or LPS, mm; --frame for a CSV or "
+                         f"an untagged surface), or points of another body")
 
 
 def _per_point(r: np.ndarray, target: Target) -> np.ndarray:
