@@ -72,6 +72,8 @@ def _add_warp(sub) -> None:
     warp.add_argument("--labels", action="store_true", help="a label volume: nearest voxel, labels stay labels "
                                                             "(default: linear interpolation of intensities)")
     warp.add_argument("--transform", help="also write the map as an ITK transform file (.h5) 3D Slicer loads")
+    warp.add_argument("--transform-float32", action="store_true",
+                      help="store the transform's values in single precision: half the file, 1e-7 relative")
     warp.add_argument("--blend", type=float, default=10.0, help="mm over which the shift fades outside the brain")
     warp.add_argument("--mesh-frame", choices=["RAS", "LPS"], default="RAS",
                       help="the frame of the run's mesh coordinates (RAS: meshes from NIfTI, this project's)")

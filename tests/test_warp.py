@@ -99,7 +99,7 @@ def test_labels_stay_labels_and_the_run_inverse_is_exact(tmp_path, cube_run):
     labels[shape[0] // 2:, : shape[1] // 3] = 7
     nib.save(nib.Nifti1Image(labels, affine), str(tmp_path / "labels.nii.gz"))
     volume = read_volume(tmp_path / "labels.nii.gz")
-    warp = Warp.compute(volume, body)
+    warp = Warp.compute(volume, body, labels=True)
     warped = warp.apply(labels=True)
     assert warped.dtype == np.int16 and set(np.unique(warped)) <= {0, 3, 7}
     assert (warped != labels).sum() > 100  # the body moved by millimetres
@@ -159,3 +159,83 @@ def test_warp_command_serial_and_two_ranks_agree_and_bad_input_is_one_line(tmp_p
                            str(tmp_path / "pre.nii.gz"), "-o", str(tmp_path / "x.nii.gz")],
                           capture_output=True, text=True, env=subprocess_env(), timeout=120)
     assert done.returncode == 2 and "no displacement.xdmf" in done.stderr
+
+
+def _shifted_box(volume, shift_mm, size=16.0, n=4):
+    """A box of tetrahedra at the grid's centre, moved rigidly by shift_mm (exact in P1)."""
+    centre = volume.index_to_ras((np.array(volume.data.shape) - 1) / 2.0)
+    points, tets = _box_mesh(centre - size / 2, centre + size / 2, n)
+    return DeformedMesh(points, tets, np.tile(shift_mm, (len(points), 1)))
+
+
+def test_labels_outside_the_body_stay_where_they_are(tmp_path):
+    """A brain (label 1) in CSF (3) inside a skull (2), the brain moved 3 mm down: the blend
+    dragged the skull along; now no skull voxel changes, the brain's voxels are where it went,
+    and what it left is CSF."""
+    affine = np.eye(4)
+    affine[:3, 3] = -30.0
+    labels = np.full((61, 61, 61), 2, dtype=np.int16)
+    labels[10:51, 10:51, 10:51] = 3  # CSF, 20 mm around the centre
+    labels[22:39, 22:39, 22:39] = 1  # the brain: 16 mm at the centre (voxels 22..38)
+    nib.save(nib.Nifti1Image(labels, affine), str(tmp_path / "labels.nii.gz"))
+    volume = read_volume(tmp_path / "labels.nii.gz")
+    warp = Warp.compute(volume, _shifted_box(volume, [0.0, 0.0, -3.0]), blend_mm=15.0, labels=True)
+    warped = warp.apply(labels=True)
+    skull = labels == 2
+    assert warp.moved()[skull].sum() > 1000  # the blend reaches the skull: it used to move with it
+    assert np.array_equal(warped[skull], labels[skull])
+    brain = np.zeros_like(labels, dtype=bool)
+    brain[22:39, 22:39, 19:36] = True  # 3 mm lower
+    assert np.array_equal(warped == 1, brain)
+    assert np.all(warped[22:39, 22:39, 36:39] == 3)  # the space it left: CSF
+
+
+@pytest.mark.parametrize("float32", [False, True])
+def test_the_transform_is_cropped_to_what_moves_and_resamples_as_the_warp(tmp_path, float32):
+    """A 16 mm body in a 60 mm grid: the field covers the voxels that move and one around them
+    (ITK moves nothing outside a field), its values are stored compressed, and SimpleITK's
+    resampling with it equals the warp on the whole grid."""
+    affine = np.eye(4)
+    affine[:3, 3] = -30.0
+    data = _smooth_image((61, 61, 61)).astype(np.float32)
+    nib.save(nib.Nifti1Image(data, affine), str(tmp_path / "pre.nii.gz"))
+    volume = read_volume(tmp_path / "pre.nii.gz")
+    warp = Warp.compute(volume, _shifted_box(volume, [1.5, -2.0, -3.0]), blend_mm=6.0)
+    write_itk_transform(warp, tmp_path / "warp.h5", float32=float32)
+    import h5py
+
+    with h5py.File(tmp_path / "warp.h5") as f:
+        assert f["TransformGroup/0/TransformParameters"].dtype == (np.float32 if float32 else np.float64)
+    transform = SimpleITK.DisplacementFieldTransform(SimpleITK.ReadTransform(str(tmp_path / "warp.h5")))
+    field = transform.GetDisplacementField()
+    assert np.prod(field.GetSize()) < 0.2 * data.size
+    assert (tmp_path / "warp.h5").stat().st_size < 0.2 * 8 * 3 * np.prod(field.GetSize())  # compressed
+    image = SimpleITK.ReadImage(str(tmp_path / "pre.nii.gz"), SimpleITK.sitkFloat64)
+    resampled = SimpleITK.GetArrayFromImage(SimpleITK.Resample(image, image, transform, SimpleITK.sitkLinear, 0.0))
+    np.testing.assert_allclose(resampled.transpose(2, 1, 0), warp.apply(), rtol=1e-5, atol=1e-3)
+
+
+def test_a_run_that_is_not_of_this_image_or_did_not_finish_is_refused(tmp_path, cube_run):
+    """The cube warped onto an image 200 mm away did nothing, exit 0; a killed run's folder
+    ("running") or a truncated displacement.h5 gave a traceback or the wrong fix."""
+    import shutil
+
+    from fenics_brainshift.errors import InputError
+
+    _, out = cube_run
+    affine = np.eye(4)
+    affine[:3, 3] = 200.0
+    nib.save(nib.Nifti1Image(np.zeros((20, 20, 20), np.float32), affine), str(tmp_path / "far.nii.gz"))
+    with pytest.raises(InputError, match=r"0% of the run's mesh lies on 'far.nii.gz'"):
+        Warp.compute(read_volume(tmp_path / "far.nii.gz"), DeformedMesh.from_run(out))
+    killed = tmp_path / "killed"
+    shutil.copytree(out, killed)
+    (killed / "summary.json").write_text('{"status": "running"}')
+    with pytest.raises(InputError, match=r"did not finish \(summary.json says \"running\""):
+        DeformedMesh.from_run(killed)
+    damaged = tmp_path / "damaged"
+    shutil.copytree(out, damaged)
+    h5 = damaged / "displacement.h5"
+    h5.write_bytes(h5.read_bytes()[: h5.stat().st_size // 3])
+    with pytest.raises(InputError, match=r"cannot be read .*damaged or incomplete"):
+        DeformedMesh.from_run(damaged)

@@ -9,7 +9,7 @@ import numpy as np
 from ..errors import InputError
 from ..outputs.files import check_writable
 from .volumes import is_volume, read_volume, write_like
-from .warp import DeformedMesh, Warp, write_itk_transform
+from .warp import DeformedMesh, Warp, run_status, write_itk_transform
 
 
 def warp_command(args, comm) -> list[str]:
@@ -26,7 +26,7 @@ def warp_command(args, comm) -> list[str]:
         check_writable(path.parent, comm, "folder of " + ("-o" if path == output else "--transform"), "-o")
     volume = read_volume(args.image, "warp: --image")
     body = DeformedMesh.from_run(args.run_dir, args.mesh_frame)
-    warp = Warp.compute(volume, body, args.blend, comm)
+    warp = Warp.compute(volume, body, args.blend, comm, labels=args.labels)
     if not warp.inside.any():
         raise InputError(f"warp: the run's brain does not overlap '{Path(args.image).name}' (mesh {body.points.min(0)} "
                          f"to {body.points.max(0)} mm RAS); is the image in the mesh's frame? (--mesh-frame)")
@@ -38,7 +38,7 @@ def warp_command(args, comm) -> list[str]:
             path.parent.mkdir(parents=True, exist_ok=True)
         try:
             if pending is not None:
-                write_itk_transform(warp, pending)
+                write_itk_transform(warp, pending, float32=args.transform_float32)
             write_like(volume, warped, output)
             if pending is not None:
                 os.replace(pending, transform)
@@ -47,7 +47,10 @@ def warp_command(args, comm) -> list[str]:
                 pending.unlink()
     comm.barrier()
     moved = warp.moved()
-    return [f"warp: {int(moved.sum())} of {moved.size} voxels moved (largest {warp.largest_mm():.2f} mm, "
+    status = run_status(Path(args.run_dir))
+    note = [] if status in (None, "ok") else [f"warp: the run did not end well (summary.json: {status[:100]}): "
+                                              f"this is its last good state, not the final one"]
+    return note + [f"warp: {int(moved.sum())} of {moved.size} voxels moved (largest {warp.largest_mm():.2f} mm, "
             f"{int(warp.inside.sum())} inside the deformed brain); {'nearest' if args.labels else 'linear'} "
             f"sampling; wrote {output}" + (f" and {args.transform}" if args.transform else "")
             + (f"; labels {sorted(np.unique(warped).tolist())[:12]}" if args.labels and comm.rank == 0 else "")]

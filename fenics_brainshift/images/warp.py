@@ -47,18 +47,39 @@ class DeformedMesh:
         from ..outputs.pictures import read_last_state
 
         xdmf = Path(run_dir) / "displacement.xdmf"
+        status = run_status(Path(run_dir))
+        if status == "running":  # killed, or still running: its files are incomplete
+            raise InputError(f"RUN_DIR: the run in '{run_dir}' did not finish (summary.json says \"running\": "
+                             f"killed, or still running); run it again, or wait for it")
         if not xdmf.is_file():
             raise InputError(f"RUN_DIR: no displacement.xdmf in '{run_dir}'; run a scene with --out and "
                              f"[output] fields including \"displacement\" first")
         try:
             points, tets, u, tissue = read_last_state(xdmf)
         except (KeyError, StopIteration):
+            if status not in (None, "ok"):  # stopped or interrupted before its first output
+                raise InputError(f"RUN_DIR: the run in '{run_dir}' wrote no state (summary.json: {status}); "
+                                 f"run it again") from None
             raise InputError(f"RUN_DIR: '{xdmf}' has no displacement field; add \"displacement\" to [output] "
                              f"fields and run again") from None
+        except Exception as exc:  # a truncated .h5 or half an .xdmf (h5py, meshio, XML errors)
+            raise InputError(f"RUN_DIR: '{xdmf.name}' or its .h5 in '{run_dir}' cannot be read ({type(exc).__name__}: "
+                             f"{str(exc)[:120]}); damaged or incomplete: run the scene again") from None
         if tissue is not None:  # a resection: the removed cells are not there any more
             tets = tets[np.asarray(tissue) >= 0.5]
         flip = LPS_TO_RAS if mesh_frame.upper() == "LPS" else np.eye(3)
         return cls(1e3 * points[:, :3] @ flip, np.asarray(tets, dtype=np.int64), 1e3 * u[:, :3] @ flip)
+
+
+def run_status(run_dir: Path) -> str | None:
+    """summary.json's status of a run folder ("ok", "running", "interrupted", "stopped: ..."),
+    or None without one."""
+    import json
+
+    try:
+        return str(json.loads((run_dir / "summary.json").read_text()).get("status"))
+    except (OSError, ValueError, AttributeError):
+        return None
 
 
 @dataclass
@@ -68,22 +89,32 @@ class Warp:
     v: np.ndarray  # (ni, nj, nk, 3), index units
     inside: np.ndarray  # (ni, nj, nk) bool: y in the deformed tissue (v exact there)
     seconds: float = 0.0
+    before: np.ndarray | None = None  # (ni, nj, nk) bool: y in the tissue before the shift
 
     @classmethod
-    def compute(cls, volume: Volume, body: DeformedMesh, blend_mm: float = 10.0, comm=None) -> "Warp":
-        """Lay the deformed mesh on the volume's grid; comm: ranks share the tetrahedra."""
+    def compute(cls, volume: Volume, body: DeformedMesh, blend_mm: float = 10.0, comm=None,
+                labels: bool = False) -> "Warp":
+        """Lay the deformed mesh on the volume's grid; comm: ranks share the tetrahedra.
+        labels: the volume is a label map (the mesh before the shift is laid on it too)."""
         if not 0 < blend_mm < float("inf"):
             raise InputError(f"--blend must be a finite number of mm > 0 (got {blend_mm:g})")
         t0 = time.perf_counter()
         shape = volume.data.shape
         X = volume.ras_to_index(body.points)  # reference positions, index coordinates
         Y = volume.ras_to_index(body.points + body.displacement)  # deformed
+        _check_overlap(X, shape, volume)
         part, parts = (comm.rank, comm.size) if comm is not None else (0, 1)
         voxel, tet, lam = rasterize(Y, body.tets, shape, part, parts)
         x = np.einsum("ni,nij->nj", lam, X[body.tets[tet]])  # the pre-operative point of each
+        before_voxels = rasterize(X, body.tets, shape, part, parts)[0] if labels else None  # the tissue before
         if comm is not None and comm.size > 1:
             voxel = np.concatenate(comm.allgather(voxel))
             x = np.concatenate(comm.allgather(x))
+            before_voxels = np.concatenate(comm.allgather(before_voxels)) if labels else None
+        before = None
+        if labels:
+            before = np.zeros(shape, dtype=bool)
+            before.reshape(-1)[before_voxels] = True
         v = np.zeros(shape + (3,))
         inside = np.zeros(shape, dtype=bool)
         if len(voxel):
@@ -91,7 +122,7 @@ class Warp:
             v.reshape(-1, 3)[voxel] = x - y
             inside.reshape(-1)[voxel] = True
             _blend_outside(v, inside, volume.spacing, blend_mm)
-        return cls(volume, v, inside, time.perf_counter() - t0)
+        return cls(volume, v, inside, time.perf_counter() - t0, before)
 
     def moved(self) -> np.ndarray:
         """Voxels whose source point is not themselves."""
@@ -102,10 +133,18 @@ class Warp:
 
     def apply(self, data: np.ndarray | None = None, labels: bool = False) -> np.ndarray:
         """The warped volume: linear interpolation (intensities) or nearest voxel (labels) of the
-        input at x = y + v(y); voxels that do not move keep their value exactly."""
+        input at x = y + v(y); voxels that do not move keep their value exactly. Labels change
+        only where the tissue is after the shift or was before it (what it left is filled from
+        beyond it, by the blend): the skull, the scalp, a ventricle's label outside the mesh stay
+        where they are (the blend dragged 58 % of a skull label's voxels along)."""
         data = self.volume.data if data is None else data
         out = np.array(data, copy=True, order="C")  # reshape(-1) below must be a view
-        moved = np.flatnonzero(self.moved())
+        moving = self.moved()
+        if labels:
+            if self.before is None:
+                raise ValueError("Warp.apply(labels=True) needs Warp.compute(..., labels=True)")
+            moving &= self.inside | self.before
+        moved = np.flatnonzero(moving)
         shape = data.shape
         source = np.asarray(data, dtype=np.float64) if not labels else data
         for start in range(0, len(moved), SAMPLES_PER_CHUNK):
@@ -125,6 +164,21 @@ class Warp:
     def displacement_lps_mm(self) -> np.ndarray:
         """v as millimetres in LPS, (ni, nj, nk, 3): the field of the ITK transform."""
         return self.v @ (LPS_TO_RAS @ self.volume.affine[:3, :3]).T
+
+
+# a run whose mesh has fewer of its nodes than this inside the image's grid is not of this image
+OVERLAP = 0.5
+
+
+def _check_overlap(X: np.ndarray, shape, volume: Volume) -> None:
+    """The body must lie on the image: a run of another object (the cube onto a brain T1), a
+    mesh in another frame or unit, warped nothing or a corner, with exit 0."""
+    within = np.all((X >= -0.5) & (X <= np.array(shape) - 0.5), axis=1)
+    if within.mean() < OVERLAP:
+        extent = np.ptp(volume.index_to_ras(np.array([[0, 0, 0], np.array(shape) - 1.0])), axis=0)
+        raise InputError(f"warp: {within.mean():.0%} of the run's mesh lies on '{volume.path.name}' ({OVERLAP:.0%} "
+                         f"at least): is it the run of this image's object, in its frame (--mesh-frame) and unit? "
+                         f"(the image spans {extent[0]:.0f} x {extent[1]:.0f} x {extent[2]:.0f} mm)")
 
 
 def _blend_outside(v: np.ndarray, inside: np.ndarray, spacing: np.ndarray, blend_mm: float) -> None:
@@ -151,9 +205,10 @@ def _cast(values: np.ndarray, dtype) -> np.ndarray:
     return values.astype(dtype)
 
 
-def write_itk_transform(warp: Warp, path: str | Path) -> Path:
-    """The warp as an ITK displacement-field transform file (.h5 or .tfm-free formats ITK reads:
-    .h5 / .hdf5), on the input's grid as SimpleITK reads it, LPS mm."""
+def write_itk_transform(warp: Warp, path: str | Path, float32: bool = False) -> Path:
+    """The warp as an ITK displacement-field transform file (.h5 / .hdf5), LPS mm, on the input's
+    grid as SimpleITK reads it, cropped to the voxels that move (and one around them); float32:
+    the values stored in single precision (half the file; 1e-7 relative, far below a voxel)."""
     import SimpleITK as sitk
 
     path = Path(path)
@@ -162,18 +217,43 @@ def write_itk_transform(warp: Warp, path: str | Path) -> Path:
                          f"loads as a transform")
     reference = sitk.ReadImage(str(warp.volume.path))
     _check_same_grid(reference, warp.volume)
-    field = sitk.GetImageFromArray(np.ascontiguousarray(warp.displacement_lps_mm().transpose(2, 1, 0, 3)),
+    # the field on the box of the voxels that move, a voxel of zeros around it: ITK moves no
+    # point outside a displacement field's grid, and the whole 1 mm head grid was 208 MB
+    moving = np.argwhere(warp.moved())
+    shape = np.array(warp.v.shape[:3])
+    lo = np.maximum(moving.min(axis=0) - 1, 0) if len(moving) else np.zeros(3, dtype=int)
+    hi = np.minimum(moving.max(axis=0) + 2, shape) if len(moving) else np.ones(3, dtype=int)
+    box = tuple(slice(a, b) for a, b in zip(lo, hi))
+    field = sitk.GetImageFromArray(np.ascontiguousarray(warp.displacement_lps_mm()[box].transpose(2, 1, 0, 3)),
                                    isVector=True)
-    field.CopyInformation(reference)
+    field.SetSpacing(reference.GetSpacing())
+    field.SetDirection(reference.GetDirection())
+    field.SetOrigin(reference.TransformIndexToPhysicalPoint([int(i) for i in lo]))
     transform = sitk.DisplacementFieldTransform(sitk.Cast(field, sitk.sitkVectorFloat64))
     tmp = path.with_name(f".{path.name}.tmp.h5")
     try:
         sitk.WriteTransform(transform, str(tmp))
+        _compress_parameters(tmp, np.float32 if float32 else np.float64)
         tmp.replace(path)
     finally:
         if tmp.exists():
             tmp.unlink()
     return path
+
+
+def _compress_parameters(path: Path, dtype) -> None:
+    """The field's values stored gzip-compressed (level 1), in ``dtype``: ITK (SimpleITK, 3D
+    Slicer) reads them as before, HDF5 converting float32 to the transform's double; the
+    resampling is unchanged to the bit for float64 (tests/test_warp.py). On the 1 mm head:
+    208 MB for the whole grid uncompressed, 65 MB cropped and compressed, 33 MB in float32
+    (benchmarks/results/warp.md). SimpleITK itself writes neither."""
+    import h5py
+
+    with h5py.File(path, "r+") as f:
+        name = "TransformGroup/0/TransformParameters"
+        values = f[name][...]
+        del f[name]
+        f.create_dataset(name, data=values.astype(dtype), compression="gzip", compression_opts=1, chunks=True)
 
 
 def _check_same_grid(image, volume: Volume) -> None:
