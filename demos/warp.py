@@ -118,7 +118,7 @@ def picture(path: Path, volume, predicted: np.ndarray, body, warp) -> None:
             for text, xy in ((left, (0.02, 0.5)), (right, (0.95, 0.5)), (bottom, (0.5, 0.02)), (top, (0.5, 0.93))):
                 ax.text(*xy, text, transform=ax.transAxes, color="yellow", fontsize=11, weight="bold")
             if lim:
-                fig.colorbar(shown, ax=ax, fraction=0.04)
+                fig.colorbar(shown, ax=ax, fraction=0.04, label="intensity difference (T1 units)")
     fig.suptitle("Brain outline before (dashed orange) and after the shift (cyan); gravity towards posterior (supine)",
                  fontsize=10)
     fig.tight_layout()

@@ -5,9 +5,11 @@
   plane (the paper's Figs. 14 and 18), gravity as an arrow; removed cells (tissue = 0) are left
   out. Where the run wrote a fine surface (surface_final.vtk) that smooth surface is drawn
   instead of the voxel mesh's staircase; a mesh made from an image (RAS) gets its anatomical
-  directions marked (R/L, A/P, S/I).
+  directions marked (R/L, A/P, S/I); the probes are red points where the shift took them. The
+  colour bar runs from 0 to a round number.
 - probes.png: each probe's displacement along gravity against time, the fluid level on a
-  second axis (Fig. 16).
+  second axis (the paper's Fig. 16); settled states (quasi-static) as points, not lines; many
+  probes named beside the plot.
 
 Rendering is off-screen (pyvista/VTK); matplotlib draws the plots. Both are optional extras:
 without pyvista the picture is skipped with a log line, never an error.
@@ -76,8 +78,11 @@ def deformed_picture(out: Path, gravity, level: float | None, path: Path | None 
         deformed = moved.extract_surface(algorithm="dataset_surface")
     plotter = pv.Plotter(off_screen=True, window_size=(1000, 750))
     plotter.set_background("white")
-    plotter.add_mesh(deformed, scalars="displacement (mm)", cmap="viridis", smooth_shading=True,
-                     scalar_bar_args={"title": "displacement magnitude (mm)", "color": "black"})
+    top = nice_ceiling(float(np.max(deformed.point_data["displacement (mm)"], initial=0.0)))
+    plotter.add_mesh(deformed, scalars="displacement (mm)", cmap="viridis", smooth_shading=True, clim=[0.0, top],
+                     scalar_bar_args={"title": "displacement (mm)\n", "color": "black", "vertical": True,
+                                      "n_labels": 5, "fmt": "%.3g", "title_font_size": 18, "label_font_size": 15,
+                                      "position_x": 0.11, "position_y": 0.2, "height": 0.5, "width": 0.06})
     plotter.add_mesh(surface, color="lightgray", opacity=0.3)  # the undeformed body, as a ghost
     lo, hi = points.min(axis=0), points.max(axis=0)
     centre, extent = 0.5 * (lo + hi), float(np.linalg.norm(hi - lo))
@@ -104,6 +109,15 @@ def deformed_picture(out: Path, gravity, level: float | None, path: Path | None 
                 where.append(p)
         plotter.add_point_labels(np.array(where), labels, font_size=26, text_color="firebrick", bold=True,
                                  shape=None, show_points=False, always_visible=True)
+    landmarks = out / "probes_final.mrk.json"
+    if landmarks.is_file():  # the probes where the shift took them (a Slicer point list, RAS mm)
+        from ..images.frames import read_markups
+
+        names, where_mm = read_markups(landmarks, "probes_final.mrk.json")
+        plotter.add_points(where_mm * 1e-3, color="crimson", point_size=12, render_points_as_spheres=True)
+        if len(names) <= 12:  # more names than that only cover the picture
+            plotter.add_point_labels(where_mm * 1e-3, names, font_size=12, text_color="crimson", shape=None,
+                                     show_points=False, always_visible=True)
     if level is not None and np.isfinite(level):
         on_level = centre + (level - centre @ up) * up
         size = 1.4 * float(np.linalg.norm(hi - lo))
@@ -115,8 +129,8 @@ def deformed_picture(out: Path, gravity, level: float | None, path: Path | None 
     a = int(np.argmax(np.abs(side)))
     seen = f"seen from {'LRPAIS'[2 * a + (side[a] > 0)]}; " if anatomical else ""
     plotter.add_text(seen + ("fine surface" if fine.is_file() else "deformed body") + " coloured by displacement; "
-                     "undeformed in grey; fluid level (blue plane)" + ("; the fluid drains towards the top "
-                     "(the craniotomy)" if level is not None else ""), font_size=9, color="black")
+                     "undeformed in grey" + ("; fluid level: blue plane" if level is not None else "")
+                     + ("; probes: red" if landmarks.is_file() else ""), font_size=12, color="black")
     path = path or out / "deformed.png"
     plotter.screenshot(str(path))
     plotter.close()
@@ -126,8 +140,22 @@ def deformed_picture(out: Path, gravity, level: float | None, path: Path | None 
 PICTURES = ("probes.png", "deformed.png")
 
 
-def probe_plot(out: Path, gravity, path: Path | None = None) -> Path | None:
-    """probes.png: probe displacement along gravity against time, the level on a second axis."""
+def nice_ceiling(value: float) -> float:
+    """The smallest of 1, 2, 2.5, 5 x 10^k at least ``value`` (a colour bar's top: 0 to a round
+    number, not 2.33e-18 to 1.9737)."""
+    if not value > 0:
+        return 1.0
+    power = 10.0 ** np.floor(np.log10(value))
+    return float(next(m * power for m in (1.0, 2.0, 2.5, 5.0, 10.0) if m * power >= value * (1 - 1e-12)))
+
+
+LEGEND_INSIDE = 6  # probes named in a legend inside the plot; more go beside it
+
+
+def probe_plot(out: Path, gravity, path: Path | None = None, title: str = "Probes",
+               settled: bool = False) -> Path | None:
+    """probes.png: probe displacement along gravity against time, the level on a second axis.
+    settled: the rows are settled states (quasi-static), drawn as points, not as a motion."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -143,23 +171,28 @@ def probe_plot(out: Path, gravity, path: Path | None = None) -> Path | None:
     g = np.asarray(gravity, dtype=float)
     down = g / np.linalg.norm(g) if np.linalg.norm(g) > 0 else np.array([0.0, 0.0, -1.0])
     t = data[:, 0]
-    fig, ax = plt.subplots(figsize=(6.5, 4))
-    style = "o-" if len(t) < 12 else "-"
+    beside = len(names) > LEGEND_INSIDE
+    fig, ax = plt.subplots(figsize=(9.5 if beside else 6.5, 4.5))
+    style = "o" if settled else "o-" if len(t) < 12 else "-"
     for name in names:
         u = np.stack([data[:, header.index(f"{name}_{c}")] for c in "xyz"], axis=1)
         ax.plot(t, u @ down * 1e3, style, label=name)
-    ax.set_xlabel("time (s)")
+    ax.set_xlabel("time of the loads' schedule (s): settled states" if settled else "time (s)")
     ax.set_ylabel("displacement along gravity (mm)")
     ax.grid(True, alpha=0.3)
     level = data[:, header.index("level")]
     lines = ax.get_legend_handles_labels()[0]
     if np.isfinite(level).any():
         ax2 = ax.twinx()
-        ax2.plot(t, level * 1e3, "--", color="tab:gray", label="fluid level")
+        ax2.plot(t, level * 1e3, "s" if settled else "--", color="tab:gray", label="fluid level")
         ax2.set_ylabel("fluid level along up (mm)")
         lines += ax2.get_legend_handles_labels()[0]
-    ax.legend(lines, [ln.get_label() for ln in lines], fontsize=8, loc="best")
-    ax.set_title("Probes against time (cf. paper Fig. 16)")
+    if beside:  # many probes: the legend beside the plot, in columns, covering nothing
+        ax.legend(lines, [ln.get_label() for ln in lines], fontsize=7, loc="upper left", bbox_to_anchor=(1.12, 1.0),
+                  ncol=1 + len(lines) // 16, borderaxespad=0.0)
+    else:
+        ax.legend(lines, [ln.get_label() for ln in lines], fontsize=8, loc="best")
+    ax.set_title(title)
     fig.tight_layout()
     path = path or out / "probes.png"
     fig.savefig(path, dpi=120)
@@ -168,7 +201,8 @@ def probe_plot(out: Path, gravity, path: Path | None = None) -> Path | None:
 
 
 def surface_error_plot(path, se) -> None:
-    """compare.png: SIM - INTRA along the height axis over the ROI (cf. paper Fig. 20)."""
+    """compare.png: SIM - INTRA along the height axis over the ROI (the paper's Fig. 20), its
+    axes named in RAS."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -181,8 +215,12 @@ def surface_error_plot(path, se) -> None:
     im = ax.pcolormesh(ga, gb, err.T, shading="nearest", cmap="coolwarm",
                        vmin=-np.nanmax(np.abs(err)), vmax=np.nanmax(np.abs(err)))
     fig.colorbar(im, ax=ax, label=f"SIM - INTRA along {se['height_axis']} (mm)")
+    a, b = [axis for axis in "xyz" if axis != se["height_axis"]]
+    anatomy = {"x": "x: R+ / L- (mm)", "y": "y: A+ / P- (mm)", "z": "z: S+ / I- (mm)"}  # RAS
+    ax.set_xlabel(anatomy[a])
+    ax.set_ylabel(anatomy[b])
     ax.set_aspect("equal")
-    ax.set_title(f"Surface error: MAE {se['mae'] * 1e3:.2f} mm (cf. paper Fig. 20)")
+    ax.set_title(f"Surface error seen along {se['height_axis']}: MAE {se['mae'] * 1e3:.2f} mm")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
@@ -192,7 +230,8 @@ def pictures(out: Path) -> list[Path]:
     """Every picture of a finished run folder (rank 0 only)."""
     summary = json.loads((out / "summary.json").read_text())
     gravity = summary.get("gravity_vector", [0.0, 0.0, -9.81])
-    made = [probe_plot(out, gravity),
+    title = f"{summary.get('scene', 'run')}: probes against time"
+    made = [probe_plot(out, gravity, title=title, settled=summary.get("mode") == "quasi-static"),
             deformed_picture(out, gravity, summary.get("final_level_m"), anatomical=summary.get("frame") == "RAS")]
     return [p for p in made if p is not None]
 

@@ -1,0 +1,103 @@
+"""Pictures a surgeon reads (issue 30): checked on the figure objects, not on pixels. The
+facts are the run's own files (probes.csv, summary.json) and hand-picked numbers."""
+from __future__ import annotations
+
+import json
+
+import matplotlib
+import numpy as np
+import pytest
+
+from fenics_brainshift.outputs import pictures
+
+matplotlib.use("Agg")
+
+
+@pytest.fixture
+def figures(monkeypatch):
+    """The matplotlib figures the plots save, kept open for inspection."""
+    from matplotlib.figure import Figure
+
+    saved = []
+    original = Figure.savefig
+
+    def keep(self, *args, **kwargs):
+        saved.append(self)
+        self.canvas.draw()  # (layout done: the boxes below are final)
+        return original(self, *args, **kwargs)
+    monkeypatch.setattr(Figure, "savefig", keep)
+    monkeypatch.setattr("matplotlib.pyplot.close", lambda *a, **k: None)
+    return saved
+
+
+@pytest.mark.parametrize("value, top", [(1.9737, 2.0), (7.01, 10.0), (2.5, 2.5), (0.0123, 0.02), (20.75, 25.0),
+                                        (0.0, 1.0)])
+def test_a_colour_bar_runs_from_zero_to_a_round_number(value, top):
+    assert pictures.nice_ceiling(value) == pytest.approx(top)
+
+
+def _probes_folder(tmp_path, names, times):
+    header = ["t", "level"] + [f"{n}_{c}" for n in names for c in "xyz"]
+    rows = [[t, 0.02] + [(-1e-3 * (i + 1) * t if c == "z" else 0.0) for i in range(len(names)) for c in "xyz"]
+            for t in times]
+    np.savetxt(tmp_path / "probes.csv", np.array(rows), delimiter=",", header=",".join(header), comments="")
+    return tmp_path
+
+
+def test_many_probes_are_named_beside_the_plot_and_settled_states_are_points(tmp_path, figures):
+    """With 20 markups the legend covered the plot and its title; three settled states were
+    joined by lines as if the shift grew linearly in time; the title cited the paper."""
+    names = [f"F-{i}" for i in range(20)]
+    pictures.probe_plot(_probes_folder(tmp_path, names, [0.0, 10.0, 16.0]), [0, 0, -9.81], title="my scene: probes",
+                        settled=True)
+    fig = figures[-1]
+    ax = fig.axes[0]
+    legend = ax.get_legend().get_window_extent()
+    assert not legend.overlaps(ax.get_window_extent())  # beside the axes, covering nothing
+    assert all(line.get_linestyle() == "None" and line.get_marker() == "o" for line in ax.get_lines())
+    assert "settled states" in ax.get_xlabel()
+    assert ax.get_title() == "my scene: probes" and "paper" not in ax.get_title()
+
+
+def test_a_dynamic_run_draws_its_probes_as_lines(tmp_path, figures):
+    pictures.probe_plot(_probes_folder(tmp_path, ["a", "b"], np.linspace(0.0, 2.0, 21)), [0, 0, -9.81])
+    ax = figures[-1].axes[0]
+    assert all(line.get_linestyle() == "-" for line in ax.get_lines()[:2]) and ax.get_xlabel() == "time (s)"
+
+
+def test_the_surface_error_map_names_its_axes_in_ras(tmp_path, figures):
+    """compare.png had no axis labels or orientation."""
+    grid = np.linspace(-0.02, 0.02, 5)
+    se = {"error": np.zeros((5, 5)).tolist(), "grid_a": grid.tolist(), "grid_b": grid.tolist(), "height_axis": "y",
+          "mae": 0.0005}
+    pictures.surface_error_plot(tmp_path / "compare.png", se)
+    ax = figures[-1].axes[0]
+    assert ax.get_xlabel() == "x: R+ / L- (mm)" and ax.get_ylabel() == "z: S+ / I- (mm)"
+    assert "paper" not in ax.get_title()
+
+
+def test_the_deformed_picture_starts_its_colour_bar_at_zero_and_draws_the_probes(tmp_path, monkeypatch):
+    """The cube's colour bar started at 2.33e-18; the landmarks were not drawn."""
+    pv = pytest.importorskip("pyvista")
+    from fenics_brainshift import load_scene, run
+
+    out = tmp_path / "out"
+    run(load_scene("cube", ["mesh.cells=[4, 4, 2]", "time.mode=quasi-static", "output.pictures=false"]), out)
+    calls = {"mesh": [], "points": 0}
+    add_mesh, add_points = pv.Plotter.add_mesh, pv.Plotter.add_points
+
+    def mesh(self, *args, **kwargs):
+        calls["mesh"].append(kwargs)
+        return add_mesh(self, *args, **kwargs)
+
+    def points(self, *args, **kwargs):
+        calls["points"] += 1
+        return add_points(self, *args, **kwargs)
+    monkeypatch.setattr(pv.Plotter, "add_mesh", mesh)
+    monkeypatch.setattr(pv.Plotter, "add_points", points)
+    summary = json.loads((out / "summary.json").read_text())
+    assert pictures.deformed_picture(out, summary["gravity_vector"], summary.get("final_level_m")).is_file()
+    coloured = [k for k in calls["mesh"] if k.get("scalars") == "displacement (mm)"]
+    top = 1e3 * summary["max_displacement_m"]
+    assert coloured and coloured[0]["clim"][0] == 0.0 and top <= coloured[0]["clim"][1] <= 2.5 * top
+    assert calls["points"] == 1  # the cube's probes (probes_final.mrk.json), in red
