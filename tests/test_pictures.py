@@ -80,11 +80,12 @@ SPY = """
 import json, sys
 import pyvista as pv
 from fenics_brainshift.outputs import pictures
-calls = {"clim": [], "points": 0}
+calls = {"clim": [], "points": 0, "skull": 0}
 add_mesh, add_points = pv.Plotter.add_mesh, pv.Plotter.add_points
 def mesh(self, *args, **kwargs):
     if kwargs.get("scalars") == "displacement (mm)":
         calls["clim"].append(list(kwargs["clim"]))
+    calls["skull"] += kwargs.get("style") == "wireframe"
     return add_mesh(self, *args, **kwargs)
 def points(self, *args, **kwargs):
     calls["points"] += 1
@@ -96,7 +97,8 @@ print(json.dumps(calls))
 
 
 def test_the_deformed_picture_starts_its_colour_bar_at_zero_and_draws_the_probes(tmp_path, serial_only):
-    """The cube's colour bar started at 2.33e-18; the landmarks were not drawn. (Rendered in a
+    """The cube's colour bar started at 2.33e-18; the landmarks and the skull were not drawn
+    (the skull is now written beside the run, for Slicer too). (Rendered in a
     fresh process, as runs do: VTK's OpenGL aborts in a process that has run PETSc.)"""
     import subprocess
     import sys
@@ -105,8 +107,22 @@ def test_the_deformed_picture_starts_its_colour_bar_at_zero_and_draws_the_probes
     from fenics_brainshift import load_scene, run
 
     pytest.importorskip("pyvista")
+    import meshio
+
+    # a closed box skull around the cube (0.05 x 0.05 x 0.025 m) with a floor 2 mm below it
+    lo, hi = np.array([-0.01, -0.01, -0.002]), np.array([0.06, 0.06, 0.04])
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    quads = [[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]]
+    box = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))])
+    meshio.write(str(tmp_path / "skull.stl"), meshio.Mesh(corners, [("triangle", box)]))
     out = tmp_path / "out"
-    run(load_scene("cube", ["mesh.cells=[4, 4, 2]", "time.mode=quasi-static", "output.pictures=false"]), out)
+    run(load_scene("cube", ["mesh.cells=[4, 4, 2]", "time.mode=quasi-static", "output.pictures=false",
+                            f"skull.file='{tmp_path / 'skull.stl'}'"]), out)
+    from fenics_brainshift.meshing.voxelize import read_surface
+
+    written, _ = read_surface(out / "skull.stl", 1e-3)  # the skull the run used, mm RAS for Slicer
+    np.testing.assert_allclose(written.min(axis=0), lo, atol=1e-6)
+    np.testing.assert_allclose(written.max(axis=0), hi, atol=1e-6)
     env = {k: v for k, v in subprocess_env().items() if not k.startswith(("OMPI_", "PMIX_", "PMI_"))}
     done = subprocess.run([sys.executable, "-c", SPY, str(out)], capture_output=True, text=True, env=env, timeout=300)
     assert done.returncode == 0, done.stderr[-2000:]
@@ -114,3 +130,4 @@ def test_the_deformed_picture_starts_its_colour_bar_at_zero_and_draws_the_probes
     top = 1e3 * json.loads((out / "summary.json").read_text())["max_displacement_m"]
     assert calls["clim"] and calls["clim"][0][0] == 0.0 and top <= calls["clim"][0][1] <= 2.5 * top
     assert calls["points"] == 1  # the cube's probes (probes_final.mrk.json), in red
+    assert calls["skull"] == 1  # and the skull, as a cage

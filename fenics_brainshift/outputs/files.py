@@ -43,7 +43,7 @@ def _can_create_in(folder: Path) -> bool:
 # what a run writes into its folder (outputs/xdmf.py, pictures.py, runner/driver.py): cleared
 # before a run writes there, so that a re-run never sits beside an earlier run's files
 RUN_FILES = ("summary.json", "probes.csv", "probes_final.mrk.json", "displacement.xdmf", "displacement.h5",
-             "deformed.png", "probes.png", "surface_final.vtk", "surface_final.stl")
+             "deformed.png", "probes.png", "surface_final.vtk", "surface_final.stl", "skull.stl")
 RUN_SERIES = ("surface_[0-9][0-9][0-9][0-9].vtk", "surface_[0-9][0-9][0-9][0-9].stl")
 
 

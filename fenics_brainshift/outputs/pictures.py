@@ -109,6 +109,13 @@ def deformed_picture(out: Path, gravity, level: float | None, path: Path | None 
                 where.append(p)
         plotter.add_point_labels(np.array(where), labels, font_size=26, text_color="firebrick", bold=True,
                                  shape=None, show_points=False, always_visible=True)
+    skull = out / "skull.stl"
+    if skull.is_file():  # the skull the run used (mm, RAS: as Slicer reads it), as a faint cage
+        from ..meshing.voxelize import read_surface
+
+        skull_points, skull_triangles = read_surface(skull, 1e-3)
+        plotter.add_mesh(pv.PolyData.from_regular_faces(skull_points, skull_triangles), color="dimgray",
+                         style="wireframe", opacity=0.15)
     landmarks = out / "probes_final.mrk.json"
     if landmarks.is_file():  # the probes where the shift took them (a Slicer point list, RAS mm)
         from ..images.frames import read_markups
@@ -130,7 +137,8 @@ def deformed_picture(out: Path, gravity, level: float | None, path: Path | None 
     seen = f"seen from {'LRPAIS'[2 * a + (side[a] > 0)]}; " if anatomical else ""
     plotter.add_text(seen + ("fine surface" if fine.is_file() else "deformed body") + " coloured by displacement; "
                      "undeformed in grey" + ("; fluid level: blue plane" if level is not None else "")
-                     + ("; probes: red" if landmarks.is_file() else ""), font_size=12, color="black")
+                     + ("; probes: red" if landmarks.is_file() else "") + ("; skull: grey cage" if skull.is_file()
+                                                                            else ""), font_size=12, color="black")
     path = path or out / "deformed.png"
     plotter.screenshot(str(path))
     plotter.close()

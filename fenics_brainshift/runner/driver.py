@@ -74,6 +74,7 @@ def run(scene: Scene, out: str | Path | None = None, comm=MPI.COMM_WORLD, raise_
             comm.barrier()
             lock = RunLock(out, comm)
             clear_run(out, comm, scene.name)
+            _write_skull(sim, out)
             m = sim.model
             writer = FieldWriter(out, m.mesh, m.V, scene.output.fields, m.constitutive, embedding,
                                  m.tissue.indicator if m.tissue is not None else None, sim.contact)
@@ -110,6 +111,19 @@ def run(scene: Scene, out: str | Path | None = None, comm=MPI.COMM_WORLD, raise_
             raise Interrupted(f"{stopped}; the last good state, t = {sim.t:g} s{where}")
         raise SolverError(f"{stopped} (stopped; the last good state, t = {sim.t:g} s{where})")
     return result
+
+
+def _write_skull(sim: Simulation, out: Path) -> None:
+    """OUT/skull.stl: a skull surface the run used (a file or a label's boundary), as Slicer
+    reads models (mm, SPACE=RAS), drawn in deformed.png; a gap skull is the body's own
+    surface dilated, with no surface of its own to write."""
+    skull = sim.contact.skull if sim.contact is not None else None
+    if skull is None or skull.gap is not None or sim.model.comm.rank != 0:
+        return
+    from ..outputs.fine_surface import write_slicer_stl
+
+    points = skull.triangles.reshape(-1, 3) * 1e3
+    write_slicer_stl(out / "skull.stl", points, np.arange(len(points)).reshape(-1, 3))
 
 
 def _log_start(sim: Simulation, setup_s: float) -> None:
