@@ -20,7 +20,9 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--no-progress", action="store_true",
                         help="no progress bar (it shows on rank 0 only when stderr is a terminal)")
     sub = parser.add_subparsers(dest="command", required=True)
-    for add in (_add_run, _add_mesh, _add_warp, _add_fit, _add_compare, _add_bench):
+    from .atlas.arguments import add_atlas, add_update
+
+    for add in (_add_run, _add_mesh, _add_warp, _add_fit, add_atlas, add_update, _add_compare, _add_bench):
         add(sub)
     sub.add_parser("info", help="versions of DOLFINx, PETSc, MPI, the scalar type and optional extras")
     sub.add_parser("scenes", help="the bundled scenes (run one by name: brainshift run cube)")
@@ -207,7 +209,7 @@ def main(argv: list[str] | None = None) -> int:
         progress.ENABLED = False
     comm = MPI.COMM_WORLD
     commands = {"info": _info_command, "scenes": _scenes, "mesh": _mesh, "compare": _compare, "bench": _bench,
-                "run": _run, "warp": _warp, "fit": _fit}
+                "run": _run, "warp": _warp, "fit": _fit, "atlas": _atlas, "update": _update}
     try:
         return commands[args.command](args, comm)
     except InputError as exc:  # bad input: nothing was written
@@ -359,6 +361,18 @@ def _fit(args, comm) -> int:
     from .fit.command import fit_command
 
     return _report(fit_command(args, comm), comm)
+
+
+def _atlas(args, comm) -> int:
+    from .atlas.build import atlas_command
+
+    return _report(atlas_command(args, comm), comm)
+
+
+def _update(args, comm) -> int:
+    from .atlas.update_command import update_command
+
+    return _report(update_command(args, comm), comm)
 
 
 def _report(lines: list[str], comm) -> int:

@@ -1,0 +1,137 @@
+"""`brainshift atlas SCENE -o ATLAS`: the settled states of a scene over its scenarios.
+
+The modes are solved on the scene's model once built: one factor of K serves every mode of a
+linear body (the loads change, K does not); each settled state starts from the last one (the
+levels of a pose in order), so the follower fixed point needs few iterations. A scene with a
+[skull] is refused for now: contact-free modes pass the skull wherever it holds the brain, and
+no combination of them is inside it (docs/update.md, "The skull").
+"""
+from __future__ import annotations
+
+import dataclasses
+import time
+from pathlib import Path
+
+import numpy as np
+from mpi4py import MPI
+
+from .. import compat, formats
+from ..errors import InputError
+from ..logs import get_logger
+from ..outputs.files import check_writable
+from ..scene import load_scene
+from ..scene.body import Swelling
+from . import store
+from .locate import MeshLocator
+from .scenarios import clip_levels, family, parse_vary, swelling_modes
+
+log = get_logger(__name__)
+WHOLE_BODY = "x > -1e6"  # the whole-brain region of a scene without [[swelling]]
+
+
+def atlas_command(args, comm) -> list[str]:
+    out = Path(args.output)
+    check_writable(out, comm, "atlas folder", "-o")
+    vary = parse_vary(args.vary)
+    scene = load_scene(args.scene, args.set + ["time.mode=quasi-static"])
+    if scene.skull is not None:
+        raise InputError("atlas: the scene has a [skull]: an atlas with skull contact is not built yet (its modes "
+                         "would pass the skull); build it from the scene without its [skull] "
+                         "section, or use brainshift fit, which solves the contact (docs/update.md)")
+    if scene.remove:
+        raise InputError("atlas: [[remove]] (a resection) is not an atlas scenario; build the atlas of the scene "
+                         "before the resection")
+    atlas, seconds = build(scene, vary, comm, args.scene, args.set)
+    if comm.rank == 0:  # (arrays first, then the index: each renamed into place)
+        store.write(out, atlas)
+    comm.barrier()
+    family_count = int(atlas.family.sum()) if comm.rank == 0 else 0
+    return [f"atlas: {len(atlas.scenarios) if comm.rank == 0 else 0} modes ({family_count} drain/pose "
+            f"scenarios, {len(atlas.scenarios) - family_count if comm.rank == 0 else 0} swelling) of "
+            f"'{scene.name}' in {seconds['modes_s']:.1f} s after a {seconds['setup_s']:.1f} s setup; wrote "
+            f"{out}/atlas.h5 and atlas.json"]
+
+
+def build(scene, vary: dict, comm, source: str = "", sets=()) -> tuple[store.Atlas | None, dict]:
+    """The atlas of a quasi-static scene (on rank 0; None elsewhere) and its timings."""
+    from ..fit.forward import ForwardModel
+    from .vertices import GlobalVertices
+
+    start = time.perf_counter()
+    swelling = swelling_modes(scene, vary)
+    solved = scene
+    if not scene.swelling:  # the whole body, held at no change in the family's modes
+        solved = dataclasses.replace(solved, swelling=(Swelling(volume_change=swelling[0].mode, where=WHOLE_BODY),))
+    forward = ForwardModel(solved, comm)
+    model = forward.model
+    regions = model.growth.regions
+    t_end = scene.time.end
+    priors = [float(r.at(t_end)) for r in scene.swelling] if scene.swelling else [0.0]
+    vertices = GlobalVertices(model.mesh)
+    fine = forward._fine_surface()
+    heights = forward.heights()
+    grid = family(scene, vary, heights)
+    if not any(k in vary for k in ("fluid.level",)) and "fluid.level" in grid[0]:
+        grid = clip_levels(grid, heights)
+    setup_s = time.perf_counter() - start
+
+    def set_swelling(changes):
+        for i, value in enumerate(changes):
+            regions[i] = (regions[i][0], lambda t, v=value: v)
+
+    def state():
+        return vertices.values(forward.sim.u)
+
+    start = time.perf_counter()
+    free, scenarios = [], []
+    set_swelling(priors)
+    for i, values in enumerate(grid):
+        forward.solve(values)
+        free.append(state())
+        scenarios.append({"kind": "family", "values": values})
+        log.info("atlas: mode %d of %d %s", i + 1, len(grid), values)
+    prior_values = {}  # the scene's own scenario: its final level, its pose
+    if scene.fluid is not None and scene.fluid.volume is None and scene.fluid.level:
+        prior_values["fluid.level"] = float(scene.fluid.level(t_end))
+    forward.solve(prior_values)
+    prior_free = state()
+    swollen = []
+    for k, mode in enumerate(swelling):  # each region's perturbation, at the scene's scenario
+        changes = list(priors)
+        changes[k] = mode.mode
+        set_swelling(changes)
+        forward.solve(prior_values)
+        swollen.append(state())
+        scenarios.append({"kind": "swelling", "region": mode.name, "index": mode.index, "prior": mode.prior,
+                          "step": mode.mode - mode.prior, "lower": mode.lower, "upper": mode.upper})
+    set_swelling(priors)
+    family_modes, prior_vertex, swollen_modes = free, prior_free, swollen
+    vertex_modes = list(family_modes)
+    if comm.rank == 0:
+        vertex_modes += [v - prior_vertex for v in swollen_modes]
+    modes_s = time.perf_counter() - start
+    solves = forward.solves
+    fine_points = None if fine is None else (fine.points, fine.triangles)
+    forward.destroy()
+    seconds = {"setup_s": setup_s, "modes_s": modes_s}
+    if comm.rank != 0:
+        return None, seconds
+    U = np.array(vertex_modes)  # (M, N, 3)
+    flat = U.reshape(len(U), -1)
+    n = len(vertices.points)
+    atlas = store.Atlas(vertices.points, vertices.tetrahedra, U, prior_vertex, flat @ flat.T / n,
+                        flat @ prior_vertex.ravel() / n, float(prior_vertex.ravel() @ prior_vertex.ravel() / n),
+                        scenarios)
+    if fine_points is not None:  # the fine surface follows the vertices as in a run (P1: barycentric)
+        atlas.surface_points, atlas.surface_triangles = fine_points
+        index, weight, _ = MeshLocator(atlas.points, atlas.tetrahedra).weights(fine_points[0])
+        atlas.surface_modes = np.array([np.einsum("nj,njd->nd", weight, u[index]) for u in U])
+        atlas.prior_surface = np.einsum("nj,njd->nd", weight, prior_vertex[index])
+    atlas.info = {"scene": str(source), "set": list(sets), "scene_name": scene.name, "ranks": comm.size,
+                  "dolfinx_version": compat.DOLFINX_VERSION, "material": scene.material.model,
+                  "gravity": [float(c) for c in scene.gravity.vector], "prior": prior_values,
+                  "probes": {k: [float(c) for c in v] for k, v in scene.probes.items()},
+                  "frame": "RAS" if scene.mesh.file and formats.is_label_volume(scene.mesh.file) else None,
+                  "settled_states": solves,
+                  **{k: round(v, 3) for k, v in seconds.items()}}
+    return atlas, seconds

@@ -1,0 +1,68 @@
+"""The rows of the update's least-squares problem: what each measurement says about the weights c of the modes (u(c) = sum_k c_k U_k, linear in c).
+
+- point to point: the predicted intra-operative position of a pre-operative point X is
+  X + u(c)(X), u interpolated in X's tetrahedron: three rows A c = y - X, exact;
+- point to surface: the signed distance of a measured point y to the moved surface, linearised
+  about the current weights at y's nearest point q (barycentric beta in its triangle, outward
+  normal n): d(c) = d(c0) - n . (u_q(c) - u_q(c0)), one row; the nearest points are found
+  again from the new weights (iterated closest point, update.py).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import InputError
+from .locate import MeshLocator, SurfaceLocator
+
+OUTSIDE_CELLS = 2.0  # a pre-operative point farther than this many cells outside the body is refused
+
+
+class PointRows:
+    """Point-pair rows: the pre-operative points located once in the atlas's mesh."""
+
+    def __init__(self, locator: MeshLocator, pre: np.ndarray, measured: np.ndarray, labels):
+        self.index, self.weight, outside = locator.weights(pre)
+        far = np.flatnonzero(outside > OUTSIDE_CELLS * locator.cell_size)
+        if len(far):
+            names = ", ".join(labels[i] for i in far[:5])
+            raise InputError(f"--pre: {len(far)} point(s) ({names}) lie outside the atlas's body, farther than "
+                             f"{OUTSIDE_CELLS:g} cells from it: a frame or unit slip (RAS or LPS, mm)? or points "
+                             f"not on the brain")
+        self.pre, self.measured = pre, measured
+
+    def at(self, field: np.ndarray) -> np.ndarray:
+        """A vertex field (N, 3) or the modes (M, N, 3) at the points: (n, 3) or (M, n, 3)."""
+        return np.einsum("nj,...njd->...nd", self.weight, field[..., self.index, :])
+
+    def rows(self, modes: np.ndarray):
+        """(A (3n, M), b (3n,), groups (3n,)): A c - b is the error of the predicted positions."""
+        at = self.at(modes)  # (M, n, 3)
+        n = len(self.pre)
+        return at.reshape(len(modes), -1).T, (self.measured - self.pre).ravel(), np.repeat(np.arange(n), 3)
+
+    def errors(self, field: np.ndarray) -> np.ndarray:
+        """(n,) distance of the predicted positions under a displacement field from the measured."""
+        return np.linalg.norm(self.pre + self.at(field) - self.measured, axis=1)
+
+
+class SurfaceRows:
+    """Point-to-surface rows against a triangulated surface that the modes move."""
+
+    def __init__(self, points: np.ndarray, triangles: np.ndarray, modes: np.ndarray):
+        self.points, self.triangles, self.modes = points, np.asarray(triangles), modes  # modes (M, S, 3)
+        self.locator = SurfaceLocator(points, self.triangles)
+
+    def moved(self, c: np.ndarray) -> np.ndarray:
+        return self.points + np.tensordot(c, self.modes, axes=1)
+
+    def distances(self, displacement: np.ndarray, measured: np.ndarray) -> np.ndarray:
+        """Signed distances (+ outside) of points to the surface moved by a displacement (S, 3)."""
+        return self.locator.nearest(self.points + displacement, measured)[3]
+
+    def rows(self, c: np.ndarray, measured: np.ndarray):
+        """(A (n, M), b (n,), groups, signed distances (n,) at c)."""
+        triangle, bary, normal, distance = self.locator.nearest(self.moved(c), measured)
+        corners = self.triangles[triangle]  # (n, 3)
+        at = np.einsum("nj,mnjd->nmd", bary, self.modes[:, corners, :])  # u_q per unit weight (n, M, 3)
+        A = np.einsum("nmd,nd->nm", at, normal)
+        return A, distance + A @ c, np.arange(len(measured)), distance

@@ -1,0 +1,130 @@
+"""An atlas on disk: ATLAS/atlas.h5 (the arrays) and ATLAS/atlas.json (the index a person
+reads: the scene, the scenarios, the timings). Written by rank 0 through temporary files
+renamed into place, so a killed build leaves no atlas that looks whole.
+
+atlas.h5:
+  mesh/points (N, 3) m, mesh/tetrahedra (C, 4), mesh/surface_vertices (B,)
+  modes/vertex (M, N, 3) float32, modes/surface (M, S, 3) float32: the settled states of the
+      family (first) and the swelling perturbation modes (last), m
+  prior/vertex (N, 3), prior/surface (S, 3): the scene's own settled state
+  regulariser/gram (M, M), regulariser/cross (M,), regulariser/prior_square: the mean over
+      the vertices of |sum c_k u_k - u_prior|^2 = c.G.c - 2 c.h + p (m^2)
+  surface/points (S, 3), surface/triangles: the fine surface (absent: the mesh's boundary)
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+
+FORMAT = 1
+
+
+@dataclass
+class Atlas:
+    points: np.ndarray
+    tetrahedra: np.ndarray
+    vertex_modes: np.ndarray  # (M, N, 3)
+    prior_vertex: np.ndarray
+    gram: np.ndarray
+    cross: np.ndarray
+    prior_square: float
+    scenarios: list[dict]  # per mode: {"kind": "family", "values": {...}} or {"kind": "swelling", ...}
+    surface_points: np.ndarray | None = None
+    surface_triangles: np.ndarray | None = None
+    surface_modes: np.ndarray | None = None
+    prior_surface: np.ndarray | None = None
+    info: dict = field(default_factory=dict)  # the rest of atlas.json
+
+    @property
+    def family(self) -> np.ndarray:
+        return np.array([s["kind"] == "family" for s in self.scenarios])
+
+    @property
+    def surface_vertices(self) -> np.ndarray:
+        return boundary_vertices(self.tetrahedra)
+
+    def mesh_id(self) -> str:
+        return mesh_id(self.points, self.tetrahedra)
+
+
+def boundary_vertices(tetrahedra: np.ndarray) -> np.ndarray:
+    """The vertices on a mesh's boundary (of faces of one tetrahedron)."""
+    faces = np.sort(tetrahedra[:, [[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]]].reshape(-1, 3), axis=1)
+    unique, counts = np.unique(faces, axis=0, return_counts=True)
+    return np.unique(unique[counts == 1])
+
+
+def mesh_id(points: np.ndarray, tetrahedra: np.ndarray) -> str:
+    digest = hashlib.sha256(np.ascontiguousarray(points, dtype=np.float64).tobytes())
+    digest.update(np.ascontiguousarray(tetrahedra, dtype=np.int64).tobytes())
+    return digest.hexdigest()[:16]
+
+
+def write(folder: Path, atlas: Atlas) -> None:
+    import h5py
+
+    folder.mkdir(parents=True, exist_ok=True)
+    h5, index = folder / "atlas.h5", folder / "atlas.json"
+    tmp = folder / ".atlas.h5.tmp"
+    with h5py.File(tmp, "w") as f:
+        f.attrs["format"] = FORMAT
+        f.attrs["mesh_id"] = atlas.mesh_id()
+        f["mesh/points"], f["mesh/tetrahedra"] = atlas.points, atlas.tetrahedra
+        f.create_dataset("modes/vertex", data=atlas.vertex_modes.astype(np.float32))
+        f["prior/vertex"] = atlas.prior_vertex
+        f["regulariser/gram"], f["regulariser/cross"] = atlas.gram, atlas.cross
+        f["regulariser"].attrs["prior_square"] = atlas.prior_square
+        if atlas.surface_points is not None:
+            f["surface/points"], f["surface/triangles"] = atlas.surface_points, atlas.surface_triangles
+            f.create_dataset("modes/surface", data=atlas.surface_modes.astype(np.float32))
+            f["prior/surface"] = atlas.prior_surface
+    info = {"format": FORMAT, "mesh_id": atlas.mesh_id(), "modes": len(atlas.scenarios),
+            "nodes": len(atlas.points), "cells": len(atlas.tetrahedra), **atlas.info, "scenarios": atlas.scenarios}
+    tmp_index = folder / ".atlas.json.tmp"
+    tmp_index.write_text(json.dumps(info, indent=1) + "\n")
+    os.replace(tmp, h5)
+    os.replace(tmp_index, index)
+
+
+def read(folder: str | Path) -> Atlas:
+    """The atlas in a folder; one-line InputErrors for a folder that holds none, a damaged
+    file, or an index and arrays of two different builds."""
+    import h5py
+
+    folder = Path(folder)
+    h5, index = folder / "atlas.h5", folder / "atlas.json"
+    if not h5.is_file() or not index.is_file():
+        raise InputError(f"ATLAS: '{folder}' holds no atlas (atlas.h5 and atlas.json); build one with "
+                         f"brainshift atlas SCENE -o {folder}")
+    try:
+        info = json.loads(index.read_text())
+        with h5py.File(h5, "r") as f:
+            if int(f.attrs["format"]) != FORMAT:
+                raise InputError(f"ATLAS: '{h5}' is of format {int(f.attrs['format'])}, this brainshift reads "
+                                 f"{FORMAT}: build it again")
+            stored_id = str(f.attrs["mesh_id"])
+            atlas = Atlas(f["mesh/points"][...], f["mesh/tetrahedra"][...], f["modes/vertex"][...],
+                          f["prior/vertex"][...], f["regulariser/gram"][...], f["regulariser/cross"][...],
+                          float(f["regulariser"].attrs["prior_square"]), info["scenarios"])
+            if "surface" in f:
+                atlas.surface_points, atlas.surface_triangles = f["surface/points"][...], f["surface/triangles"][...]
+                atlas.surface_modes, atlas.prior_surface = f["modes/surface"][...], f["prior/surface"][...]
+    except InputError:
+        raise
+    except Exception as exc:  # a truncated or foreign file (h5py, JSON, a missing dataset)
+        raise InputError(f"ATLAS: '{folder}' cannot be read ({type(exc).__name__}: {exc}); build it again") from None
+    atlas.info = {k: v for k, v in info.items() if k != "scenarios"}
+    if info.get("mesh_id") != stored_id or atlas.mesh_id() != stored_id:
+        raise InputError(f"ATLAS: atlas.json and atlas.h5 in '{folder}' are of different meshes (an atlas copied over "
+                         f"another?); build it again")
+    if len(atlas.scenarios) != len(atlas.vertex_modes) or atlas.vertex_modes.shape[1] != len(atlas.points):
+        raise InputError(f"ATLAS: '{folder}': atlas.json names {len(atlas.scenarios)} modes, atlas.h5 holds "
+                         f"{len(atlas.vertex_modes)} over {atlas.vertex_modes.shape[1]} nodes; build it again")
+    return atlas

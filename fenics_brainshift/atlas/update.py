@@ -1,0 +1,186 @@
+"""The update: the weights of the atlas's modes that best explain what was measured once the
+dura is open, and the displacement they make (combine.py says the problem; rows.py its rows).
+
+Order of the work, each step on the last one's weights:
+1. the residuals of the scene's own prediction (the prior), and the weights whose combination
+   is nearest to it (where the fit starts);
+2. the rows of the data there, alpha by cross-validation over the points, the fit;
+3. point to surface: the nearest points found again on the moved surface and the fit made
+   again (iterated closest point) until the weights stand still (ROUNDS at most);
+4. the leave-one-out error at each point and a bootstrap over the points: the per-node spread
+   of the displacement.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import InputError
+from .combine import Problem, bootstrap, choose_alpha, leave_one_out, weight_constraints
+from .locate import MeshLocator
+from .rows import PointRows, SurfaceRows
+
+MIN_POINT_PAIRS = 3
+MIN_SURFACE_POINTS = 5
+ROUNDS = 4  # of nearest points (point to surface)
+FAR_FROM_PREDICTION = 0.25  # of the body's diagonal: the median prior residual of another frame
+UNEXPLAINED = 10.0  # residual RMS over the stated noise: the atlas does not explain the data
+
+
+@dataclass
+class UpdateResult:
+    weights: np.ndarray
+    alpha: float
+    curve: list[dict]
+    prior_residual: np.ndarray  # (points,) m, the scene's own prediction
+    residual: np.ndarray  # (points,) m, updated
+    leave_one_out: np.ndarray  # (points,) m
+    displacement: np.ndarray  # (N, 3) m at the atlas's nodes
+    surface_displacement: np.ndarray | None  # (S, 3) m at the fine surface's vertices
+    spread: np.ndarray  # (N,) m: the bootstrap's standard deviation of |u| per node
+    seconds: dict = field(default_factory=dict)
+    warning: str | None = None
+
+    def volume_changes(self, atlas) -> dict[str, float]:
+        """Each swelling region's fitted volume change."""
+        return {s["region"]: s["prior"] + float(c) * s["step"]
+                for s, c in zip(atlas.scenarios, self.weights) if s["kind"] == "swelling"}
+
+    def family_weights(self, atlas, smallest: float = 1e-3) -> list[dict]:
+        """The family's scenarios with a weight above `smallest`, largest first."""
+        out = [{"weight": float(c), **s["values"]} for s, c in zip(atlas.scenarios, self.weights)
+               if s["kind"] == "family" and c > smallest]
+        return sorted(out, key=lambda s: -s["weight"])
+
+
+def bounds(atlas) -> tuple[np.ndarray, np.ndarray]:
+    """The amplitude bounds of the swelling modes (their coefficient: (theta - prior) / step)."""
+    m = len(atlas.scenarios)
+    lower, upper = np.zeros(m), np.zeros(m)
+    for k, s in enumerate(atlas.scenarios):
+        if s["kind"] == "swelling":
+            a, b = (s["lower"] - s["prior"]) / s["step"], (s["upper"] - s["prior"]) / s["step"]
+            lower[k], upper[k] = min(a, b), max(a, b)
+    return lower, upper
+
+
+def prior_weights(atlas) -> np.ndarray:
+    """The weights whose combination is nearest the scene's own prediction (least squares
+    over the nodes, within the constraints): where the update starts."""
+    from .combine import least_distance
+
+    lower, upper = bounds(atlas)
+    C, d = weight_constraints(atlas.family, lower, upper)
+    H = atlas.gram.copy()
+    H[np.diag_indices_from(H)] += 1e-9 * np.trace(H) / len(H)
+    return least_distance(H, atlas.cross, C, d)
+
+
+def update(atlas, target, noise: float, samples: int = 30) -> UpdateResult:
+    """The update of an atlas (store.Atlas) to a target (fit.targets.Target), noise in m."""
+    start = time.perf_counter()
+    n_points = len(target.measured)
+    point_to_point = target.pre is not None
+    need = MIN_POINT_PAIRS if point_to_point else MIN_SURFACE_POINTS
+    if n_points < need:
+        raise InputError(f"--target: {n_points} point(s) are too few for the update: give at least {need} "
+                         f"{'point pairs' if point_to_point else 'points on the surface'}")
+    modes = atlas.vertex_modes.astype(np.float64)
+    lower, upper = bounds(atlas)
+    C0, d0 = weight_constraints(atlas.family, lower, upper)
+    if point_to_point:
+        pairs = PointRows(MeshLocator(atlas.points, atlas.tetrahedra), target.pre, target.measured, target.labels)
+        fixed_rows = pairs.rows(modes)
+        prior_residual = pairs.errors(atlas.prior_vertex)
+    else:
+        surface = _surface(atlas, modes)
+        prior_residual = np.abs(surface.distances(_prior_surface(atlas), target.measured))
+    _check_near(atlas, prior_residual, point_to_point)
+
+    def data_rows(c):
+        return fixed_rows if point_to_point else surface.rows(c, target.measured)[:3]
+
+    c = prior_weights(atlas)
+    alpha, curve, cv_s = None, [], 0.0
+    setup_s = time.perf_counter() - start
+    for _ in range(ROUNDS):
+        problem = Problem(*data_rows(c), noise, atlas.gram, atlas.cross, C0, d0)
+        if alpha is None:  # alpha once, at the first rows (the nearest points change little after)
+            t = time.perf_counter()
+            alpha, curve = choose_alpha(problem)
+            cv_s = time.perf_counter() - t
+        c_new = problem.solve(alpha)
+        change, c = float(np.abs(c_new - c).max()), c_new
+        if point_to_point or change < 1e-6:
+            break
+    fit_s = time.perf_counter() - start - setup_s - cv_s
+    if point_to_point:
+        residual = problem.misfit(c)
+    else:
+        residual = np.abs(surface.rows(c, target.measured)[3])
+    t = time.perf_counter()
+    loo = leave_one_out(problem, alpha)
+    sampled = bootstrap(problem, alpha, samples) if samples else np.zeros((0, len(c)))
+    u = np.tensordot(c, modes, axes=1)
+    spread = np.zeros(len(u))
+    if len(sampled):
+        fields = np.tensordot(sampled, modes, axes=1)  # (B, N, 3)
+        spread = np.sqrt(np.mean(np.sum((fields - fields.mean(axis=0)) ** 2, axis=2), axis=0))
+    spread_s = time.perf_counter() - t
+    surface_u = None if atlas.surface_modes is None else np.tensordot(c, atlas.surface_modes.astype(np.float64), axes=1)
+    warning = _warning(residual, noise)
+    seconds = {"setup_ms": setup_s * 1e3, "fit_ms": fit_s * 1e3, "cross_validation_ms": cv_s * 1e3,
+               "leave_one_out_and_bootstrap_ms": spread_s * 1e3, "total_ms": (time.perf_counter() - start) * 1e3}
+    return UpdateResult(c, alpha, curve, prior_residual, residual, loo, u, surface_u, spread, seconds, warning)
+
+
+def _surface(atlas, modes: np.ndarray) -> SurfaceRows:
+    """The surface points are measured against: the fine surface, else the mesh's boundary."""
+    if atlas.surface_points is not None:
+        return SurfaceRows(atlas.surface_points, atlas.surface_triangles, atlas.surface_modes.astype(np.float64))
+    vertices, triangles = boundary_triangles(atlas.points, atlas.tetrahedra)
+    return SurfaceRows(atlas.points[vertices], triangles, modes[:, vertices, :])
+
+
+def _prior_surface(atlas) -> np.ndarray:
+    if atlas.surface_points is not None:
+        return atlas.prior_surface
+    return atlas.prior_vertex[boundary_triangles(atlas.points, atlas.tetrahedra)[0]]
+
+
+def boundary_triangles(points: np.ndarray, tetrahedra: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices, triangles over them) of the mesh's boundary, each triangle ordered so that
+    its normal points out of its tetrahedron."""
+    faces = tetrahedra[:, [[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]]].reshape(-1, 3)
+    key = np.sort(faces, axis=1)
+    _, first, counts = np.unique(key, axis=0, return_index=True, return_counts=True)
+    faces = faces[first[counts == 1]]
+    opposite = tetrahedra[np.repeat(np.arange(len(tetrahedra)), 4)[first[counts == 1]],
+                          np.tile(np.arange(4), len(tetrahedra))[first[counts == 1]]]
+    a, b, c = (points[faces[:, i]] for i in range(3))
+    inward = np.einsum("ni,ni->n", np.cross(b - a, c - a), points[opposite] - a) > 0
+    faces[inward] = faces[inward][:, [0, 2, 1]]
+    vertices, triangles = np.unique(faces, return_inverse=True)
+    return vertices, triangles.reshape(-1, 3)
+
+
+def _check_near(atlas, prior_residual: np.ndarray, point_to_point: bool) -> None:
+    """Half the points farther from the prediction than a quarter of the body: another frame."""
+    body = float(np.linalg.norm(np.ptp(atlas.points, axis=0)))
+    median = float(np.median(prior_residual))
+    if median > FAR_FROM_PREDICTION * body:
+        what = "where --pre's points are predicted" if point_to_point else "the predicted brain surface"
+        raise InputError(f"--target: half the points lie more than {median * 1e3:.3g} mm from {what} (the body is "
+                         f"{body * 1e3:.3g} mm across): a frame or unit slip (RAS or LPS, mm; --frame for a CSV or "
+                         f"an untagged surface), or points of another body")
+
+
+def _warning(residual: np.ndarray, noise: float) -> str | None:
+    rms = float(np.sqrt(np.mean(residual ** 2)))
+    if rms > UNEXPLAINED * noise:
+        return (f"the atlas does not explain the data: the updated residual RMS {rms * 1e3:.3g} mm is "
+                f"{rms / noise:.0f}x the stated noise ({noise * 1e3:g} mm); a frame or unit slip, points "
+                f"mismatched between --pre and --target, or an operation outside the atlas (build it wider)")
+    return None

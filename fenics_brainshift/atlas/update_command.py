@@ -1,0 +1,159 @@
+"""`brainshift update ATLAS --target T --out OUT`: the update, written as a run folder that
+`brainshift warp` takes (displacement.xdmf with the per-node uncertainty beside it, the moved
+fine surface, the probes and the measured markups moved), and OUT/update.json."""
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..outputs.files import RunLock, clear_run, write_json
+from ..outputs.files import check_writable
+from . import store
+from .update import update
+
+
+def update_command(args, comm) -> list[str]:
+    """`brainshift update` (arguments: arguments.py); returns the report's lines."""
+    from ..fit.targets import read_target
+
+    start = time.perf_counter()
+    out = Path(args.out)
+    check_writable(out, comm)
+    if not 0 < args.noise < float("inf"):
+        raise InputError(f"--noise must be a finite number of mm > 0 (got {args.noise:g})")
+    if not 0 <= args.bootstrap <= 1000:
+        raise InputError(f"--bootstrap: the number of resamplings, 0 to 1000 (got {args.bootstrap})")
+    image = None
+    if args.image is not None:
+        from ..images.volumes import read_volume
+
+        image = read_volume(args.image, "update: --image")
+    atlas = store.read(args.atlas)  # every rank: the update is small, each computes it, rank 0 writes
+    target = read_target(args.target, args.pre, args.frame)
+    result = update(atlas, target, args.noise * 1e-3, args.bootstrap)
+    if comm.rank == 0:
+        out.mkdir(parents=True, exist_ok=True)
+    comm.barrier()
+    lock = RunLock(out, comm)
+    try:
+        clear_run(out, comm, atlas.info.get("scene_name", "atlas"))
+        for name in ("update.json", "uncertainty.nii.gz", "targets_updated.mrk.json"):
+            if comm.rank == 0 and (out / name).is_file():
+                (out / name).unlink()
+        if comm.rank == 0:
+            _write_outputs(out, atlas, target, result, image)
+        comm.barrier()
+        report = _report(atlas, target, result, args, time.perf_counter() - start)
+        write_json(out / "update.json", report, comm)
+        write_json(out / "summary.json", {"scene": atlas.info.get("scene_name"), "status": "ok",
+                                          "kind": "update", "atlas": str(Path(args.atlas).resolve()),
+                                          "warning": result.warning}, comm)
+    finally:
+        lock.release()
+    return _lines(atlas, target, result, out, image is not None)
+
+
+def _write_outputs(out: Path, atlas, target, result, image) -> None:
+    import meshio
+
+    from ..images.frames import write_markups
+    from ..outputs.fine_surface import write_slicer_stl
+
+    u, spread = result.displacement, result.spread
+    # meshio writes the .h5 into the working directory, named after the .xdmf: written as
+    # hidden files from inside OUT, then the .h5 and the .xdmf (pointing at it) renamed in
+    here = os.getcwd()
+    os.chdir(out)
+    try:
+        with meshio.xdmf.TimeSeriesWriter(".displacement.xdmf") as writer:
+            writer.write_points_cells(atlas.points, [("tetra", atlas.tetrahedra)])
+            writer.write_data(0.0, point_data={"displacement": u, "uncertainty": spread})
+        text = Path(".displacement.xdmf").read_text().replace(".displacement.h5", "displacement.h5")
+        os.replace(".displacement.h5", "displacement.h5")
+        Path(".displacement.xdmf").write_text(text)
+        os.replace(".displacement.xdmf", "displacement.xdmf")
+    finally:
+        os.chdir(here)
+    if atlas.surface_points is not None:
+        moved = atlas.surface_points + result.surface_displacement
+        meshio.Mesh(moved, [("triangle", atlas.surface_triangles)],
+                    point_data={"displacement": result.surface_displacement}).write(out / "surface_final.vtk")
+        write_slicer_stl(out / "surface_final.stl", moved * 1e3, atlas.surface_triangles)
+    probes = atlas.info.get("probes") or {}
+    if probes:
+        from .locate import MeshLocator
+
+        names = list(probes)
+        points = np.array([probes[k] for k in names])
+        index, weight, _ = MeshLocator(atlas.points, atlas.tetrahedra).weights(points)
+        moved = points + np.einsum("nj,njd->nd", weight, u[index])
+        write_markups(out / "probes_final.mrk.json", names, moved * 1e3)
+    if target.pre is not None:  # the pre-operative points where the update puts them
+        from .locate import MeshLocator
+
+        index, weight, _ = MeshLocator(atlas.points, atlas.tetrahedra).weights(target.pre)
+        write_markups(out / "targets_updated.mrk.json", target.labels,
+                      (target.pre + np.einsum("nj,njd->nd", weight, u[index])) * 1e3)
+    if image is not None:
+        _write_uncertainty(out / "uncertainty.nii.gz", atlas, spread, image)
+
+
+def _write_uncertainty(path: Path, atlas, spread: np.ndarray, image) -> None:
+    """The per-node spread (mm) interpolated on the image's grid inside the pre-operative
+    brain (0 outside), as a NIfTI beside the image for Slicer."""
+    from ..images.rasterize import rasterize
+    from ..images.volumes import write_like
+
+    X = image.ras_to_index(atlas.points * 1e3)
+    voxel, tet, lam = rasterize(X, atlas.tetrahedra, image.data.shape)
+    data = np.zeros(image.data.shape, dtype=np.float32)
+    data.reshape(-1)[voxel] = np.einsum("ni,ni->n", lam, spread[atlas.tetrahedra[tet]]) * 1e3
+    if not len(voxel):
+        raise InputError("update: --image does not overlap the atlas's brain (is it the scene's image, RAS mm?)")
+    write_like(image, data, path)
+
+
+def _report(atlas, target, result, args, seconds: float) -> dict:
+    mm = 1e3
+    return {
+        "atlas": str(Path(args.atlas).resolve()), "mesh_id": atlas.mesh_id(), "target": str(args.target),
+        "kind": target.kind, "points": len(target.measured), "noise_mm": args.noise,
+        "alpha": result.alpha, "cross_validation": result.curve,
+        "prior_residual_rms_mm": float(np.sqrt(np.mean(result.prior_residual ** 2))) * mm,
+        "residual_rms_mm": float(np.sqrt(np.mean(result.residual ** 2))) * mm,
+        "leave_one_out_rms_mm": float(np.sqrt(np.mean(result.leave_one_out ** 2))) * mm,
+        "per_point": [{"label": label, "prior_mm": p * mm, "updated_mm": r * mm, "left_out_mm": o * mm}
+                      for label, p, r, o in zip(target.labels, result.prior_residual, result.residual,
+                                                result.leave_one_out)],
+        "family_weights": result.family_weights(atlas),
+        "volume_changes": result.volume_changes(atlas),
+        "weights": [float(c) for c in result.weights],
+        "bootstrap_samples": args.bootstrap,
+        "uncertainty_mm": {"mean": float(result.spread.mean()) * mm, "max": float(result.spread.max()) * mm},
+        "largest_displacement_mm": float(np.linalg.norm(result.displacement, axis=1).max()) * mm,
+        "timings_ms": result.seconds, "command_s": seconds, "warning": result.warning,
+    }
+
+
+def _lines(atlas, target, result, out: Path, image: bool) -> list[str]:
+    rms = lambda r: float(np.sqrt(np.mean(r ** 2))) * 1e3  # noqa: E731
+    top = ", ".join(f"{s['weight']:.2f} x " + " ".join(f"{k}={v:g}" for k, v in s.items() if k != "weight")
+                    for s in result.family_weights(atlas)[:3])
+    lines = [f"update: {target.kind}, {len(target.measured)} points, {len(result.weights)} modes; residual RMS "
+             f"{rms(result.prior_residual):.2f} mm (scene) -> {rms(result.residual):.2f} mm (updated), "
+             f"left out {rms(result.leave_one_out):.2f} mm; fit {result.seconds['fit_ms']:.0f} ms "
+             f"(alpha {result.alpha:g} by cross-validation)",
+             f"  scenarios: {top or 'none'}"]
+    for name, theta in result.volume_changes(atlas).items():
+        lines.append(f"  swelling {name}: volume change {theta:+.3%}")
+    lines.append(f"  uncertainty (bootstrap): mean {result.spread.mean() * 1e3:.2f} mm, largest "
+                 f"{result.spread.max() * 1e3:.2f} mm")
+    if result.warning:
+        lines.append(f"  WARNING: {result.warning}")
+    lines.append(f"wrote {out}/displacement.xdmf, update.json" + (", uncertainty.nii.gz" if image else "")
+                 + f" (brainshift warp {out} --image PRE -o INTRA.nii.gz)")
+    return lines

@@ -1,0 +1,251 @@
+"""The atlas (brainshift atlas) and the update (brainshift update): each mode is the settled state
+a separately built scene reaches; an operation inside the atlas's span is recovered from 20
+noisy points; the update's run folder is one that warp takes; bad input is one line."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+from conftest import mpirun, subprocess_env
+from fenics_brainshift import load_scene
+from fenics_brainshift.atlas import store
+from fenics_brainshift.atlas.build import build
+from fenics_brainshift.atlas.scenarios import parse_vary
+from fenics_brainshift.atlas.update import update
+from fenics_brainshift.atlas.vertices import GlobalVertices
+from fenics_brainshift.data import scene_path
+from fenics_brainshift.fit.parameters import rotated_gravity
+from fenics_brainshift.fit.targets import Target
+from fenics_brainshift.images import write_markups
+from fenics_brainshift.runner import Simulation
+
+COARSE = ["mesh.voxel=0.01", "time.mode=quasi-static"]
+VARY = ["fluid.level=0.02,0.03,0.04", "gravity.angle_z=-8,0,8"]
+VARY_ARGS = [a for v in VARY for a in ("--vary", v)]
+MASK = Path(__file__).parents[1] / "fenics_brainshift" / "data" / "meshes" / "mni152_brain_mask_2mm.nii.gz"
+
+
+@pytest.fixture(scope="module")
+def atlas():
+    built, _ = build(load_scene("brain", COARSE), parse_vary(VARY), MPI.COMM_WORLD)
+    return built
+
+
+def _settled(scene) -> tuple[np.ndarray, np.ndarray]:
+    sim = Simulation(scene, MPI.COMM_WORLD)
+    sim.setup()
+    sim.solve_to_settled(scene.time.end)
+    vertices = GlobalVertices(sim.model.mesh)
+    u = vertices.values(sim.u)
+    sim.destroy()
+    return vertices.points, u
+
+
+def test_a_mode_is_the_settled_state_of_a_scene_built_with_its_scenario(atlas):
+    """Mode 'level 40 mm, head turned 8 degrees about z' against a scene with that gravity
+    vector and level, built and solved on its own."""
+    k = next(i for i, s in enumerate(atlas.scenarios)
+             if s["kind"] == "family" and s["values"] == {"gravity.angle_z": 8.0, "fluid.level": 0.04})
+    g = rotated_gravity([0.0, -9.81, 0.0], {"gravity.angle_z": 8.0})
+    points, u = _settled(load_scene("brain", COARSE + [f"gravity.vector=[{g[0]}, {g[1]}, {g[2]}]",
+                                                       "fluid.level=0.04"]))
+    assert np.array_equal(points, atlas.points)
+    scale = np.abs(u).max()
+    assert scale > 3e-3  # a real sag, mm
+    assert np.abs(atlas.vertex_modes[k] - u).max() < 1e-5 * scale  # (float32 storage, follower tolerance)
+    assert np.abs(atlas.vertex_modes[k - 1] - u).max() > 0.05 * scale  # another mode is another state
+
+
+def test_the_swelling_mode_is_the_change_a_swollen_scene_makes(atlas, tmp_path):
+    """The whole-brain mode (4 % shrinkage at the scene's own level and pose) against the
+    difference of two scenes solved on their own, one with a [[swelling]] of the whole brain."""
+    text = scene_path("brain").read_text() + '\n[[swelling]]\nvolume_change = -0.04\nwhere = "x > -1"\n'
+    here = scene_path("brain").parent
+    text = text.replace('file = "../', f'file = "{here.parent}/').replace('surface = "../', f'surface = "{here.parent}/')
+    (tmp_path / "shrunk.toml").write_text(text)
+    shrunk = load_scene(tmp_path / "shrunk.toml", COARSE)
+    _, u_shrunk = _settled(shrunk)
+    _, u_prior = _settled(load_scene("brain", COARSE))
+    s = atlas.scenarios[-1]
+    assert s["kind"] == "swelling" and s["step"] == pytest.approx(-0.04)
+    change = u_shrunk - u_prior
+    assert np.abs(change).max() > 1e-3
+    assert np.abs(atlas.vertex_modes[-1] - change).max() < 1e-4 * np.abs(change).max() + 1e-8
+    assert np.abs(atlas.prior_vertex - u_prior).max() < 1e-5 * np.abs(u_prior).max()  # (follower tolerance)
+
+
+def _operation(atlas):
+    """A state inside the span: 0.6 x (pose -8, level 30 mm) + 0.4 x (pose 0, level 40 mm),
+    the whole brain shrunk by 2 % (the swelling mode's coefficient 0.5)."""
+    c = np.zeros(len(atlas.scenarios))
+    c[1], c[5], c[-1] = 0.6, 0.4, 0.5
+    return c, np.tensordot(c, atlas.vertex_modes.astype(float), axes=1)
+
+
+def test_an_operation_inside_the_span_is_recovered_to_the_noise_from_20_cortex_points(atlas):
+    _, truth = _operation(atlas)
+    rng = np.random.default_rng(0)
+    points = atlas.points
+    top = np.flatnonzero(points[:, 1] > np.percentile(points[:, 1], 85))  # the exposed cortex, supine (y up)
+    picked = rng.choice(top, 20, replace=False)
+    noise = 0.5e-3
+    measured = points[picked] + truth[picked] + rng.normal(0.0, noise, (20, 3))
+    result = update(atlas, Target(measured, points[picked], [f"p{i}" for i in range(20)]), noise)
+    error = np.linalg.norm(result.displacement - truth, axis=1)
+    prior_error = np.linalg.norm(atlas.prior_vertex - truth, axis=1)
+    assert prior_error.mean() > 1e-3  # the scene's own prediction is off by a millimetre
+    assert error.mean() < 0.5 * noise and error.max() < 2 * noise  # every node, not only the measured
+    assert result.volume_changes(atlas)["brain"] == pytest.approx(-0.02, abs=0.005)
+    assert np.sqrt(np.mean(result.leave_one_out ** 2)) < 3 * noise
+    assert 0 < result.spread.mean() < noise  # the bootstrap's spread: below the noise of one point
+    assert result.seconds["fit_ms"] < 100
+
+
+def test_points_on_the_moved_cortex_alone_recover_the_state(atlas):
+    """Point to surface: 40 vertices of the moved fine surface, no correspondence given."""
+    c, truth = _operation(atlas)
+    moved = atlas.surface_points + np.tensordot(c, atlas.surface_modes.astype(float), axes=1)
+    rng = np.random.default_rng(1)
+    picked = rng.choice(np.flatnonzero(moved[:, 1] > np.percentile(moved[:, 1], 85)), 40, replace=False)
+    result = update(atlas, Target(moved[picked], None, [f"s{i}" for i in range(40)]), 0.5e-3)
+    assert np.abs(result.residual).max() < 1e-5
+    assert result.prior_residual.mean() > 5e-4
+    assert np.linalg.norm(result.displacement - truth, axis=1).mean() < 0.1e-3
+
+
+def test_an_atlas_survives_its_files_and_refuses_another_mesh(atlas, tmp_path):
+    store.write(tmp_path / "a", atlas)
+    again = store.read(tmp_path / "a")
+    assert np.array_equal(again.points, atlas.points) and again.scenarios == atlas.scenarios
+    assert np.abs(again.vertex_modes - atlas.vertex_modes).max() < 1e-7
+    other = dict(json.loads((tmp_path / "a" / "atlas.json").read_text()), mesh_id="0123456789abcdef")
+    (tmp_path / "a" / "atlas.json").write_text(json.dumps(other))
+    from fenics_brainshift.errors import InputError
+
+    with pytest.raises(InputError, match="different meshes"):
+        store.read(tmp_path / "a")
+
+
+@pytest.fixture(scope="module")
+def atlas_folder(atlas, tmp_path_factory):
+    folder = tmp_path_factory.mktemp("atlas") / "atlas"
+    store.write(folder, atlas)
+    return folder
+
+
+def _markups(folder: Path, atlas, count: int = 20, noise: float = 0.0):
+    _, truth = _operation(atlas)
+    rng = np.random.default_rng(2)
+    top = np.flatnonzero(atlas.points[:, 1] > np.percentile(atlas.points[:, 1], 85))
+    picked = rng.choice(top, count, replace=False)
+    labels = [f"P{i}" for i in range(count)]
+    pre = atlas.points[picked]
+    intra = pre + truth[picked] + rng.normal(0.0, noise, (count, 3))
+    write_markups(folder / "pre.mrk.json", labels, pre * 1e3)
+    write_markups(folder / "intra.mrk.json", labels[::-1], intra[::-1] * 1e3)  # matched by label
+    return pre, intra
+
+
+def test_update_writes_a_run_folder_that_warp_takes(atlas, atlas_folder, tmp_path):
+    from fenics_brainshift.cli import main
+    from fenics_brainshift.images.volumes import read_volume
+
+    pre, intra = _markups(tmp_path, atlas, noise=0.3e-3)
+    out = tmp_path / "upd"
+    assert main(["update", str(atlas_folder), "--target", str(tmp_path / "intra.mrk.json"), "--pre",
+                 str(tmp_path / "pre.mrk.json"), "--noise", "0.3", "--out", str(out), "--image", str(MASK)]) == 0
+    report = json.loads((out / "update.json").read_text())
+    assert report["points"] == 20 and report["kind"] == "point-to-point"
+    assert report["residual_rms_mm"] < 0.6 < report["prior_residual_rms_mm"]
+    assert json.loads((out / "summary.json").read_text())["status"] == "ok"
+    from fenics_brainshift.images.frames import read_markups
+
+    labels, moved = read_markups(out / "targets_updated.mrk.json")
+    order = [int(label[1:]) for label in labels]  # (intra.mrk.json lists them in reverse)
+    assert np.linalg.norm(moved * 1e-3 - intra[order], axis=1).max() < 2e-3
+    spread = read_volume(out / "uncertainty.nii.gz")
+    assert spread.data.max() > 0 and spread.data.shape == read_volume(MASK).data.shape
+    assert main(["warp", str(out), "--image", str(MASK), "-o", str(tmp_path / "intra.nii.gz")]) == 0
+    assert (tmp_path / "intra.nii.gz").is_file()
+
+
+@pytest.mark.parametrize("case, words", [
+    ("no atlas", "holds no atlas"),
+    ("too few", "too few for the update: give at least 3"),
+    ("in metres", "outside the atlas's body"),
+    ("noise", "--noise must be a finite number of mm > 0"),
+    ("bootstrap", "--bootstrap"),
+])
+def test_bad_update_input_is_one_line(atlas, atlas_folder, tmp_path, capsys, case, words):
+    from fenics_brainshift.cli import main
+
+    pre, intra = _markups(tmp_path, atlas)
+    args = ["update", str(atlas_folder), "--target", str(tmp_path / "intra.mrk.json"), "--pre",
+            str(tmp_path / "pre.mrk.json"), "--out", str(tmp_path / "out")]
+    if case == "no atlas":
+        args[1] = str(tmp_path)
+    elif case == "too few":
+        write_markups(tmp_path / "pre.mrk.json", ["P0", "P1"], pre[:2] * 1e3)
+        write_markups(tmp_path / "intra.mrk.json", ["P0", "P1"], intra[:2] * 1e3)
+    elif case == "in metres":  # a slip of units: 1000x too small, every point near the origin
+        write_markups(tmp_path / "pre.mrk.json", [f"P{i}" for i in range(20)], pre * 1e3 + 300.0)
+    elif case == "noise":
+        args += ["--noise", "0"]
+    else:
+        args += ["--bootstrap", "-1"]
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert words in err and len(err.splitlines()) == 1, err
+    assert not (tmp_path / "out" / "update.json").exists()
+
+
+@pytest.mark.parametrize("vary, words", [
+    (["fluid.level"], "give KEY=VALUES"),
+    (["material.E=1,2"], "cannot be varied"),
+    (["fluid.level=20,30"], "levels are in metres"),
+    (["gravity.angle_x=90"], "angles are degrees"),
+    (["swelling.tumour=-0.1,0.1"], "no such region"),
+])
+def test_bad_atlas_input_is_one_line(tmp_path, capsys, vary, words):
+    from fenics_brainshift.cli import main
+
+    argv = ["atlas", "brain", "-o", str(tmp_path / "a"), "--set", "mesh.voxel=0.01",
+            *[a for v in vary for a in ("--vary", v)]]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    errors = [line for line in err.splitlines() if line.startswith("brainshift: error")]  # (beside the log)
+    assert len(errors) == 1 and words in errors[0] and "Traceback" not in err, err
+    assert not (tmp_path / "a" / "atlas.h5").exists()
+
+
+def test_a_scene_with_a_skull_is_refused_not_built_wrong(tmp_path, capsys):
+    from fenics_brainshift.cli import main
+
+    assert main(["atlas", "brain", "-o", str(tmp_path / "a"), "--set", "mesh.voxel=0.01",
+                 "--set", "skull.gap=0.003"]) == 2
+    assert "has a [skull]" in capsys.readouterr().err
+
+
+@pytest.mark.mpi
+def test_an_atlas_built_on_two_ranks_is_the_one_built_on_one(atlas, tmp_path):
+    out = tmp_path / "a2"
+    command = mpirun() + ["-n", "2", sys.executable, "-m", "fenics_brainshift.cli", "atlas", "brain", "-o", str(out),
+                          *VARY_ARGS, *[a for s in COARSE for a in ("--set", s)]]
+    done = subprocess.run(command, capture_output=True, text=True, env=subprocess_env(), timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    two = store.read(out)
+    assert two.info["ranks"] == 2
+    assert np.abs(two.points - atlas.points).max() < 1e-12  # the same vertices in the same order
+
+    def cells(t):  # the set of tetrahedra (a partition orders cells and their corners its own way)
+        t = np.sort(t, axis=1)
+        return t[np.lexsort(t.T[::-1])]
+
+    assert np.array_equal(cells(two.tetrahedra), cells(atlas.tetrahedra))
+    assert np.abs(two.vertex_modes - atlas.vertex_modes).max() < 1e-6 * np.abs(atlas.vertex_modes).max()
