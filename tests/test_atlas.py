@@ -249,3 +249,40 @@ def test_an_atlas_built_on_two_ranks_is_the_one_built_on_one(atlas, tmp_path):
 
     assert np.array_equal(cells(two.tetrahedra), cells(atlas.tetrahedra))
     assert np.abs(two.vertex_modes - atlas.vertex_modes).max() < 1e-6 * np.abs(atlas.vertex_modes).max()
+
+
+def _write_tag(path: Path, pre_mm: np.ndarray, intra_mm: np.ndarray) -> None:
+    """An MNI tag file as the RESECT database ships its MRI-to-ultrasound landmarks."""
+    lines = ["MNI Tag Point File", "Volumes = 2;", "% Volume 1: MRI, volume 2: ultrasound", "", "Points ="]
+    for i, (a, b) in enumerate(zip(pre_mm, intra_mm)):
+        lines.append(" " + " ".join(f"{v:.4f}" for v in (*a, *b)) + f' "{i + 1}"')
+    path.write_text("\n".join(lines) + ";\n")
+
+
+def test_landmark_pairs_of_an_mni_tag_file_update_as_markups_do(atlas, atlas_folder, tmp_path):
+    from fenics_brainshift.fit.targets import read_target
+
+    pre, intra = _markups(tmp_path, atlas, noise=0.3e-3)
+    _write_tag(tmp_path / "pairs.tag", pre * 1e3, intra * 1e3)
+    tag = read_target(tmp_path / "pairs.tag")
+    assert tag.labels[:2] == ["1", "2"]
+    assert np.abs(tag.pre - pre).max() < 1e-7 and np.abs(tag.measured - intra).max() < 1e-7  # (4 decimals of mm)
+    markups = read_target(tmp_path / "intra.mrk.json", tmp_path / "pre.mrk.json")
+    a = update(atlas, tag, 0.3e-3, samples=0)
+    order = np.argsort([int(label[1:]) for label in markups.labels])  # P0.. in reverse in the file
+    b = update(atlas, Target(markups.measured[order], markups.pre[order], sorted(markups.labels)), 0.3e-3, samples=0)
+    assert np.abs(a.displacement - b.displacement).max() < 1e-6
+
+
+@pytest.mark.parametrize("text, words", [
+    ("MNI Tag Point File\nVolumes = 1;\nPoints =\n 1 2 3;\n", "must hold landmark pairs"),
+    ("MNI Tag Point File\nVolumes = 2;\nPoints =\n 1 2 3 4 5 x;\n", "point 1 is not six finite numbers"),
+    ("Tag file\n", "is not an MNI tag file"),
+])
+def test_a_bad_tag_file_is_one_line(tmp_path, text, words):
+    from fenics_brainshift.errors import InputError
+    from fenics_brainshift.fit.targets import read_target
+
+    (tmp_path / "bad.tag").write_text(text)
+    with pytest.raises(InputError, match=words):
+        read_target(tmp_path / "bad.tag")

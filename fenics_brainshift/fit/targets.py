@@ -1,16 +1,19 @@
 """What was measured in the operating room, as points in the scene's frame (RAS, m).
 
 - point to point: the intra-operative positions of points whose pre-operative positions are
-  known: ``--target intra.mrk.json --pre pre.mrk.json`` (matched by label), or a CSV with
-  columns ``x_pre, y_pre, z_pre, x, y, z`` (and optionally ``label``);
+  known: ``--target intra.mrk.json --pre pre.mrk.json`` (matched by label), a CSV with
+  columns ``x_pre, y_pre, z_pre, x, y, z`` (and optionally ``label``), or an MNI tag file of
+  landmark pairs (``.tag``, Volumes = 2: the pre-operative volume's point first, then the
+  intra-operative one's, as the RESECT ultrasound database ships MRI-to-ultrasound pairs);
 - point to surface: positions on the exposed cortex with no correspondence (a tracked pointer,
   a laser scan): ``--target points.mrk.json`` or a CSV with ``x, y, z``, or a surface file
   (.vtk, .stl, .ply, ...: its vertices); the residual is the signed distance to the predicted
   surface of the brain.
 
 Millimetres in every file (what Slicer and trackers write). Frames: a markups file declares its
-own (coordinateSystem), a surface file in its header (SPACE=LPS, as Slicer writes it); a CSV
-file and an untagged surface are in ``--frame`` (default RAS). Everything is turned to RAS.
+own (coordinateSystem), a surface file in its header (SPACE=LPS, as Slicer writes it); a tag
+file is in MINC's world coordinates (RAS); a CSV file and an untagged surface are in
+``--frame`` (default RAS). Everything is turned to RAS.
 """
 from __future__ import annotations
 
@@ -64,8 +67,12 @@ def read_target(target: str | Path, pre: str | Path | None = None, frame: str | 
                              f"label each intra-operative point as its pre-operative one")
         return Target(points * 1e-3, pre_points[[where[label] for label in labels]] * 1e-3, labels)
     if pre is not None:
-        raise InputError("--pre goes with a .mrk.json --target (points matched by label); a CSV target carries "
-                         "x_pre, y_pre, z_pre itself")
+        raise InputError("--pre goes with a .mrk.json --target (points matched by label); a CSV or .tag target "
+                         "carries the pre-operative points itself")
+    if name.endswith(".tag"):
+        if frame is not None:
+            raise InputError("--frame is for a CSV or surface target: a .tag file is in MINC's world frame (RAS)")
+        return _read_tag(target)
     if name.endswith(".csv"):
         return _read_csv(target, frame)
     if formats.is_surface(target):
@@ -76,8 +83,8 @@ def read_target(target: str | Path, pre: str | Path | None = None, frame: str | 
         if len(points) > MAX_SURFACE_POINTS:
             points = points[np.linspace(0, len(points) - 1, MAX_SURFACE_POINTS).astype(int)]
         return Target(points, None, [f"s{i}" for i in range(len(points))])
-    raise InputError(f"--target: '{target.name}': use a Slicer point list (.mrk.json), a CSV (x, y, z in mm) or a "
-                     f"surface ({', '.join(formats.SURFACE_SUFFIXES)})")
+    raise InputError(f"--target: '{target.name}': use a Slicer point list (.mrk.json), a CSV (x, y, z in mm), an "
+                     f"MNI .tag of landmark pairs or a surface ({', '.join(formats.SURFACE_SUFFIXES)})")
 
 
 def _read_csv(path: Path, frame: str | None) -> Target:
@@ -110,3 +117,38 @@ def _read_csv(path: Path, frame: str | None) -> Target:
     pre = values[:, 3:] if len(keys) == 6 else None
     labels = [r.get("label") or f"p{i + 1}" for i, r in enumerate(rows)]
     return Target(measured * 1e-3, None if pre is None else pre * 1e-3, labels)
+
+
+def _read_tag(path: Path) -> Target:
+    """An MNI tag file of landmark pairs: a header line "MNI Tag Point File", "Volumes = 2;",
+    then after "Points =" one line per pair: x1 y1 z1 x2 y2 z2 (mm), optionally a weight, a
+    structure id, a patient id and a quoted label; the last ends with ";"."""
+    text = path.read_text(errors="replace")
+    if not text.lstrip().startswith("MNI Tag Point File"):
+        raise InputError(f"--target: '{path.name}' is not an MNI tag file (its first line must be 'MNI Tag Point File')")
+    head, sep, body = text.partition("Points =")
+    volumes = [line.split("=", 1)[1].strip(" ;") for line in head.splitlines() if line.strip().startswith("Volumes")]
+    if not sep or volumes != ["2"]:
+        raise InputError(f"--target: '{path.name}' must hold landmark pairs (Volumes = 2; then Points =), it has "
+                         f"{'Volumes = ' + volumes[0] if volumes else 'no Volumes line'}")
+    pre, measured, labels = [], [], []
+    for line in body.replace(";", "\n").splitlines():
+        label = line.split('"')[1] if line.count('"') >= 2 else None
+        fields = line.split('"')[0].split()
+        if not fields:
+            continue
+        try:
+            values = [float(v) for v in fields[:6]]
+        except ValueError:
+            values = []
+        if len(values) < 6 or not np.all(np.isfinite(values)):
+            raise InputError(f"--target: '{path.name}': point {len(pre) + 1} is not six finite numbers "
+                             f"(x1 y1 z1 x2 y2 z2 mm): {line.strip()[:60]!r}")
+        pre.append(values[:3])
+        measured.append(values[3:6])
+        labels.append(label or str(len(pre)))
+    if not pre:
+        raise InputError(f"--target: '{path.name}' holds no points after 'Points ='")
+    if len(set(labels)) != len(labels):
+        labels = [f"{label}#{i + 1}" for i, label in enumerate(labels)]
+    return Target(np.array(measured) * 1e-3, np.array(pre) * 1e-3, labels)
