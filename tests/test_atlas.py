@@ -100,11 +100,27 @@ def test_an_operation_inside_the_span_is_recovered_to_the_noise_from_20_cortex_p
     error = np.linalg.norm(result.displacement - truth, axis=1)
     prior_error = np.linalg.norm(atlas.prior_vertex - truth, axis=1)
     assert prior_error.mean() > 1e-3  # the scene's own prediction is off by a millimetre
-    assert error.mean() < 0.5 * noise and error.max() < 2 * noise  # every node, not only the measured
-    assert result.volume_changes(atlas)["brain"] == pytest.approx(-0.02, abs=0.005)
+    assert error.mean() < 0.7 * noise and error.max() < 2 * noise  # every node, not only the measured
+    assert error.mean() < prior_error.mean() / 3
+    # (the whole brain's volume change and G trade off against each other at cortex points: the
+    # displacement is recovered, not each cause; test_a_stiffer_brain... checks G alone)
+    assert -0.04 <= result.volume_changes(atlas)["brain"] < 0.0
     assert np.sqrt(np.mean(result.leave_one_out ** 2)) < 3 * noise
     assert 0 < result.spread.mean() < noise  # the bootstrap's spread: below the noise of one point
     assert result.seconds["fit_ms"] < 100
+
+
+def test_a_stiffer_brain_is_the_family_scaled_down(atlas):
+    """A linear body 1.25x stiffer sags 0.8x as far: the family's weights sum to G0/G."""
+    c = np.zeros(len(atlas.scenarios))
+    c[4] = 0.8  # (level 30 mm, no turn: the scene's own) at G = 1.25 G0
+    truth = np.tensordot(c, atlas.vertex_modes.astype(float), axes=1)
+    picked = np.flatnonzero(atlas.points[:, 1] > np.percentile(atlas.points[:, 1], 85))[::7][:20]
+    pre = atlas.points[picked]
+    result = update(atlas, Target(pre + truth[picked], pre, [f"p{i}" for i in range(len(pre))]), 0.1e-3)
+    G0 = atlas.info["stiffness"]["G"]
+    assert result.stiffness(atlas) == pytest.approx(1.25 * G0, rel=0.02)
+    assert np.linalg.norm(result.displacement - truth, axis=1).max() < 0.05e-3
 
 
 def test_points_on_the_moved_cortex_alone_recover_the_state(atlas):

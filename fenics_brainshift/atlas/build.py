@@ -23,7 +23,7 @@ from ..scene import load_scene
 from ..scene.body import Swelling
 from . import store
 from .locate import MeshLocator
-from .scenarios import clip_levels, family, parse_vary, swelling_modes
+from .scenarios import clip_levels, family, parse_vary, stiffness, swelling_modes
 
 log = get_logger(__name__)
 WHOLE_BODY = "x > -1e6"  # the whole-brain region of a scene without [[swelling]]
@@ -59,6 +59,7 @@ def build(scene, vary: dict, comm, source: str = "", sets=()) -> tuple[store.Atl
 
     start = time.perf_counter()
     swelling = swelling_modes(scene, vary)
+    stiff = stiffness(scene, vary)
     solved = scene
     if not scene.swelling:  # the whole body, held at no change in the family's modes
         solved = dataclasses.replace(solved, swelling=(Swelling(volume_change=swelling[0].mode, where=WHOLE_BODY),))
@@ -130,6 +131,7 @@ def build(scene, vary: dict, comm, source: str = "", sets=()) -> tuple[store.Atl
     atlas.info = {"scene": str(source), "set": list(sets), "scene_name": scene.name, "ranks": comm.size,
                   "dolfinx_version": compat.DOLFINX_VERSION, "material": scene.material.model,
                   "gravity": [float(c) for c in scene.gravity.vector], "prior": prior_values,
+                  "stiffness": stiff,
                   "probes": {k: [float(c) for c in v] for k, v in scene.probes.items()},
                   "frame": "RAS" if scene.mesh.file and formats.is_label_volume(scene.mesh.file) else None,
                   "settled_states": solves,

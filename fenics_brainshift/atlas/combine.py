@@ -121,17 +121,19 @@ def bootstrap(problem: Problem, alpha: float, samples: int, seed: int = 1) -> np
     return np.array(out)
 
 
-def weight_constraints(family: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """C c >= d for: the family's weights >= 0 and summing to 1 (two rows), the other
-    coefficients within [lower, upper] (entries of those arrays at the family's are unused)."""
+def weight_constraints(family: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+                       total: tuple[float, float] = (1.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
+    """C c >= d for: the family's weights >= 0, their sum within `total` (1: a convex
+    combination; G0/G for a stiffness G: u is proportional to 1/G), the other coefficients
+    within [lower, upper] (entries of those arrays at the family's are unused)."""
     m = len(family)
     rows, rhs = [], []
     for k in np.flatnonzero(family):
         rows.append(np.eye(m)[k])
         rhs.append(0.0)
-    total = family.astype(float)
-    rows += [total, -total]
-    rhs += [1.0, -1.0]
+    sum_row = family.astype(float)
+    rows += [sum_row, -sum_row]
+    rhs += [total[0], -total[1]]
     for k in np.flatnonzero(~family):
         rows += [np.eye(m)[k], -np.eye(m)[k]]
         rhs += [lower[k], -upper[k]]

@@ -8,12 +8,15 @@ each a perturbation mode the update scales within bounds.
     gravity.angle_x=-10,0,10        head pose: the scene's gravity turned about x (degrees)
     swelling.NAME=-0.03,0.02        the bounds of a [[swelling]] region's volume change
                                     (NAME: its `name`, or its index 0, 1, ...)
+    material.G=1500,6000            the bounds of the shear modulus (Pa): no modes of its own
+                                    (u is proportional to 1/G in a linear body), the family's
+                                    weights then sum to G0/G, between G0/HIGH and G0/LOW
 
 Without ``--vary`` (a craniotomy): 8 levels from 25 mm below the scene's final level to 10 mm
 above it, the head turned by -12 to 12 degrees in steps of 6 about the two scene axes that
 turn gravity most (5 x 5 poses): 200 settled states; each [[swelling]] region between none and
 1.5x its volume change, and, in a scene with none, the whole brain shrinking by up to 4 % or
-swelling by up to 2 % (a hyperosmotic drug, oedema).
+swelling by up to 2 % (a hyperosmotic drug, oedema); G from a quarter to 4 times the scene's.
 """
 from __future__ import annotations
 
@@ -53,9 +56,9 @@ def parse_vary(texts: list[str]) -> dict[str, list[float]]:
         if not sep or not values.strip():
             raise InputError(f"--vary '{text}': give KEY=VALUES, e.g. fluid.level=0.02,0.03,0.04 or "
                              f"fluid.level=0.01:0.05:5 (start:stop:count)")
-        if key not in FAMILY_KEYS and not key.startswith("swelling."):
+        if key not in FAMILY_KEYS + ("material.G",) and not key.startswith("swelling."):
             raise InputError(f"--vary '{key}' cannot be varied;{did_you_mean(key, FAMILY_KEYS)} use "
-                             f"{', '.join(FAMILY_KEYS)} or swelling.NAME")
+                             f"{', '.join(FAMILY_KEYS)}, material.G or swelling.NAME")
         if key in out:
             raise InputError(f"--vary {key} is given twice")
         out[key] = _values(key, values)
@@ -78,6 +81,9 @@ def _values(key: str, text: str) -> list[float]:
     if key.startswith("swelling.") and (len(values) != 2 or not -1 < values[0] < values[1] < 1):
         raise InputError(f"--vary {key}={text}: give the region's lowest and highest volume change, "
                          f"-1 < LOW < HIGH < 1 (e.g. -0.03,0.02)")
+    if key == "material.G" and (len(values) != 2 or not 0 < values[0] < values[1]):
+        raise InputError(f"--vary material.G={text}: give the lowest and highest shear modulus in Pa, "
+                         f"0 < LOW < HIGH (e.g. 1500,6000)")
     if len(set(values)) != len(values):
         raise InputError(f"--vary {key}={text}: a value is given twice")
     return [float(v) for v in values]
@@ -164,3 +170,15 @@ def swelling_modes(scene, vary: dict[str, list[float]]) -> list[SwellingMode]:
         mode = upper if upper - theta >= theta - lower else lower
         out.append(SwellingMode(name, i, theta, mode, lower, upper))
     return out
+
+
+STIFFNESS_RANGE = (0.25, 4.0)  # default bounds of G, times the scene's (brain tissue: 0.5-5 kPa across studies)
+
+
+def stiffness(scene, vary: dict[str, list[float]]) -> dict[str, float]:
+    """{"G": the scene's, "lower", "upper"}: the shear modulus's bounds in the update."""
+    G = float(scene.material.G)
+    lower, upper = vary.get("material.G", [STIFFNESS_RANGE[0] * G, STIFFNESS_RANGE[1] * G])
+    if not lower <= G <= upper:
+        raise InputError(f"--vary material.G={lower:g},{upper:g}: the scene's own G = {G:g} Pa must lie within")
+    return {"G": G, "lower": float(lower), "upper": float(upper)}

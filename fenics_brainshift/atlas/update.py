@@ -48,6 +48,11 @@ class UpdateResult:
         return {s["region"]: s["prior"] + float(c) * s["step"]
                 for s, c in zip(atlas.scenarios, self.weights) if s["kind"] == "swelling"}
 
+    def stiffness(self, atlas) -> float | None:
+        """The fitted G (Pa): the scene's over the family's weights' sum."""
+        s = atlas.info.get("stiffness")
+        return s["G"] / float(self.weights[atlas.family].sum()) if s else None
+
     def family_weights(self, atlas, smallest: float = 1e-3) -> list[dict]:
         """The family's scenarios with a weight above `smallest`, largest first."""
         out = [{"weight": float(c), **s["values"]} for s, c in zip(atlas.scenarios, self.weights)
@@ -66,13 +71,20 @@ def bounds(atlas) -> tuple[np.ndarray, np.ndarray]:
     return lower, upper
 
 
+def family_sum(atlas) -> tuple[float, float]:
+    """The bounds of the family's weights' sum: G0/G over the atlas's range of G (a linear
+    body's shift from gravity and the fluid is proportional to 1/G; a swelling's is not)."""
+    s = atlas.info.get("stiffness")
+    return (s["G"] / s["upper"], s["G"] / s["lower"]) if s else (1.0, 1.0)
+
+
 def prior_weights(atlas) -> np.ndarray:
     """The weights whose combination is nearest the scene's own prediction (least squares
     over the nodes, within the constraints): where the update starts."""
     from .combine import least_distance
 
     lower, upper = bounds(atlas)
-    C, d = weight_constraints(atlas.family, lower, upper)
+    C, d = weight_constraints(atlas.family, lower, upper, (1.0, 1.0))  # at the scene's own G
     H = atlas.gram.copy()
     H[np.diag_indices_from(H)] += 1e-9 * np.trace(H) / len(H)
     return least_distance(H, atlas.cross, C, d)
@@ -89,7 +101,7 @@ def update(atlas, target, noise: float, samples: int = 30) -> UpdateResult:
                          f"{'point pairs' if point_to_point else 'points on the surface'}")
     modes = atlas.vertex_modes.astype(np.float64)
     lower, upper = bounds(atlas)
-    C0, d0 = weight_constraints(atlas.family, lower, upper)
+    C0, d0 = weight_constraints(atlas.family, lower, upper, family_sum(atlas))
     if point_to_point:
         pairs = PointRows(MeshLocator(atlas.points, atlas.tetrahedra), target.pre, target.measured, target.labels)
         fixed_rows = pairs.rows(modes)

@@ -131,6 +131,7 @@ def _report(atlas, target, result, args, seconds: float) -> dict:
                                                 result.leave_one_out)],
         "family_weights": result.family_weights(atlas),
         "volume_changes": result.volume_changes(atlas),
+        "stiffness_G_Pa": result.stiffness(atlas), "stiffness_range_Pa": atlas.info.get("stiffness"),
         "weights": [float(c) for c in result.weights],
         "bootstrap_samples": args.bootstrap,
         "uncertainty_mm": {"mean": float(result.spread.mean()) * mm, "max": float(result.spread.max()) * mm},
@@ -148,6 +149,8 @@ def _lines(atlas, target, result, out: Path, image: bool) -> list[str]:
              f"left out {rms(result.leave_one_out):.2f} mm; fit {result.seconds['fit_ms']:.0f} ms "
              f"(alpha {result.alpha:g} by cross-validation)",
              f"  scenarios: {top or 'none'}"]
+    if result.stiffness(atlas) is not None:
+        lines.append(f"  stiffness: G = {result.stiffness(atlas):.4g} Pa (the scene's {atlas.info['stiffness']['G']:.4g})")
     for name, theta in result.volume_changes(atlas).items():
         lines.append(f"  swelling {name}: volume change {theta:+.3%}")
     lines.append(f"  uncertainty (bootstrap): mean {result.spread.mean() * 1e3:.2f} mm, largest "
