@@ -277,6 +277,19 @@ def test_fit_demo(tmp_path):
     assert (out / "fit.png").stat().st_size > 10_000 and (out / "fitted.toml").is_file()
 
 
+def test_update_demo(tmp_path):
+    """demos/update.py on a coarse brain: the update's error against the full model's truth, at
+    every node and in the deep tissue, is a fraction of the scene's; the picture is written."""
+    import re
+
+    out = tmp_path / "update"
+    stdout = _run(out, 1, str(ROOT / "demos" / "update.py"), "--out", str(out), "--set", "mesh.voxel=0.01")
+    for region in ("exposed cortex", "deep tissue below it", "every node"):
+        prior, updated = map(float, re.search(rf"{region} +([\d.]+) +([\d.]+)", stdout).groups())
+        assert updated < 0.3 * prior, region
+    assert (out / "update.png").stat().st_size > 10_000 and (out / "update.json").is_file()
+
+
 def test_brain_demo_shrinks_the_brain_towards_its_supports(tmp_path):
     """--shrink 2: the whole brain loses 2 % of its volume over the drain; settled, the frontal
     pole (far from the occipital and brain-stem supports) moves further back (-y) than without,
