@@ -240,12 +240,50 @@ def test_bad_atlas_input_is_one_line(tmp_path, capsys, vary, words):
     assert not (tmp_path / "a" / "atlas.h5").exists()
 
 
-def test_a_scene_with_a_skull_is_refused_not_built_wrong(tmp_path, capsys):
-    from fenics_brainshift.cli import main
+SKULL = ["skull.gap=0.002"]
 
-    assert main(["atlas", "brain", "-o", str(tmp_path / "a"), "--set", "mesh.voxel=0.01",
-                 "--set", "skull.gap=0.003"]) == 2
-    assert "has a [skull]" in capsys.readouterr().err
+
+@pytest.fixture(scope="module")
+def skull_atlas():
+    built, _ = build(load_scene("brain", COARSE + SKULL), parse_vary(VARY), MPI.COMM_WORLD)
+    return built
+
+
+def test_with_a_skull_a_mode_is_the_full_models_contact_state(skull_atlas, atlas):
+    """Warm-started within a pose, mode 'level 40 mm, turned 8 degrees' equals the contact state
+    of a scene built with them and solved from rest, to the contact's tolerance; every mode is
+    inside the skull."""
+    from fenics_brainshift.atlas.update import _skull
+
+    k = next(i for i, s in enumerate(skull_atlas.scenarios)
+             if s["kind"] == "family" and s["values"] == {"gravity.angle_z": 8.0, "fluid.level": 0.04})
+    g = rotated_gravity([0.0, -9.81, 0.0], {"gravity.angle_z": 8.0})
+    _, u = _settled(load_scene("brain", COARSE + SKULL + [f"gravity.vector=[{g[0]}, {g[1]}, {g[2]}]",
+                                                          "fluid.level=0.04"]))
+    assert np.abs(skull_atlas.vertex_modes[k] - u).max() < 0.05e-3
+    rows = _skull(skull_atlas, skull_atlas.vertex_modes.astype(float))
+    family = np.flatnonzero(skull_atlas.family)
+    room = [rows.room(np.eye(len(skull_atlas.scenarios))[i]).min() for i in family]
+    assert min(room) > -0.02e-3  # ([skull] tolerance 0.01 mm)
+    assert atlas.scenarios[k] == skull_atlas.scenarios[k]
+    assert np.abs(skull_atlas.vertex_modes[k] - atlas.vertex_modes[k]).max() > 1e-3  # contact-free: a mm off
+
+
+def test_the_update_keeps_the_brain_inside_the_skull(skull_atlas):
+    """Points asking for 1.6 times a contact state's sag (past what the skull allows): without
+    the skull's rows the fit follows them through the skull; with them it stops at the skull."""
+    U = skull_atlas.vertex_modes.astype(float)
+    c = np.zeros(len(U))
+    c[1] = c[5] = 0.8
+    truth = np.tensordot(c, U, axes=1)
+    picked = np.flatnonzero(skull_atlas.points[:, 1] > np.percentile(skull_atlas.points[:, 1], 85))[::5][:20]
+    pre = skull_atlas.points[picked]
+    target = Target(pre + truth[picked], pre, [f"p{i}" for i in range(len(pre))])
+    through = update(skull_atlas, target, 0.3e-3, samples=0, keep_inside=False)
+    inside = update(skull_atlas, target, 0.3e-3, samples=0)
+    assert through.skull["deepest_past_mm"] > 1.0 and "passes the skull" in through.warning
+    assert inside.skull["deepest_past_mm"] <= 0.15 and inside.skull["nodes_with_rows"] > 0  # (update.PAST_SKULL)
+    assert inside.warning is None or "passes the skull" not in inside.warning
 
 
 def test_an_atlas_built_on_two_ranks_is_the_one_built_on_one(atlas, tmp_path):

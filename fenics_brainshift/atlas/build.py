@@ -2,9 +2,11 @@
 
 The modes are solved on the scene's model once built: one factor of K serves every mode of a
 linear body (the loads change, K does not); each settled state starts from the last one (the
-levels of a pose in order), so the follower fixed point needs few iterations. A scene with a
-[skull] is refused for now: contact-free modes pass the skull wherever it holds the brain, and
-no combination of them is inside it (docs/update.md, "The skull").
+levels of a pose in order), so the follower fixed point needs few iterations. With a [skull]
+every mode is the full model's contact state (augmented-Lagrangian Newton): contact-free modes
+pass the skull wherever it holds the brain, and no combination of them is inside it; each
+pose's first level is solved from rest, the next ones from the last (docs/update.md, "The
+skull": correct, and slower than the goal).
 """
 from __future__ import annotations
 
@@ -34,10 +36,9 @@ def atlas_command(args, comm) -> list[str]:
     check_writable(out, comm, "atlas folder", "-o")
     vary = parse_vary(args.vary)
     scene = load_scene(args.scene, args.set + ["time.mode=quasi-static"])
-    if scene.skull is not None:
-        raise InputError("atlas: the scene has a [skull]: an atlas with skull contact is not built yet (its modes "
-                         "would pass the skull); build it from the scene without its [skull] "
-                         "section, or use brainshift fit, which solves the contact (docs/update.md)")
+    if scene.skull is not None and scene.skull.glue is not None:
+        raise InputError("atlas: a [skull] with glue (fixed_where) holds the body by contact: give the support as "
+                         "[[fixed]] instead")
     if scene.remove:
         raise InputError("atlas: [[remove]] (a resection) is not an atlas scenario; build the atlas of the scene "
                          "before the resection")
@@ -86,7 +87,10 @@ def build(scene, vary: dict, comm, source: str = "", sets=()) -> tuple[store.Atl
     start = time.perf_counter()
     free, scenarios = [], []
     set_swelling(priors)
+    contact = forward.sim.contact is not None
     for i, values in enumerate(grid):
+        if contact:  # from rest at a new pose (a jump of the level from the top to the bottom)
+            forward.from_rest = i == 0 or _pose(values) != _pose(grid[i - 1])
         forward.solve(values)
         free.append(state())
         scenarios.append({"kind": "family", "values": values})
@@ -94,6 +98,7 @@ def build(scene, vary: dict, comm, source: str = "", sets=()) -> tuple[store.Atl
     prior_values = {}  # the scene's own scenario: its final level, its pose
     if scene.fluid is not None and scene.fluid.volume is None and scene.fluid.level:
         prior_values["fluid.level"] = float(scene.fluid.level(t_end))
+    forward.from_rest = contact
     forward.solve(prior_values)
     prior_free = state()
     swollen = []
@@ -112,6 +117,7 @@ def build(scene, vary: dict, comm, source: str = "", sets=()) -> tuple[store.Atl
         vertex_modes += [v - prior_vertex for v in swollen_modes]
     modes_s = time.perf_counter() - start
     solves = forward.solves
+    skull = forward.sim.contact.skull if contact else None
     fine_points = None if fine is None else (fine.points, fine.triangles)
     forward.destroy()
     seconds = {"setup_s": setup_s, "modes_s": modes_s}
@@ -128,6 +134,8 @@ def build(scene, vary: dict, comm, source: str = "", sets=()) -> tuple[store.Atl
         index, weight, _ = MeshLocator(atlas.points, atlas.tetrahedra).weights(fine_points[0])
         atlas.surface_modes = np.array([np.einsum("nj,njd->nd", weight, u[index]) for u in U])
         atlas.prior_surface = np.einsum("nj,njd->nd", weight, prior_vertex[index])
+    if skull is not None:
+        atlas.skull_triangles, atlas.skull_gap = skull.triangles, skull.gap
     atlas.info = {"scene": str(source), "set": list(sets), "scene_name": scene.name, "ranks": comm.size,
                   "dolfinx_version": compat.DOLFINX_VERSION, "material": scene.material.model,
                   "gravity": [float(c) for c in scene.gravity.vector], "prior": prior_values,
@@ -137,3 +145,7 @@ def build(scene, vary: dict, comm, source: str = "", sets=()) -> tuple[store.Atl
                   "settled_states": solves,
                   **{k: round(v, 3) for k, v in seconds.items()}}
     return atlas, seconds
+
+
+def _pose(values: dict) -> tuple:
+    return tuple(sorted((k, v) for k, v in values.items() if k != "fluid.level"))

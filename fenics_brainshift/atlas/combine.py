@@ -6,7 +6,8 @@ problem with linear inequality constraints,
 c the family's weights (>= 0, summing to 1: a convex combination of alternative settled
 states) and the swelling amplitudes (within their bounds); R(c) the mean square change of the
 displacement from the scene's own prediction over the mesh's nodes, in mm^2 (the update moves
-the prediction no farther than the data ask). Each problem is solved exactly by Lawson and Hanson's reduction
+the prediction no farther than the data ask); with a skull, rows of C keep the boundary nodes
+inside it (rows.py). Each problem is solved exactly by Lawson and Hanson's reduction
 to a least-distance problem solved by scipy's NNLS (Solving Least Squares Problems, 1974,
 ch. 23): a factor of the Hessian, one NNLS of the constraints' size.
 
@@ -43,6 +44,10 @@ class Problem:
     C: np.ndarray
     d: np.ndarray
 
+    def with_constraints(self, C: np.ndarray, d: np.ndarray) -> "Problem":
+        return Problem(self.A, self.b, self.groups, self.noise, self.gram, self.cross,
+                       np.vstack([self.C, C]), np.concatenate([self.d, d]))
+
     def solve(self, alpha: float, rows: np.ndarray | None = None) -> np.ndarray:
         """The constrained minimiser with the data rows `rows` (default: all)."""
         A, b = (self.A, self.b) if rows is None else (self.A[rows], self.b[rows])
@@ -72,7 +77,8 @@ def least_distance(H: np.ndarray, g: np.ndarray, C: np.ndarray, d: np.ndarray) -
     u, _ = nnls(E, e, maxiter=50 * E.shape[1])
     r = E @ u - e
     if abs(r[-1]) < 1e-14:
-        raise SolverError("the update's constraints cannot all hold (the weights' bounds exclude each other)")
+        raise SolverError("the update's constraints cannot all hold (the weights' bounds and the skull's rows "
+                          "exclude each other)")
     z = -r[:-1] / r[-1]
     return solve_triangular(R, z + f)
 

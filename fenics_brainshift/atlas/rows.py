@@ -1,11 +1,13 @@
-"""The rows of the update's least-squares problem: what each measurement says about the weights c of the modes (u(c) = sum_k c_k U_k, linear in c).
+"""The rows of the update's least-squares problem: what each measurement and the skull say about the weights c of the modes (u(c) = sum_k c_k U_k, linear in c).
 
 - point to point: the predicted intra-operative position of a pre-operative point X is
   X + u(c)(X), u interpolated in X's tetrahedron: three rows A c = y - X, exact;
 - point to surface: the signed distance of a measured point y to the moved surface, linearised
   about the current weights at y's nearest point q (barycentric beta in its triangle, outward
   normal n): d(c) = d(c0) - n . (u_q(c) - u_q(c0)), one row; the nearest points are found
-  again from the new weights (iterated closest point, update.py).
+  again from the new weights (iterated closest point, update.py);
+- the skull: the room phi(X + u(c)) >= 0 of every boundary node, linearised where it is
+  small: phi0 + grad phi . (u(c) - u(c0)) >= -SKULL_SLACK, one inequality row per node.
 """
 from __future__ import annotations
 
@@ -15,6 +17,9 @@ from ..errors import InputError
 from .locate import MeshLocator, SurfaceLocator
 
 OUTSIDE_CELLS = 2.0  # a pre-operative point farther than this many cells outside the body is refused
+SKULL_MARGIN = 1.5e-3  # m: nodes with less room than this get a skull row (the rest cannot reach it)
+SKULL_SLACK = 0.1e-3  # m past the skull a row allows: the modes' own contact is settled to a
+# tolerance ([skull] tolerance), and a mix of states each a hair past cannot be wholly inside
 
 
 class PointRows:
@@ -66,3 +71,25 @@ class SurfaceRows:
         at = np.einsum("nj,mnjd->nmd", bary, self.modes[:, corners, :])  # u_q per unit weight (n, M, 3)
         A = np.einsum("nmd,nd->nm", at, normal)
         return A, distance + A @ c, np.arange(len(measured)), distance
+
+
+class SkullRows:
+    """Inequality rows keeping the boundary nodes inside the skull (a RigidSkull)."""
+
+    def __init__(self, skull, points: np.ndarray, modes: np.ndarray):
+        self.skull, self.points, self.modes = skull, points, modes  # the boundary nodes and their modes
+
+    def room(self, c: np.ndarray) -> np.ndarray:
+        """phi (B,) of the nodes at weights c: the room left before the skull (< 0: past it)."""
+        return self.skull.phi(self.points + np.tensordot(c, self.modes, axes=1))[0]
+
+    def near(self, c: np.ndarray, margin: float = SKULL_MARGIN) -> np.ndarray:
+        """The nodes with less room than `margin` at c."""
+        return np.flatnonzero(self.room(c) < margin)
+
+    def rows(self, c: np.ndarray, nodes: np.ndarray):
+        """(C, d): C c >= d keeps these nodes inside (to SKULL_SLACK), linearised at c."""
+        u = np.tensordot(c, self.modes[:, nodes, :], axes=1)
+        phi, grad = self.skull.phi(self.points[nodes] + u)
+        C = np.einsum("nd,mnd->nm", grad, self.modes[:, nodes, :])
+        return C, np.einsum("nd,nd->n", grad, u) - phi - SKULL_SLACK

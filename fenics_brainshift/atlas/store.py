@@ -10,6 +10,7 @@ atlas.h5:
   regulariser/gram (M, M), regulariser/cross (M,), regulariser/prior_square: the mean over
       the vertices of |sum c_k u_k - u_prior|^2 = c.G.c - 2 c.h + p (m^2)
   surface/points (S, 3), surface/triangles: the fine surface (absent: the mesh's boundary)
+  skull/triangles (T, 3, 3), attribute gap: the skull the combination must respect
 """
 from __future__ import annotations
 
@@ -40,6 +41,8 @@ class Atlas:
     surface_triangles: np.ndarray | None = None
     surface_modes: np.ndarray | None = None
     prior_surface: np.ndarray | None = None
+    skull_triangles: np.ndarray | None = None  # (T, 3, 3) m
+    skull_gap: float | None = None  # a gap skull: the brain's surface dilated by this (its triangles)
     info: dict = field(default_factory=dict)  # the rest of atlas.json
 
     @property
@@ -85,6 +88,9 @@ def write(folder: Path, atlas: Atlas) -> None:
             f["surface/points"], f["surface/triangles"] = atlas.surface_points, atlas.surface_triangles
             f.create_dataset("modes/surface", data=atlas.surface_modes.astype(np.float32))
             f["prior/surface"] = atlas.prior_surface
+        if atlas.skull_triangles is not None:
+            f["skull/triangles"] = atlas.skull_triangles
+            f["skull"].attrs["gap"] = np.nan if atlas.skull_gap is None else atlas.skull_gap
     info = {"format": FORMAT, "mesh_id": atlas.mesh_id(), "modes": len(atlas.scenarios),
             "nodes": len(atlas.points), "cells": len(atlas.tetrahedra), **atlas.info, "scenarios": atlas.scenarios}
     tmp_index = folder / ".atlas.json.tmp"
@@ -116,6 +122,9 @@ def read(folder: str | Path) -> Atlas:
             if "surface" in f:
                 atlas.surface_points, atlas.surface_triangles = f["surface/points"][...], f["surface/triangles"][...]
                 atlas.surface_modes, atlas.prior_surface = f["modes/surface"][...], f["prior/surface"][...]
+            if "skull" in f:
+                gap = float(f["skull"].attrs["gap"])
+                atlas.skull_triangles, atlas.skull_gap = f["skull/triangles"][...], None if np.isnan(gap) else gap
     except InputError:
         raise
     except Exception as exc:  # a truncated or foreign file (h5py, JSON, a missing dataset)

@@ -4,9 +4,11 @@ dura is open, and the displacement they make (combine.py says the problem; rows.
 Order of the work, each step on the last one's weights:
 1. the residuals of the scene's own prediction (the prior), and the weights whose combination
    is nearest to it (where the fit starts);
-2. the rows of the data there, alpha by cross-validation over the points, the fit;
-3. point to surface: the nearest points found again on the moved surface and the fit made
-   again (iterated closest point) until the weights stand still (ROUNDS at most);
+2. the rows of the data there and, with a skull, the inequality rows of the boundary nodes
+   near it (rows.py); alpha by cross-validation over the points, the fit;
+3. point to surface: the nearest points found again on the moved surface, and the skull's
+   rows taken again at the new weights (nodes the fit brought near join), the fit made again,
+   until the weights stand still and no node is past the skull (ROUNDS at most);
 4. the leave-one-out error at each point and a bootstrap over the points: the per-node spread
    of the displacement.
 """
@@ -18,13 +20,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError
+from ..physics.skull import RigidSkull
 from .combine import Problem, bootstrap, choose_alpha, leave_one_out, weight_constraints
 from .locate import MeshLocator
-from .rows import PointRows, SurfaceRows
+from .rows import PointRows, SkullRows, SurfaceRows
 
 MIN_POINT_PAIRS = 3
 MIN_SURFACE_POINTS = 5
-ROUNDS = 4  # of nearest points (point to surface)
+ROUNDS = 4  # of nearest points (point to surface) and of the skull's rows
+PAST_SKULL = 0.15e-3  # m: a node deeper past the skull after the last round is reported
 FAR_FROM_PREDICTION = 0.25  # of the body's diagonal: the median prior residual of another frame
 UNEXPLAINED = 10.0  # residual RMS over the stated noise: the atlas does not explain the data
 
@@ -40,6 +44,7 @@ class UpdateResult:
     displacement: np.ndarray  # (N, 3) m at the atlas's nodes
     surface_displacement: np.ndarray | None  # (S, 3) m at the fine surface's vertices
     spread: np.ndarray  # (N,) m: the bootstrap's standard deviation of |u| per node
+    skull: dict = field(default_factory=dict)
     seconds: dict = field(default_factory=dict)
     warning: str | None = None
 
@@ -90,8 +95,10 @@ def prior_weights(atlas) -> np.ndarray:
     return least_distance(H, atlas.cross, C, d)
 
 
-def update(atlas, target, noise: float, samples: int = 30) -> UpdateResult:
-    """The update of an atlas (store.Atlas) to a target (fit.targets.Target), noise in m."""
+def update(atlas, target, noise: float, samples: int = 30, keep_inside: bool = True) -> UpdateResult:
+    """The update of an atlas (store.Atlas) to a target (fit.targets.Target), noise in m;
+    keep_inside: the skull's rows in the fit (False: the modes' own contact alone, to measure
+    what the rows add)."""
     start = time.perf_counter()
     n_points = len(target.measured)
     point_to_point = target.pre is not None
@@ -114,18 +121,24 @@ def update(atlas, target, noise: float, samples: int = 30) -> UpdateResult:
     def data_rows(c):
         return fixed_rows if point_to_point else surface.rows(c, target.measured)[:3]
 
+    skull = _skull(atlas, modes) if keep_inside else None
     c = prior_weights(atlas)
-    alpha, curve, cv_s = None, [], 0.0
+    alpha, curve, cv_s, deepest = None, [], 0.0, 0.0
+    nodes = np.zeros(0, dtype=np.int64)
     setup_s = time.perf_counter() - start
-    for _ in range(ROUNDS):
+    for round_ in range(ROUNDS):
         problem = Problem(*data_rows(c), noise, atlas.gram, atlas.cross, C0, d0)
+        if skull is not None:  # the nodes near the skull at these weights join those before
+            nodes = np.union1d(nodes, skull.near(c))
+            problem = problem.with_constraints(*skull.rows(c, nodes))
         if alpha is None:  # alpha once, at the first rows (the nearest points change little after)
             t = time.perf_counter()
             alpha, curve = choose_alpha(problem)
             cv_s = time.perf_counter() - t
         c_new = problem.solve(alpha)
         change, c = float(np.abs(c_new - c).max()), c_new
-        if point_to_point or change < 1e-6:
+        deepest = float(max(0.0, -skull.room(c).min())) if skull is not None else 0.0
+        if (point_to_point or change < 1e-6) and deepest <= PAST_SKULL:
             break
     fit_s = time.perf_counter() - start - setup_s - cv_s
     if point_to_point:
@@ -142,10 +155,16 @@ def update(atlas, target, noise: float, samples: int = 30) -> UpdateResult:
         spread = np.sqrt(np.mean(np.sum((fields - fields.mean(axis=0)) ** 2, axis=2), axis=0))
     spread_s = time.perf_counter() - t
     surface_u = None if atlas.surface_modes is None else np.tensordot(c, atlas.surface_modes.astype(np.float64), axes=1)
-    warning = _warning(residual, noise)
+    skull_report = {}
+    if atlas.skull_triangles is not None:
+        past = _skull(atlas, modes).room(c)
+        skull_report = {"kept_inside": keep_inside, "nodes_with_rows": int(len(nodes)), "rounds": round_ + 1,
+                        "deepest_past_mm": float(max(0.0, -past.min())) * 1e3}
+    warning = _warning(residual, noise, skull_report.get("deepest_past_mm", 0.0) * 1e-3, keep_inside)
     seconds = {"setup_ms": setup_s * 1e3, "fit_ms": fit_s * 1e3, "cross_validation_ms": cv_s * 1e3,
                "leave_one_out_and_bootstrap_ms": spread_s * 1e3, "total_ms": (time.perf_counter() - start) * 1e3}
-    return UpdateResult(c, alpha, curve, prior_residual, residual, loo, u, surface_u, spread, seconds, warning)
+    return UpdateResult(c, alpha, curve, prior_residual, residual, loo, u, surface_u, spread, skull_report, seconds,
+                        warning)
 
 
 def _surface(atlas, modes: np.ndarray) -> SurfaceRows:
@@ -189,10 +208,25 @@ def _check_near(atlas, prior_residual: np.ndarray, point_to_point: bool) -> None
                          f"an untagged surface), or points of another body")
 
 
-def _warning(residual: np.ndarray, noise: float) -> str | None:
+def _skull(atlas, modes: np.ndarray) -> SkullRows | None:
+    """The skull's rows over the mesh's boundary nodes, or None for an atlas without a skull."""
+    if atlas.skull_triangles is None:
+        return None
+    tri = atlas.skull_triangles
+    skull = RigidSkull(tri.reshape(-1, 3), np.arange(3 * len(tri)).reshape(-1, 3), gap=atlas.skull_gap)
+    nodes = atlas.surface_vertices
+    return SkullRows(skull, atlas.points[nodes], modes[:, nodes, :])
+
+
+def _warning(residual: np.ndarray, noise: float, deepest: float, keep_inside: bool) -> str | None:
+    parts = []
     rms = float(np.sqrt(np.mean(residual ** 2)))
     if rms > UNEXPLAINED * noise:
-        return (f"the atlas does not explain the data: the updated residual RMS {rms * 1e3:.3g} mm is "
-                f"{rms / noise:.0f}x the stated noise ({noise * 1e3:g} mm); a frame or unit slip, points "
-                f"mismatched between --pre and --target, or an operation outside the atlas (build it wider)")
-    return None
+        parts.append(f"the atlas does not explain the data: the updated residual RMS {rms * 1e3:.3g} mm is "
+                     f"{rms / noise:.0f}x the stated noise ({noise * 1e3:g} mm); a frame or unit slip, points "
+                     f"mismatched between --pre and --target, or an operation outside the atlas (build it wider)")
+    if deepest > PAST_SKULL:
+        how = f"after {ROUNDS} rounds of its rows" if keep_inside else "the fit without the skull's rows"
+        parts.append(f"the updated brain passes the skull by {deepest * 1e3:.2f} mm ({how}): not a physical state "
+                     f"there")
+    return "; ".join(parts) or None

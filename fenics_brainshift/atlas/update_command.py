@@ -136,7 +136,7 @@ def _report(atlas, target, result, args, seconds: float) -> dict:
         "bootstrap_samples": args.bootstrap,
         "uncertainty_mm": {"mean": float(result.spread.mean()) * mm, "max": float(result.spread.max()) * mm},
         "largest_displacement_mm": float(np.linalg.norm(result.displacement, axis=1).max()) * mm,
-        "timings_ms": result.seconds, "command_s": seconds, "warning": result.warning,
+        "skull": result.skull, "timings_ms": result.seconds, "command_s": seconds, "warning": result.warning,
     }
 
 
@@ -153,6 +153,9 @@ def _lines(atlas, target, result, out: Path, image: bool) -> list[str]:
         lines.append(f"  stiffness: G = {result.stiffness(atlas):.4g} Pa (the scene's {atlas.info['stiffness']['G']:.4g})")
     for name, theta in result.volume_changes(atlas).items():
         lines.append(f"  swelling {name}: volume change {theta:+.3%}")
+    if result.skull:
+        lines.append(f"  skull: {result.skull['nodes_with_rows']} nodes held inside by the fit's rows, deepest past "
+                     f"{result.skull['deepest_past_mm']:.2f} mm")
     lines.append(f"  uncertainty (bootstrap): mean {result.spread.mean() * 1e3:.2f} mm, largest "
                  f"{result.spread.max() * 1e3:.2f} mm")
     if result.warning:
