@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import csv
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -84,8 +85,8 @@ def main() -> None:
     args = parser.parse_args()
     logs.configure("WARNING")
     base = [f"mesh.voxel={args.voxel}", "time.mode=quasi-static"]
-    folder = Path(args.out).parent
-    folder.mkdir(parents=True, exist_ok=True)
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    folder = Path(tempfile.mkdtemp(prefix="brainshift-update-bench-"))  # (the swelling scene's file)
 
     start = time.perf_counter()
     atlas, seconds = build(load_scene("brain", base), {}, MPI.COMM_WORLD)

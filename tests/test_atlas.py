@@ -123,6 +123,20 @@ def test_a_stiffer_brain_is_the_family_scaled_down(atlas):
     assert np.linalg.norm(result.displacement - truth, axis=1).max() < 0.05e-3
 
 
+def test_a_stiffer_brain_of_the_full_model_is_found_within_ten_percent(atlas):
+    """Truth: the scene at G = 1.25 G0 solved by the full model (follower pressure: not exactly
+    0.8x the sag); 20 exact pairs on the cortex."""
+    G0 = atlas.info["stiffness"]["G"]
+    _, truth = _settled(load_scene("brain", COARSE + [f"material.G={1.25 * G0}"]))
+    picked = np.flatnonzero(atlas.points[:, 1] > np.percentile(atlas.points[:, 1], 85))[::7][:20]
+    pre = atlas.points[picked]
+    result = update(atlas, Target(pre + truth[picked], pre, [f"p{i}" for i in range(len(pre))]), 0.1e-3, 0)
+    assert result.stiffness(atlas) == pytest.approx(1.25 * G0, rel=0.10)
+    assert result.stiffness_at_bound(atlas) is None
+    error = np.linalg.norm(result.displacement - truth, axis=1)
+    assert error.mean() < 0.2 * np.linalg.norm(atlas.prior_vertex - truth, axis=1).mean()
+
+
 def test_points_on_the_moved_cortex_alone_recover_the_state(atlas):
     """Point to surface: 40 vertices of the moved fine surface, no correspondence given."""
     c, truth = _operation(atlas)
@@ -145,6 +159,10 @@ def test_an_atlas_survives_its_files_and_refuses_another_mesh(atlas, tmp_path):
     from fenics_brainshift.errors import InputError
 
     with pytest.raises(InputError, match="different meshes"):
+        store.read(tmp_path / "a")
+    store.write(tmp_path / "b", atlas)  # the same mesh and modes, another build's index
+    (tmp_path / "a" / "atlas.json").write_text((tmp_path / "b" / "atlas.json").read_text())
+    with pytest.raises(InputError, match="different builds"):
         store.read(tmp_path / "a")
 
 
@@ -197,6 +215,9 @@ def test_update_writes_a_run_folder_that_warp_takes(atlas, atlas_folder, tmp_pat
     ("in metres", "outside the atlas's body"),
     ("noise", "--noise must be a finite number of mm > 0"),
     ("bootstrap", "--bootstrap"),
+    ("csv in metres", "positions in metres?"),
+    ("image elsewhere", "does not overlap the atlas's brain"),
+    ("partial pre columns", "but not all of x_pre"),
 ])
 def test_bad_update_input_is_one_line(atlas, atlas_folder, tmp_path, capsys, case, words):
     from fenics_brainshift.cli import main
@@ -213,12 +234,24 @@ def test_bad_update_input_is_one_line(atlas, atlas_folder, tmp_path, capsys, cas
         write_markups(tmp_path / "pre.mrk.json", [f"P{i}" for i in range(20)], pre * 1e3 + 300.0)
     elif case == "noise":
         args += ["--noise", "0"]
+    elif case in ("csv in metres", "partial pre columns"):
+        header = "x_pre, y_pre, z_pre, x, y, z" if case == "csv in metres" else "x_pre, y_pre, x, y, z"
+        rows = np.hstack([pre, intra]) if case == "csv in metres" else np.hstack([pre[:, :2], intra])
+        np.savetxt(tmp_path / "points.csv", rows, delimiter=",", header=header, comments="")  # metres / mm
+        args = ["update", str(atlas_folder), "--target", str(tmp_path / "points.csv"), "--out", str(tmp_path / "out")]
+    elif case == "image elsewhere":
+        import nibabel
+
+        affine = np.eye(4)
+        affine[:3, 3] = 500.0  # mm: far from the brain
+        nibabel.save(nibabel.Nifti1Image(np.zeros((10, 10, 10), np.float32), affine), tmp_path / "far.nii.gz")
+        args += ["--image", str(tmp_path / "far.nii.gz")]
     else:
         args += ["--bootstrap", "-1"]
     assert main(args) == 2
     err = capsys.readouterr().err.strip()
     assert words in err and len(err.splitlines()) == 1, err
-    assert not (tmp_path / "out" / "update.json").exists()
+    assert not (tmp_path / "out" / "update.json").exists() and not (tmp_path / "out" / "displacement.h5").exists()
 
 
 @pytest.mark.parametrize("vary, words", [

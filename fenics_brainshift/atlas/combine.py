@@ -105,11 +105,16 @@ def choose_alpha(problem: Problem, alphas=ALPHAS, folds: int = FOLDS) -> tuple[f
     return best["alpha"], curve
 
 
-def leave_one_out(problem: Problem, alpha: float) -> np.ndarray:
-    """Each point's error (m) when the fit is made without it."""
+def leave_one_out(problem: Problem, alpha: float, most: int | None = None, seed: int = 2) -> np.ndarray:
+    """Each point's error (m) when the fit is made without it; with more points than `most`,
+    a random sample of `most` of them (NaN for the others)."""
     points = np.unique(problem.groups)
-    out = np.zeros(len(points))
-    for i, p in enumerate(points):
+    out = np.full(len(points), np.nan)
+    chosen = np.arange(len(points))
+    if most is not None and len(points) > most:
+        chosen = np.sort(np.random.default_rng(seed).choice(len(points), most, replace=False))
+    for i in chosen:
+        p = points[i]
         c = problem.solve(alpha, np.flatnonzero(problem.groups != p))
         out[i] = problem.misfit(c, np.flatnonzero(problem.groups == p))[0]
     return out

@@ -65,8 +65,8 @@ class SurfaceLocator:
         self._start = np.searchsorted(self.triangles.ravel()[order], np.arange(len(points) + 1))
 
     def nearest(self, moved: np.ndarray, y: np.ndarray, k: int = 4):
-        """(triangle (n,), barycentric (n, 3), unit outward normal (n, 3), signed distance (n,),
-        + outside) of each point y to the surface whose vertices are at `moved`; the
+        """(triangle (n,), barycentric (n, 3), the signed distance's gradient (n, 3; the outward
+        normal at a face), signed distance (n, + outside)) of each point y to the surface whose vertices are at `moved`; the
         triangles tried are those around the k moved vertices nearest to y."""
         y = np.asarray(y, dtype=float).reshape(-1, 3)
         if moved is not self._tree_of:  # (a tree of the moved vertices: they moved farther than they are apart)
@@ -95,4 +95,9 @@ class SurfaceLocator:
         s, t = (d22 * r1 - d12 * r2) / det, (d11 * r2 - d12 * r1) / det
         bary = np.stack([1.0 - s - t, s, t], axis=1)
         side = np.where(np.einsum("ni,ni->n", y - closest, normal) >= 0, 1.0, -1.0)
-        return triangle, bary, normal, side * best
+        # the signed distance's gradient: along y - closest off the surface (at an edge or a
+        # corner that is not the face's normal), the normal on it
+        off = best > 1e-9
+        direction = normal.copy()
+        direction[off] = side[off, None] * (y[off] - closest[off]) / best[off, None]
+        return triangle, bary, direction, side * best

@@ -6,17 +6,19 @@ each a perturbation mode the update scales within bounds.
 
     fluid.level=0.02,0.03,0.045     levels (m along up), or start:stop:count (0.01:0.05:5)
     gravity.angle_x=-10,0,10        head pose: the scene's gravity turned about x (degrees)
-    swelling.NAME=-0.03,0.02        the bounds of a [[swelling]] region's volume change
-                                    (NAME: its `name`, or its index 0, 1, ...)
-    material.G=1500,6000            the bounds of the shear modulus (Pa): no modes of its own
-                                    (u is proportional to 1/G in a linear body), the family's
+    swelling.N=-0.03,0.02           the bounds of a [[swelling]] region's volume change (N:
+                                    its index 0, 1, ... in the scene; "brain" for the
+                                    whole-brain mode of a scene without any)
+    material.G=1500,4000            the bounds of the shear modulus (Pa): no modes of its own
+                                    (u is proportional to 1/G in a linear body under fixed
+                                    loads; follower loads make it approximate), the family's
                                     weights then sum to G0/G, between G0/HIGH and G0/LOW
 
 Without ``--vary`` (a craniotomy): 8 levels from 25 mm below the scene's final level to 10 mm
 above it, the head turned by -12 to 12 degrees in steps of 6 about the two scene axes that
 turn gravity most (5 x 5 poses): 200 settled states; each [[swelling]] region between none and
 1.5x its volume change, and, in a scene with none, the whole brain shrinking by up to 4 % or
-swelling by up to 2 % (a hyperosmotic drug, oedema); G from a quarter to 4 times the scene's.
+swelling by up to 2 % (a hyperosmotic drug, oedema); G from half to twice the scene's.
 """
 from __future__ import annotations
 
@@ -58,7 +60,7 @@ def parse_vary(texts: list[str]) -> dict[str, list[float]]:
                              f"fluid.level=0.01:0.05:5 (start:stop:count)")
         if key not in FAMILY_KEYS + ("material.G",) and not key.startswith("swelling."):
             raise InputError(f"--vary '{key}' cannot be varied;{did_you_mean(key, FAMILY_KEYS)} use "
-                             f"{', '.join(FAMILY_KEYS)}, material.G or swelling.NAME")
+                             f"{', '.join(FAMILY_KEYS)}, material.G or swelling.N (a region's index)")
         if key in out:
             raise InputError(f"--vary {key} is given twice")
         out[key] = _values(key, values)
@@ -145,7 +147,7 @@ def clip_levels(grid: list[dict[str, float]], heights: tuple[float, float]) -> l
 
 
 def swelling_modes(scene, vary: dict[str, list[float]]) -> list[SwellingMode]:
-    """One mode per [[swelling]] region (bounds from --vary swelling.NAME, else between none
+    """One mode per [[swelling]] region (bounds from --vary swelling.N, else between none
     and 1.5x its volume change); the whole brain in a scene without any."""
     regions = list(scene.swelling)
     names = [getattr(r, "name", None) or str(i) for i, r in enumerate(regions)]
@@ -172,7 +174,7 @@ def swelling_modes(scene, vary: dict[str, list[float]]) -> list[SwellingMode]:
     return out
 
 
-STIFFNESS_RANGE = (0.25, 4.0)  # default bounds of G, times the scene's (brain tissue: 0.5-5 kPa across studies)
+STIFFNESS_RANGE = (0.5, 2.0)  # default bounds of G, times the scene's (follower loads: 1/G is approximate)
 
 
 def stiffness(scene, vary: dict[str, list[float]]) -> dict[str, float]:

@@ -76,9 +76,11 @@ def write(folder: Path, atlas: Atlas) -> None:
     folder.mkdir(parents=True, exist_ok=True)
     h5, index = folder / "atlas.h5", folder / "atlas.json"
     tmp = folder / ".atlas.h5.tmp"
+    build_id = os.urandom(8).hex()  # in both files: an index of another build is told apart
     with h5py.File(tmp, "w") as f:
         f.attrs["format"] = FORMAT
         f.attrs["mesh_id"] = atlas.mesh_id()
+        f.attrs["build_id"] = build_id
         f["mesh/points"], f["mesh/tetrahedra"] = atlas.points, atlas.tetrahedra
         f.create_dataset("modes/vertex", data=atlas.vertex_modes.astype(np.float32))
         f["prior/vertex"] = atlas.prior_vertex
@@ -91,7 +93,7 @@ def write(folder: Path, atlas: Atlas) -> None:
         if atlas.skull_triangles is not None:
             f["skull/triangles"] = atlas.skull_triangles
             f["skull"].attrs["gap"] = np.nan if atlas.skull_gap is None else atlas.skull_gap
-    info = {"format": FORMAT, "mesh_id": atlas.mesh_id(), "modes": len(atlas.scenarios),
+    info = {"format": FORMAT, "mesh_id": atlas.mesh_id(), "build_id": build_id, "modes": len(atlas.scenarios),
             "nodes": len(atlas.points), "cells": len(atlas.tetrahedra), **atlas.info, "scenarios": atlas.scenarios}
     tmp_index = folder / ".atlas.json.tmp"
     tmp_index.write_text(json.dumps(info, indent=1) + "\n")
@@ -115,7 +117,7 @@ def read(folder: str | Path) -> Atlas:
             if int(f.attrs["format"]) != FORMAT:
                 raise InputError(f"ATLAS: '{h5}' is of format {int(f.attrs['format'])}, this brainshift reads "
                                  f"{FORMAT}: build it again")
-            stored_id = str(f.attrs["mesh_id"])
+            stored_id, build_id = str(f.attrs["mesh_id"]), str(f.attrs.get("build_id", ""))
             atlas = Atlas(f["mesh/points"][...], f["mesh/tetrahedra"][...], f["modes/vertex"][...],
                           f["prior/vertex"][...], f["regulariser/gram"][...], f["regulariser/cross"][...],
                           float(f["regulariser"].attrs["prior_square"]), info["scenarios"])
@@ -133,6 +135,9 @@ def read(folder: str | Path) -> Atlas:
     if info.get("mesh_id") != stored_id or atlas.mesh_id() != stored_id:
         raise InputError(f"ATLAS: atlas.json and atlas.h5 in '{folder}' are of different meshes (an atlas copied over "
                          f"another?); build it again")
+    if info.get("build_id", "") != build_id:
+        raise InputError(f"ATLAS: atlas.json and atlas.h5 in '{folder}' are of different builds (an index copied over "
+                         f"another, or a build interrupted between the two); build it again")
     if len(atlas.scenarios) != len(atlas.vertex_modes) or atlas.vertex_modes.shape[1] != len(atlas.points):
         raise InputError(f"ATLAS: '{folder}': atlas.json names {len(atlas.scenarios)} modes, atlas.h5 holds "
                          f"{len(atlas.vertex_modes)} over {atlas.vertex_modes.shape[1]} nodes; build it again")

@@ -25,6 +25,7 @@ from .combine import Problem, bootstrap, choose_alpha, leave_one_out, weight_con
 from .locate import MeshLocator
 from .rows import PointRows, SkullRows, SurfaceRows
 
+LEAVE_OUT_MAX = 100  # points left out one by one (a scan's thousands: a sample of them; the rest NaN)
 MIN_POINT_PAIRS = 3
 MIN_SURFACE_POINTS = 5
 ROUNDS = 4  # of nearest points (point to surface) and of the skull's rows
@@ -57,6 +58,15 @@ class UpdateResult:
         """The fitted G (Pa): the scene's over the family's weights' sum."""
         s = atlas.info.get("stiffness")
         return s["G"] / float(self.weights[atlas.family].sum()) if s else None
+
+    def stiffness_at_bound(self, atlas) -> str | None:
+        """"lower" / "upper" when the fitted G sits on the atlas's range (the data would take it
+        farther: not a measurement), else None."""
+        s, G = atlas.info.get("stiffness"), self.stiffness(atlas)
+        if not s or s["lower"] == s["upper"]:
+            return None
+        near = 1e-3 * (s["upper"] - s["lower"])
+        return "lower" if G - s["lower"] <= near else "upper" if s["upper"] - G <= near else None
 
     def family_weights(self, atlas, smallest: float = 1e-3) -> list[dict]:
         """The family's scenarios with a weight above `smallest`, largest first."""
@@ -146,7 +156,7 @@ def update(atlas, target, noise: float, samples: int = 30, keep_inside: bool = T
     else:
         residual = np.abs(surface.rows(c, target.measured)[3])
     t = time.perf_counter()
-    loo = leave_one_out(problem, alpha)
+    loo = leave_one_out(problem, alpha, LEAVE_OUT_MAX)
     sampled = bootstrap(problem, alpha, samples) if samples else np.zeros((0, len(c)))
     u = np.tensordot(c, modes, axes=1)
     spread = np.zeros(len(u))

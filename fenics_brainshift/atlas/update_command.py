@@ -35,6 +35,8 @@ def update_command(args, comm) -> list[str]:
     atlas = store.read(args.atlas)  # every rank: the update is small, each computes it, rank 0 writes
     target = read_target(args.target, args.pre, args.frame)
     result = update(atlas, target, args.noise * 1e-3, args.bootstrap)
+    # what can fail is done on every rank before a file is touched
+    spread_image = _uncertainty_grid(atlas, result.spread, image) if image is not None else None
     if comm.rank == 0:
         out.mkdir(parents=True, exist_ok=True)
     comm.barrier()
@@ -45,7 +47,7 @@ def update_command(args, comm) -> list[str]:
             if comm.rank == 0 and (out / name).is_file():
                 (out / name).unlink()
         if comm.rank == 0:
-            _write_outputs(out, atlas, target, result, image)
+            _write_outputs(out, atlas, target, result, image, spread_image)
         comm.barrier()
         report = _report(atlas, target, result, args, time.perf_counter() - start)
         write_json(out / "update.json", report, comm)
@@ -57,7 +59,7 @@ def update_command(args, comm) -> list[str]:
     return _lines(atlas, target, result, out, image is not None)
 
 
-def _write_outputs(out: Path, atlas, target, result, image) -> None:
+def _write_outputs(out: Path, atlas, target, result, image, spread_image) -> None:
     import meshio
 
     from ..images.frames import write_markups
@@ -99,22 +101,23 @@ def _write_outputs(out: Path, atlas, target, result, image) -> None:
         write_markups(out / "targets_updated.mrk.json", target.labels,
                       (target.pre + np.einsum("nj,njd->nd", weight, u[index])) * 1e3)
     if image is not None:
-        _write_uncertainty(out / "uncertainty.nii.gz", atlas, spread, image)
+        from ..images.volumes import write_like
+
+        write_like(image, spread_image, out / "uncertainty.nii.gz")
 
 
-def _write_uncertainty(path: Path, atlas, spread: np.ndarray, image) -> None:
+def _uncertainty_grid(atlas, spread: np.ndarray, image) -> np.ndarray:
     """The per-node spread (mm) interpolated on the image's grid inside the pre-operative
-    brain (0 outside), as a NIfTI beside the image for Slicer."""
+    brain (0 outside), for a NIfTI beside the image (Slicer)."""
     from ..images.rasterize import rasterize
-    from ..images.volumes import write_like
 
     X = image.ras_to_index(atlas.points * 1e3)
     voxel, tet, lam = rasterize(X, atlas.tetrahedra, image.data.shape)
-    data = np.zeros(image.data.shape, dtype=np.float32)
-    data.reshape(-1)[voxel] = np.einsum("ni,ni->n", lam, spread[atlas.tetrahedra[tet]]) * 1e3
     if not len(voxel):
         raise InputError("update: --image does not overlap the atlas's brain (is it the scene's image, RAS mm?)")
-    write_like(image, data, path)
+    data = np.zeros(image.data.shape, dtype=np.float32)
+    data.reshape(-1)[voxel] = np.einsum("ni,ni->n", lam, spread[atlas.tetrahedra[tet]]) * 1e3
+    return data
 
 
 def _report(atlas, target, result, args, seconds: float) -> dict:
@@ -125,13 +128,15 @@ def _report(atlas, target, result, args, seconds: float) -> dict:
         "alpha": result.alpha, "cross_validation": result.curve,
         "prior_residual_rms_mm": float(np.sqrt(np.mean(result.prior_residual ** 2))) * mm,
         "residual_rms_mm": float(np.sqrt(np.mean(result.residual ** 2))) * mm,
-        "leave_one_out_rms_mm": float(np.sqrt(np.mean(result.leave_one_out ** 2))) * mm,
+        "leave_one_out_rms_mm": float(np.sqrt(np.nanmean(result.leave_one_out ** 2))) * mm,
+        "leave_one_out_points": int(np.count_nonzero(np.isfinite(result.leave_one_out))),
         "per_point": [{"label": label, "prior_mm": p * mm, "updated_mm": r * mm, "left_out_mm": o * mm}
                       for label, p, r, o in zip(target.labels, result.prior_residual, result.residual,
                                                 result.leave_one_out)],
         "family_weights": result.family_weights(atlas),
         "volume_changes": result.volume_changes(atlas),
         "stiffness_G_Pa": result.stiffness(atlas), "stiffness_range_Pa": atlas.info.get("stiffness"),
+        "stiffness_at_bound": result.stiffness_at_bound(atlas),
         "weights": [float(c) for c in result.weights],
         "bootstrap_samples": args.bootstrap,
         "uncertainty_mm": {"mean": float(result.spread.mean()) * mm, "max": float(result.spread.max()) * mm},
@@ -146,11 +151,13 @@ def _lines(atlas, target, result, out: Path, image: bool) -> list[str]:
                     for s in result.family_weights(atlas)[:3])
     lines = [f"update: {target.kind}, {len(target.measured)} points, {len(result.weights)} modes; residual RMS "
              f"{rms(result.prior_residual):.2f} mm (scene) -> {rms(result.residual):.2f} mm (updated), "
-             f"left out {rms(result.leave_one_out):.2f} mm; fit {result.seconds['fit_ms']:.0f} ms "
+             f"left out {float(np.sqrt(np.nanmean(result.leave_one_out ** 2))) * 1e3:.2f} mm; fit {result.seconds['fit_ms']:.0f} ms "
              f"(alpha {result.alpha:g} by cross-validation)",
              f"  scenarios: {top or 'none'}"]
     if result.stiffness(atlas) is not None:
-        lines.append(f"  stiffness: G = {result.stiffness(atlas):.4g} Pa (the scene's {atlas.info['stiffness']['G']:.4g})")
+        bound = result.stiffness_at_bound(atlas)
+        lines.append(f"  stiffness: G = {result.stiffness(atlas):.4g} Pa (the scene's {atlas.info['stiffness']['G']:.4g}"
+                     + (f"; AT THE ATLAS'S {bound.upper()} BOUND: not a measurement)" if bound else ")"))
     for name, theta in result.volume_changes(atlas).items():
         lines.append(f"  swelling {name}: volume change {theta:+.3%}")
     if result.skull:

@@ -89,10 +89,17 @@ def read_target(target: str | Path, pre: str | Path | None = None, frame: str | 
 
 def _read_csv(path: Path, frame: str | None) -> Target:
     with open(path, newline="") as f:
-        rows = list(csv.DictReader(f))
+        reader = csv.DictReader(f, skipinitialspace=True)  # ("x, y, z" as the docs write it)
+        if reader.fieldnames:
+            reader.fieldnames = [name.strip() for name in reader.fieldnames]
+        rows = list(reader)
     if not rows:
         raise InputError(f"--target: '{path.name}' has no rows under a header line")
     columns = set(rows[0])
+    pre_columns = {"x_pre", "y_pre", "z_pre"} & columns
+    if pre_columns and pre_columns != {"x_pre", "y_pre", "z_pre"}:
+        raise InputError(f"--target: '{path.name}' has {', '.join(sorted(pre_columns))} but not all of x_pre, y_pre, "
+                         f"z_pre: give all three (point to point) or none (point to surface)")
     if not {"x", "y", "z"} <= columns:
         raise InputError(f"--target: '{path.name}' needs columns x, y, z (mm; and x_pre, y_pre, z_pre for point "
                          f"to point); it has {', '.join(sorted(columns))}")
@@ -113,6 +120,7 @@ def _read_csv(path: Path, frame: str | None) -> Target:
                 raise InputError(f"--target: '{path.name}' line {line}: {key} = {text} is not a finite number")
     if frame == "LPS":  # to RAS: x and y negated
         values *= np.tile([-1.0, -1.0, 1.0], len(keys) // 3)
+    _check_millimetres(values, path)
     measured = values[:, :3]
     pre = values[:, 3:] if len(keys) == 6 else None
     labels = [r.get("label") or f"p{i + 1}" for i, r in enumerate(rows)]
@@ -149,6 +157,16 @@ def _read_tag(path: Path) -> Target:
         labels.append(label or str(len(pre)))
     if not pre:
         raise InputError(f"--target: '{path.name}' holds no points after 'Points ='")
+    _check_millimetres(np.hstack([pre, measured]), path)
     if len(set(labels)) != len(labels):
         labels = [f"{label}#{i + 1}" for i, label in enumerate(labels)]
     return Target(np.array(measured) * 1e-3, np.array(pre) * 1e-3, labels)
+
+
+def _check_millimetres(values_mm: np.ndarray, path: Path) -> None:
+    """Several points all within METRES_LOOK mm of the origin: metres where mm belong."""
+    from ..images.frames import METRES_LOOK
+
+    if len(values_mm) > 1 and np.abs(values_mm).max() < METRES_LOOK:
+        raise InputError(f"--target: '{path.name}': every position is within {METRES_LOOK:g} mm of the origin "
+                         f"(largest {np.abs(values_mm).max():.3g}): positions in metres? give millimetres")
