@@ -48,10 +48,18 @@ def mesh_from_spec(spec, comm, degree: int = 1):
 
 
 def supports(scene: Scene) -> list[Support]:
-    held = [Support(f"[[fixed]] where = \"{f.where}\"", f.predicate, tuple(f.components)) for f in scene.fixed]
+    held = [Support(f"[[fixed]] {f.describe()}", _node_selector(scene, f), tuple(f.components)) for f in scene.fixed]
     if scene.skull is not None and scene.skull.glue is not None:  # glued to the skull: held in place
         held.append(Support(f"[skull] fixed_where = \"{scene.skull.fixed_where}\"", scene.skull.glue, (0, 1, 2)))
     return held
+
+
+def _node_selector(scene: Scene, region):
+    """x (3, N) -> bool (N,) of a [[fixed]] region given by `where` or by `label` (the voxel
+    each node lies in)."""
+    if region.predicate is not None:
+        return region.predicate
+    return lambda x: labels_at(scene.mesh.file, np.asarray(x).T, scene.mesh.scale, region.label)
 
 
 def skull_contact(scene: Scene, model):

@@ -149,23 +149,39 @@ class Material:
 
 @dataclass(slots=True)
 class FixedRegion:
-    """Nodes where ``where`` holds are fixed along ``axes`` ("xyz" clamps; "z" slides in x-y)."""
+    """Nodes where ``where`` holds, or that lie in image voxels of ``label`` (a value or a
+    segment name of the scene's label volume: an anatomical support such as the brain stem),
+    are fixed along ``axes`` ("xyz" clamps; "z" slides in x-y)."""
 
-    where: str = ""
+    where: str | None = None
     axes: str = "xyz"
+    label: int | str | None = None
+    name: str | None = None  # for messages, and what `brainshift prepare` calls the anatomy
     predicate: Predicate | None = field(default=None, repr=False)
 
     def __post_init__(self):
-        try:
-            self.predicate = parse_predicate(self.where)
-        except PredicateError as exc:
-            raise InputError(f"[[fixed]] where: {exc}") from None
+        if self.name is not None and (not isinstance(self.name, str) or not self.name.isidentifier()):
+            raise InputError(f"[[fixed]] name must be a word of letters, digits and _ such as \"brain_stem\" "
+                             f"(got {self.name!r})")
+        if (self.where is None) == (self.label is None):
+            raise InputError("[[fixed]] give exactly one of where = \"z < 0.01\" or label = N (a label or segment "
+                             "name of [mesh] file's label volume)")
+        if self.where is not None:
+            try:
+                self.predicate = parse_predicate(self.where)
+            except PredicateError as exc:
+                raise InputError(f"[[fixed]] where: {exc}") from None
+        elif not isinstance(self.label, str):
+            self.label = integer("[[fixed]] label", self.label, 1)
         if not isinstance(self.axes, str) or not self.axes or set(self.axes) - set("xyz") or len(set(self.axes)) != len(self.axes):
             raise InputError(f"[[fixed]] axes must be letters from 'xyz' such as \"xyz\" or \"z\" (got {self.axes!r})")
 
     @property
     def components(self) -> list[int]:
         return sorted("xyz".index(a) for a in self.axes)
+
+    def describe(self) -> str:
+        return f"where = \"{self.where}\"" if self.where is not None else f"label = {self.label!r}"
 
 
 @dataclass

@@ -45,6 +45,10 @@ class Scene:
         if self.time.mode == "quasi-static" and not self.fixed and not glued and not self.septa:
             raise InputError("[[fixed]] a quasi-static scene needs at least one fixed region (K alone is singular; "
                              "with a [skull], its fixed_where also holds; septa that hold every rigid motion do)")
+        for f in self.fixed:
+            if f.label is not None and not formats.is_label_volume(self.mesh.file or ""):
+                raise InputError("[[fixed]] label needs [mesh] file to be a label volume (.nii, .nii.gz, .nrrd); "
+                                 "use where = \"...\" otherwise")
         for s in self.septa:
             if s.label is not None and not formats.is_label_volume(self.mesh.file or ""):
                 raise InputError(f"[[septum]] {s.title} label needs [mesh] file to be a label volume (.nii, .nii.gz, "
