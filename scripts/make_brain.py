@@ -22,10 +22,9 @@ from pathlib import Path
 
 import nibabel as nib
 import numpy as np
-from scipy import ndimage
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from fenics_brainshift.data.templates import template_bytes  # noqa: E402
+from fenics_brainshift.data.templates import brain_from_tissue, largest_part, template_bytes  # noqa: E402
 
 OUT = Path(__file__).resolve().parents[1] / "meshes"
 
@@ -35,14 +34,6 @@ def fetch(version: str) -> dict[str, nib.Nifti1Image]:
     return {key: nib.Nifti1Image.from_bytes(gzip.decompress(data)) for key, data in raw.items()}
 
 
-def largest_part(mask: np.ndarray) -> np.ndarray:
-    labels, count = ndimage.label(mask)  # face connectivity
-    if count <= 1:
-        return mask
-    sizes = np.bincount(labels.ravel())[1:]
-    return labels == 1 + int(np.argmax(sizes))
-
-
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--nilearn-version", default="0.14.1")
@@ -50,7 +41,7 @@ def main(argv=None) -> int:
     images = fetch(args.nilearn_version)
     gm, wm = (np.asarray(images[k].dataobj, dtype=np.float32) for k in ("gm", "wm"))
     affine = images["gm"].affine
-    brain = ndimage.binary_fill_holes(largest_part(gm + wm >= 0.5))
+    brain = brain_from_tissue(gm, wm)
     print(f"1 mm brain mask: {brain.sum()} voxels = {brain.sum() / 1e3:.0f} ml, shape {brain.shape}")
 
     # 2 mm: blocks of 2 x 2 x 2 voxels, brain where at least half of the block is

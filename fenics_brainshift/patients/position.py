@@ -1,0 +1,70 @@
+"""The head's position on the table as gravity in the patient's frame, and the CSF level a
+craniotomy drains to.
+
+The positions name the direction of gravity in the head's own anatomical frame (the
+template's: x right, y anterior, z superior): supine, face up, gravity towards posterior;
+prone towards anterior; lying on the left side (left lateral decubitus) towards the left; on
+the right side towards the right. ANGLES "ax,ay,az" turn the supine direction about the
+anatomical x, then y, then z axis (degrees), as `brainshift fit`'s gravity.angle_* do. The
+direction is carried into the patient's frame by the rotation of the registration's affine
+part, so a head scanned tilted gets gravity along its own anatomy.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ..errors import InputError
+from ..images.frames import LPS_TO_RAS
+
+G = 9.81
+POSITIONS = {"supine": (0.0, -1.0, 0.0), "prone": (0.0, 1.0, 0.0), "left": (-1.0, 0.0, 0.0), "right": (1.0, 0.0, 0.0)}
+RIM_RADIUS = 25.0  # mm: a craniotomy of 5 cm
+MAX_FROM_SURFACE = 30.0  # mm: a craniotomy centre farther from the brain's surface is a frame or unit slip
+
+
+def anatomical_gravity(position: str) -> np.ndarray:
+    """Gravity's unit direction in the anatomical (template RAS) frame for --position."""
+    text = str(position).strip().lower()
+    if text in POSITIONS:
+        return np.array(POSITIONS[text])
+    try:
+        angles = [float(v) for v in text.split(",")]
+    except ValueError:
+        angles = []
+    if len(angles) != 3 or not np.all(np.isfinite(angles)):
+        raise InputError(f"--position: '{position}' is not one of {', '.join(POSITIONS)} nor three angles "
+                         f"\"ax,ay,az\" in degrees (the supine direction turned about x, then y, then z)")
+    return Rotation.from_euler("xyz", angles, degrees=True).apply(POSITIONS["supine"])
+
+
+def patient_direction(direction_template_ras: np.ndarray, affine_matrix: np.ndarray) -> np.ndarray:
+    """A direction of the template's frame in the patient's (both RAS), by the rotation of
+    the affine (patient LPS -> template LPS) from its polar decomposition: scaling and shear
+    do not turn gravity."""
+    u, _, vt = np.linalg.svd(np.asarray(affine_matrix).reshape(3, 3))
+    rotation = u @ vt  # template <- patient, LPS
+    d = LPS_TO_RAS @ rotation.T @ LPS_TO_RAS @ np.asarray(direction_template_ras, dtype=float)
+    return d / np.linalg.norm(d)
+
+
+def craniotomy_levels(surface_ras_mm: np.ndarray, up: np.ndarray, centre: np.ndarray | None,
+                      radius: float = RIM_RADIUS) -> dict:
+    """The CSF level (m along up) the craniotomy drains to: the lowest point of the brain's
+    surface within ``radius`` mm of the craniotomy's centre (its rim's lowest point, where
+    the CSF spills out), and the level before (above the brain's highest point). No centre:
+    the craniotomy is at the brain's highest point (docs/patients.md)."""
+    up = np.asarray(up, dtype=float) / np.linalg.norm(up)
+    heights = surface_ras_mm @ up
+    if centre is None:
+        centre = surface_ras_mm[int(np.argmax(heights))]
+    centre = np.asarray(centre, dtype=float)
+    distance = np.linalg.norm(surface_ras_mm - centre, axis=1)
+    nearest = float(distance.min())
+    if nearest > MAX_FROM_SURFACE:
+        raise InputError(f"--craniotomy: ({', '.join(f'{v:g}' for v in centre)}) mm is {nearest:.0f} mm from the "
+                         f"brain's surface; give the craniotomy's centre on the head in the T1's RAS frame, mm, as "
+                         f"3D Slicer shows it (LPS numbers have x and y negated)")
+    rim = distance <= radius
+    return {"centre_mm": surface_ras_mm[int(np.argmin(distance))].tolist(), "rim_level_m": float(heights[rim].min()) * 1e-3,
+            "start_level_m": float(heights.max() + 5.0) * 1e-3, "radius_mm": radius}

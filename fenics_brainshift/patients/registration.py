@@ -1,0 +1,171 @@
+"""The map from a patient's T1 to the ICBM152 template's: rigid, then affine, then a cubic
+B-spline, each by Mattes mutual information (robust to the scanner's contrast and bias field)
+over a coarse-to-fine pyramid, in SimpleITK.
+
+The patient is the fixed image and the template the moving one, so the transform found takes
+a patient point (LPS mm) to the template point that lies there: resampling the template's
+labels through it gives them on the patient's grid. Measured on a synthetic patient (the
+template moved by a known rigid motion and smooth deformation, with a bias field, noise and an
+oblique 1 x 1 x 1.5 mm grid: benchmarks/prepare.py), the default settings recover the brain
+mask to a Dice of 0.99 and points inside the brain to 0.5 mm on average.
+"""
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import SimpleITK as sitk
+
+log = logging.getLogger(__name__)
+
+# (stage, shrink factors, smoothing sigmas in mm, iterations)
+STAGES = (("rigid", (4, 2), (2.0, 1.0), 100),
+          ("affine", (4, 2), (2.0, 1.0), 100),
+          ("deformable", (4, 2), (2.0, 1.0), 20))
+INVERSE_GRID = 2.0  # mm: the grid the B-spline's displacement is inverted on
+INVERSE_MARGIN = 20.0  # mm: that grid's reach past the patient's image
+BSPLINE_MESH = 6  # control-point intervals along each axis of the patient's image
+SAMPLING = {"rigid": 0.1, "affine": 0.1, "deformable": 0.05}  # share of voxels the metric samples
+MIN_SAMPLES = 10000  # and at least this many at each level (a small grid's coarse level has a few thousand)
+
+
+@dataclass
+class Registration:
+    """``transform``: patient LPS mm -> template LPS mm (the affine after a B-spline, or the
+    affine alone); ``affine``: the affine part; ``grid``: an image with the patient's geometry
+    (the B-spline's domain); ``stages``: each stage's time (s) and final metric."""
+
+    transform: sitk.CompositeTransform
+    affine: sitk.AffineTransform
+    grid: sitk.Image
+    stages: list[dict] = field(default_factory=list)
+    _inverse: sitk.Transform | None = field(default=None, repr=False)
+
+    def to_template(self, points_lps: np.ndarray) -> np.ndarray:
+        return np.array([self.transform.TransformPoint(tuple(map(float, p))) for p in points_lps]).reshape(-1, 3)
+
+    def to_patient(self, points_lps: np.ndarray) -> np.ndarray:
+        """The patient points the transform takes to ``points_lps`` (template, LPS mm). The
+        transform is p -> A(p + d(p)); its inverse q -> r + d'(r), r = A^-1(q), d' the inverse
+        of the B-spline's displacement field on an INVERSE_GRID mm grid (ITK's iterative
+        inversion). (A fixed-point iteration point by point found spurious roots outside the
+        B-spline's domain, where it is the identity, for points near the image's edge.)"""
+        inverse = self.affine.GetInverse()
+        r = np.array([inverse.TransformPoint(tuple(map(float, x))) for x in np.asarray(points_lps).reshape(-1, 3)])
+        if self.transform.GetNumberOfTransforms() < 2:
+            return r.reshape(-1, 3)
+        if self._inverse is None:
+            self._inverse = self._inverse_displacement()
+        return np.array([self._inverse.TransformPoint(tuple(map(float, x))) for x in r]).reshape(-1, 3)
+
+    def _inverse_displacement(self) -> sitk.Transform:
+        grid = self.grid
+        # the patient's grid and INVERSE_MARGIN mm around it: a point near the image's edge is
+        # moved past it by the B-spline (identity outside its domain)
+        extent = np.array(grid.GetSpacing()) * np.array(grid.GetSize()) + 2 * INVERSE_MARGIN
+        spacing = np.maximum(np.array(grid.GetSpacing()), INVERSE_GRID)
+        size = [int(np.ceil(e / s)) + 1 for e, s in zip(extent, spacing)]
+        direction = np.array(grid.GetDirection()).reshape(3, 3)
+        origin = np.array(grid.GetOrigin()) - direction @ (0.5 * np.array(grid.GetSpacing()) + INVERSE_MARGIN)
+        forward = sitk.TransformToDisplacementField(self.transform.GetNthTransform(1), sitk.sitkVectorFloat64, size,
+                                                    origin.tolist(), spacing.tolist(), grid.GetDirection())
+        inverse = sitk.InvertDisplacementField(forward, maximumNumberOfIterations=50,
+                                               maxErrorToleranceThreshold=0.01, meanErrorToleranceThreshold=1e-4,
+                                               enforceBoundaryCondition=True)
+        return sitk.DisplacementFieldTransform(inverse)
+
+
+def normalised(image: sitk.Image) -> sitk.Image:
+    """Intensities windowed to [0, 1] between the 1st and 99th percentile of the non-zero voxels."""
+    values = sitk.GetArrayViewFromImage(image)
+    inside = values[values > 0] if np.any(values > 0) else values.ravel()
+    lo, hi = np.percentile(inside, [1, 99])
+    if hi <= lo:
+        hi = lo + 1.0
+    return sitk.Cast(sitk.IntensityWindowing(image, float(lo), float(hi), 0.0, 1.0), sitk.sitkFloat32)
+
+
+def register(patient: sitk.Image, template: sitk.Image, deformable: bool = True) -> Registration:
+    """Register the template (moving) to the patient (fixed); both float32 images. On one
+    thread: the answer is the same every time (ITK's threads sum the metric in varying order)."""
+    threads = sitk.ProcessObject.GetGlobalDefaultNumberOfThreads()
+    sitk.ProcessObject.SetGlobalDefaultNumberOfThreads(1)
+    try:
+        return _register(patient, template, deformable)
+    finally:
+        sitk.ProcessObject.SetGlobalDefaultNumberOfThreads(threads)
+
+
+def _register(patient: sitk.Image, template: sitk.Image, deformable: bool) -> Registration:
+    fixed, moving = normalised(patient), normalised(template)
+    stages: list[dict] = []
+    start = sitk.CenteredTransformInitializer(fixed, moving, sitk.Euler3DTransform(),
+                                              sitk.CenteredTransformInitializerFilter.MOMENTS)
+    rigid = _stage(fixed, moving, sitk.Euler3DTransform(start), STAGES[0], stages)
+    affine = sitk.AffineTransform(3)
+    affine.SetCenter(rigid.GetCenter())
+    affine.SetMatrix(rigid.GetMatrix())
+    affine.SetTranslation(rigid.GetTranslation())
+    affine = _stage(fixed, moving, affine, STAGES[1], stages)
+    total = sitk.CompositeTransform(3)
+    total.AddTransform(affine)
+    if deformable:
+        bspline = sitk.BSplineTransformInitializer(fixed, [BSPLINE_MESH] * 3, order=3)
+        bspline = _stage(fixed, moving, bspline, STAGES[2], stages, initial=affine)
+        total.AddTransform(bspline)  # applied first: p -> affine(bspline(p))
+    grid = sitk.Image(patient.GetSize(), sitk.sitkUInt8)
+    grid.CopyInformation(patient)
+    return Registration(total, affine, grid, stages)
+
+
+def _stage(fixed, moving, transform, settings, stages: list, initial=None):
+    name, shrink, smooth, iterations = settings
+    method = sitk.ImageRegistrationMethod()
+    method.SetMetricAsMattesMutualInformation(numberOfHistogramBins=32)
+    method.SetMetricSamplingStrategy(method.RANDOM)
+    # a share of the voxels, but never a few hundred (a small grid's coarse level: a noisy
+    # metric, an optimiser stopping anywhere); seeded, and on one thread: ITK's threads sum
+    # the metric in a varying order, and the same T1 gave masks differing by voxels
+    voxels = [float(np.prod(np.array(fixed.GetSize()) / f)) for f in shrink]
+    method.SetMetricSamplingPercentagePerLevel([min(1.0, max(SAMPLING[name], MIN_SAMPLES / v)) for v in voxels],
+                                               seed=1)
+    method.SetInterpolator(sitk.sitkLinear)
+    if name == "deformable":
+        method.SetOptimizerAsLBFGSB(gradientConvergenceTolerance=1e-5, numberOfIterations=iterations,
+                                    maximumNumberOfCorrections=5)
+        method.SetMovingInitialTransform(initial)
+    else:
+        method.SetOptimizerAsGradientDescent(learningRate=1.0, numberOfIterations=iterations,
+                                             convergenceMinimumValue=1e-6, convergenceWindowSize=10,
+                                             estimateLearningRate=method.EachIteration)
+        method.SetOptimizerScalesFromPhysicalShift()
+    method.SetShrinkFactorsPerLevel(list(shrink))
+    method.SetSmoothingSigmasPerLevel(list(smooth))
+    method.SmoothingSigmasAreSpecifiedInPhysicalUnitsOn()
+    method.SetInitialTransform(transform, inPlace=True)
+    began = time.perf_counter()
+    method.Execute(fixed, moving)
+    seconds = time.perf_counter() - began
+    stages.append({"stage": name, "seconds": round(seconds, 2), "metric": round(method.GetMetricValue(), 4),
+                   "iterations": method.GetOptimizerIteration()})
+    log.info("registration %s: %.1f s, mutual information %.3f after %d iterations", name, seconds,
+             -method.GetMetricValue(), method.GetOptimizerIteration())
+    return transform
+
+
+def correlation_in(patient: sitk.Image, template: sitk.Image, registration: Registration,
+                   mask: np.ndarray, step: int = 2) -> float:
+    """The fit's measure: Pearson correlation of the patient's and the registered template's
+    intensities over the brain found (``mask``, the patient's array order), on every
+    ``step``-th voxel along each axis (the map is costly at every voxel of a 1 mm T1). A T1
+    registered well gives 0.9-0.98 (synthetic patients); a failed registration far less."""
+    grid = patient[::step, ::step, ::step]
+    moved = sitk.Resample(template, grid, registration.transform, sitk.sitkLinear, 0.0)
+    inside = mask[::step, ::step, ::step]
+    a = sitk.GetArrayViewFromImage(grid)[inside].astype(float)
+    b = sitk.GetArrayViewFromImage(moved)[inside].astype(float)
+    if len(a) < 2 or a.std() == 0 or b.std() == 0:
+        return 0.0
+    return float(np.corrcoef(a, b)[0, 1])
