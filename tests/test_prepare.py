@@ -223,6 +223,7 @@ def _bad_inputs(base: Path, tmp: Path) -> dict:
         "craniotomy not numbers": ([dicom, "--craniotomy", "1,2"], "three numbers"),
         "position": ([dicom, "--position", "sitting"], "--position"),
         "gap in metres": ([dicom, "--gap", "0.003"], "--gap"),
+        "radius not a number": ([dicom, "--craniotomy-radius", "nan"], "--craniotomy-radius"),
         "someone's folder": ([dicom, "-o", str(tmp / "notes")], "not a folder"),
     }
 

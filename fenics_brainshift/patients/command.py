@@ -52,6 +52,9 @@ def prepare_command(args) -> int:
     centre = _point(args.craniotomy, "--craniotomy") if args.craniotomy else None
     if not 0.5 <= args.gap <= 10.0:
         raise InputError(f"--gap: {args.gap:g} mm; the CSF layer between brain and skull is 0.5-10 mm (default 3)")
+    if not 5.0 <= args.craniotomy_radius <= 60.0:
+        raise InputError(f"--craniotomy-radius: {args.craniotomy_radius:g} mm; a craniotomy's radius is 5-60 mm "
+                         f"(default 25)")
     if not 2.0 <= args.voxel <= 10.0:
         raise InputError(f"--voxel: {args.voxel:g} mm; the mesh's voxel is 2-10 mm (default 5, the paper's)")
     times = {}
