@@ -21,8 +21,9 @@ def _parser() -> argparse.ArgumentParser:
                         help="no progress bar (it shows on rank 0 only when stderr is a terminal)")
     sub = parser.add_subparsers(dest="command", required=True)
     from .atlas.arguments import add_atlas, add_update
+    from .patients.arguments import add_prepare
 
-    for add in (_add_run, _add_prepare, _add_mesh, _add_warp, _add_fit, add_atlas, add_update, _add_compare, _add_bench):
+    for add in (_add_run, add_prepare, _add_mesh, _add_warp, _add_fit, add_atlas, add_update, _add_compare, _add_bench):
         add(sub)
     sub.add_parser("info", help="versions of DOLFINx, PETSc, MPI, the scalar type and optional extras")
     sub.add_parser("scenes", help="the bundled scenes (run one by name: brainshift run cube)")
@@ -39,30 +40,6 @@ def _add_run(sub) -> None:
                           "(repeatable; arrays by index: fixed.0.where='z < 0.01')")
     run.add_argument("--pictures", action="store_true",
                      help="also write deformed.png and probes.png (same as --set output.pictures=true)")
-
-
-def _add_prepare(sub) -> None:
-    prep = sub.add_parser("prepare", help="a patient's T1 (DICOM, NIfTI, NRRD) to a scene: brain, supports, septa, "
-                                          "skull, gravity, CSF level",
-                          description="Registers the ICBM152 2009a template to the T1 (rigid, affine, B-spline; "
-                                      "SimpleITK), carries its brain mask and the bundled brain scene's supports, "
-                                      "septa and probes onto the patient, offsets the brain's surface to an inner "
-                                      "skull, and writes PATIENT/scene.toml for `brainshift run` (docs/patients.md).",
-                          formatter_class=_Defaults)
-    prep.add_argument("t1", metavar="T1", help="the pre-operative T1: a DICOM series folder, .nii, .nii.gz or .nrrd")
-    prep.add_argument("-o", "--output", required=True, metavar="PATIENT", help="the patient's folder to write")
-    prep.add_argument("--tumour", help="a tumour segmentation on the T1's grid (.nii.gz, .nrrd, .seg.nrrd)")
-    prep.add_argument("--position", default="supine",
-                      help="the head on the table: supine, prone, left, right (side down), or angles 'ax,ay,az' "
-                           "(degrees, the supine gravity turned about the head's x, y, z)")
-    prep.add_argument("--craniotomy", metavar="X,Y,Z",
-                      help="the craniotomy's centre, RAS mm as 3D Slicer shows it (default: the brain's highest "
-                           "point)")
-    prep.add_argument("--craniotomy-radius", type=float, default=25.0, help="the craniotomy's radius, mm")
-    prep.add_argument("--gap", type=float, default=3.0, help="the CSF layer between brain and inner skull, mm")
-    prep.add_argument("--voxel", type=float, default=5.0, help="the mesh's voxel, mm")
-    prep.add_argument("--affine-only", action="store_true",
-                      help="no deformable stage (faster, a coarser brain: for a quick look)")
 
 
 def _add_mesh(sub) -> None:
