@@ -1,7 +1,7 @@
 """`brainshift prepare` (patients/): a patient's T1 to a scene, checked on synthetic patients.
 
-The synthetic patient is the ICBM152 T1 seen by a scanner (patients/synthetic.py): a head 0.9
-times the template's size, turned by (8, -6, 10) degrees and shifted, deformed by a known
+The synthetic patient is the ICBM152 T1 inside FSL's whole MNI152 head (scalp, skull, neck), seen
+by a scanner (patients/synthetic.py): a head 0.9 times the template's size, turned by (8, -6, 10) degrees and shifted, deformed by a known
 smooth field of 3 mm, with a bias field and noise, on an oblique 2.5 x 2.5 x 3 mm grid (small,
 for speed), written as an MR DICOM series. The truth each check compares with is that known
 transform, never the registration's own output:
@@ -11,7 +11,8 @@ transform, never the registration's own output:
 - the same image as DICOM, NIfTI and NRRD giving the same image, the same mask;
 - a tumour sphere lands on its own voxels, with its volume;
 - bad inputs are one line, exit 2, and leave nothing written;
-- the prepared scene runs (and on 2 ranks: the mpi pass).
+- the prepared scene runs (and on 2 ranks: the mpi pass);
+- a skull-stripped T1 goes the brain-to-brain way, and finds its brain too.
 """
 from __future__ import annotations
 
@@ -27,13 +28,21 @@ from fenics_brainshift.cli import main
 # PETSc starts on every rank here, not on rank 0 alone inside the fixture's prepare: its start
 # is collective, and rank 1 waiting in a broadcast meanwhile had its stack smashed
 from fenics_brainshift.runner import run
-from fenics_brainshift.data.templates import mni_brain_mask, mni_t1
+from fenics_brainshift.data.templates import mni_brain_mask, mni_head, mni_t1
 
 SPACING, SIZE = (2.5, 2.5, 3.0), (80, 92, 64)
 
 
 def _template():
     return sitk.ReadImage(str(mni_t1()), sitk.sitkFloat32)
+
+
+def _head_template():
+    """The template with a head around its brain, as a scanner's T1 shows one."""
+    from fenics_brainshift.patients.synthetic import with_head
+
+    return with_head(_template(), sitk.ReadImage(str(mni_head()), sitk.sitkFloat32),
+                     sitk.ReadImage(str(mni_head(brain_mask=True))), sitk.ReadImage(str(mni_brain_mask())))
 
 
 @pytest.fixture(scope="module")
@@ -45,7 +54,7 @@ def patient(tmp_path_factory):
     folder = None
     if COMM.rank == 0:
         base = tmp_path_factory.mktemp("patient")
-        synthetic = synthetic_patient(_template(), spacing=SPACING, size=SIZE)
+        synthetic = synthetic_patient(_head_template(), spacing=SPACING, size=SIZE)
         write_dicom_series(synthetic.image, base / "dicom")
         sitk.WriteTransform(synthetic.known, str(base / "known.h5"))
         np.save(base / "rotation.npy", synthetic.rotation)
@@ -84,6 +93,7 @@ def test_the_brain_found_is_the_known_one(patient):
     assert dice >= 0.95
     assert abs(found.sum() / truth.sum() - 1.0) <= 0.03
     record = json.loads((patient / "P" / "prepare.json").read_text())
+    assert record["head_first"]  # the whole head placed first (patients/registration.py)
     litres = found.sum() * np.prod(SPACING) * 1e-6
     assert record["brain_litres"] == pytest.approx(litres, rel=1e-3)
     assert 1.0 <= litres <= 1.7  # a 0.9-scaled template brain: 0.73 x 2.05 l
@@ -139,6 +149,28 @@ def test_gravity_follows_the_head_and_the_level_the_craniotomy(patient):
 
 
 @pytest.mark.usefixtures("serial_only")
+def test_the_inner_skull_stands_the_gap_out_from_the_mesh_nodes(patient):
+    """Every node of the voxel mesh `run` builds is inside the skull, by about the gap (3 mm):
+    the exact distance from each voxel corner to the STL's triangles (physics/skull.py's
+    point-to-triangle search, not the grid the surface was made on)."""
+    import meshio
+
+    from fenics_brainshift.meshing.voxelize import voxelize
+    from fenics_brainshift.physics.skull import RigidSkull, closed_surface_problem
+
+    folder = patient / "P"
+    model = voxelize(folder / "anatomy.seg.nrrd", 5e-3, 1e-3, 0.5, 1, ["brain", "occipital_pole", "brain_stem"])
+    corners = np.unique((model.voxels[:, None, :] + np.array(list(np.ndindex(2, 2, 2)))[None]).reshape(-1, 3), axis=0)
+    skull = meshio.read(folder / "skull.stl")
+    triangles = skull.cells_dict["triangle"]
+    assert closed_surface_problem(triangles) is None
+    phi, _ = RigidSkull(skull.points, triangles).phi((model.origin + corners * 5e-3) * 1e3)
+    assert phi.min() >= 1.0  # mm: inside, and never closer than MIN_CLEARANCE
+    outer = phi < 6.0  # the nodes facing the skull
+    assert np.median(phi[outer]) == pytest.approx(3.0, abs=0.3)
+
+
+@pytest.mark.usefixtures("serial_only")
 def test_dicom_nifti_and_nrrd_of_one_scan_give_one_image_and_one_mask(patient, tmp_path):
     from fenics_brainshift.patients.series import read_t1
 
@@ -188,6 +220,27 @@ def test_a_tumour_lands_on_its_voxels(patient, tmp_path):
     assert record["tumour"]["ml"] == pytest.approx(sphere.sum() * np.prod(SPACING) * 1e-3, abs=1e-3)
     assert record["tumour"]["inside_brain"] == 1.0
     assert "tumour" in (tmp_path / "P" / "scene.toml").read_text()
+
+
+@pytest.mark.usefixtures("serial_only")
+def test_a_skull_stripped_t1_is_registered_brain_to_brain(tmp_path):
+    """A T1 without scalp and skull (a research scan, stripped) has no head to place: the brain
+    stages start from the brains' moments, and find the known brain all the same."""
+    from fenics_brainshift.patients.registration import shows_head
+    from fenics_brainshift.patients.synthetic import synthetic_patient
+
+    stripped = synthetic_patient(_template(), spacing=(3.0, 3.0, 3.0), size=(66, 76, 64), warp_mm=0.0)
+    assert not shows_head(stripped.image)
+    assert shows_head(synthetic_patient(_head_template(), spacing=(3.0, 3.0, 3.0), size=(66, 76, 64)).image)
+    sitk.WriteImage(stripped.image, str(tmp_path / "t1.nii.gz"))
+    assert _prepare([str(tmp_path / "t1.nii.gz"), "-o", str(tmp_path / "P"), "--voxel", "8", "--affine-only"]) == 0
+    record = json.loads((tmp_path / "P" / "prepare.json").read_text())
+    assert not record["head_first"] and [s["stage"] for s in record["registration"]] == ["rigid", "affine"]
+    grid = sitk.ReadImage(str(tmp_path / "P" / "t1.nii.gz"))
+    mask = sitk.Cast(sitk.ReadImage(str(mni_brain_mask())), sitk.sitkFloat32)
+    truth = sitk.GetArrayFromImage(sitk.Resample(mask, grid, stripped.known, sitk.sitkLinear, 0.0)) >= 0.5
+    found = sitk.GetArrayFromImage(sitk.ReadImage(str(tmp_path / "P" / "labels.nii.gz"))) > 0
+    assert 2.0 * (truth & found).sum() / (truth.sum() + found.sum()) >= 0.95
 
 
 def _bad_inputs(base: Path, tmp: Path) -> dict:
@@ -249,26 +302,22 @@ def test_bad_input_is_one_line_and_writes_nothing(patient, tmp_path, capsys):
 
 @pytest.mark.mpi
 def test_the_prepared_scene_runs(patient, shared_tmp):
-    """A settled state with the septa and the carried brain-stem support, the frontal pole
-    sagging towards gravity: serially as written (with the skull 3 mm out, which holds the sag
-    to a few mm); on 2 ranks (the mpi pass) without the skull, whose contact Newton stalled in
-    one 2-rank run of three (the mesh's partition changes from run to run: docs/limits.md)."""
+    """A settled state with the skull 3 mm out (which holds the sag to a few mm), the septa and
+    the carried brain-stem support, the frontal pole sagging towards gravity: as written, on 1
+    and 2 ranks (the mpi pass)."""
     import tomllib
 
     from fenics_brainshift.scene import scene_from_dict
 
     folder = patient / "P"
     data = tomllib.loads((folder / "scene.toml").read_text())
-    with_skull = COMM.size == 1
-    if not with_skull:
-        del data["skull"]
     scene = scene_from_dict(data, base=folder)
     result = run(scene, str(shared_tmp / "run"), COMM)
     summary = result.summary
     assert summary["status"] == "ok"
     sag = np.array(summary["probes"]["frontal_pole"])
     gravity = np.array(scene.gravity.vector) / 9.81
-    assert 0.5e-3 < sag @ gravity < (5e-3 if with_skull else 20e-3)
+    assert 0.5e-3 < sag @ gravity < 5e-3
     assert np.linalg.norm(sag - (sag @ gravity) * gravity) < 0.5 * (sag @ gravity)  # mostly along gravity
     assert {s["name"] for s in summary["septa"]} == {"falx", "tentorium"}
 

@@ -21,16 +21,17 @@ import numpy as np
 import SimpleITK as sitk
 from scipy import ndimage
 
-from ..data.templates import largest_part, mni_brain_mask, mni_t1
+from ..data.templates import largest_part, mni_brain_mask, mni_head, mni_t1
 from ..errors import InputError
 from ..images.frames import LPS_TO_RAS
 from ..images.volumes import label_mask, read_volume
 from ..outputs.fine_surface import write_slicer_stl
 from .anatomy import BRAIN_SCENE, template_anatomy
-from .carry import index_to_lps, labels_on_patient, lps_to_index, ras_affine
+from .carry import index_to_lps, labels_on_patient, ras_affine
 from .position import G, anatomical_gravity, craniotomy_levels, patient_direction
-from .registration import correlation_in, register
+from .registration import correlation_in, register, shows_head
 from .series import read_t1
+from .skull import inner_skull
 from .overview import write_overview
 from .slicer import write_segmentation
 
@@ -41,7 +42,6 @@ VOLUME_RANGE = (0.6, 2.6)  # litres: a brain found outside this is a failed regi
 PLAUSIBLE = (1.0, 1.7)  # litres: an adult brain; outside it, a warning
 MIN_CORRELATION = 0.5  # the template and the T1 in the brain found: below this the registration failed
 PREPARE_RECORD = "prepare.json"
-SKULL_GRID = 1.5  # mm: the grid the skull's offset surface is found on
 
 
 def prepare_command(args) -> int:
@@ -64,10 +64,12 @@ def prepare_command(args) -> int:
     template = sitk.ReadImage(str(mni_t1()), sitk.sitkFloat32)
     template_brain_image = sitk.ReadImage(str(mni_brain_mask()))
     template_brain = sitk.GetArrayFromImage(template_brain_image) > 0
+    head = sitk.ReadImage(str(mni_head()), sitk.sitkFloat32) if shows_head(patient) else None
     times["read"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    registration = register(patient, template, deformable=not args.affine_only)
+    registration = register(patient, template, deformable=not args.affine_only, head=head,
+                            brain=template_brain_image)
     times["registration"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -81,7 +83,8 @@ def prepare_command(args) -> int:
     brain = ndimage.binary_fill_holes(largest_part(labels > 0))
     labels[~brain] = 0
     labels[brain & (labels == 0)] = BRAIN
-    report = {"t1": str(Path(args.t1).resolve()), "grid": _grid(patient), "registration": registration.stages}
+    report = {"t1": str(Path(args.t1).resolve()), "grid": _grid(patient), "head_first": head is not None,
+              "registration": registration.stages}
     if tumour is not None:
         report["tumour"] = _tumour_report(tumour, brain, patient)
         labels[tumour] = TUMOUR
@@ -199,7 +202,8 @@ def _write_folder(folder: Path, patient, labels, present, brain, anatomy, regist
     sitk.WriteImage(label_image, str(folder / "labels.nii.gz"))
     write_segmentation(folder / "anatomy.seg.nrrd", labels, patient, present)
     sitk.WriteTransform(registration.transform, str(folder / "patient_to_template.h5"))
-    skull, triangles = inner_skull(folder / "anatomy.seg.nrrd", list(present.values()), brain, patient, args)
+    skull, triangles = inner_skull(folder / "anatomy.seg.nrrd", list(present.values()), brain, patient, args.voxel,
+                                   args.gap)
     write_slicer_stl(folder / "skull.stl", skull, triangles)
     septa = {}
     for name, (points_lps, tri) in anatomy.septa.items():
@@ -213,43 +217,6 @@ def _write_folder(folder: Path, patient, labels, present, brain, anatomy, regist
     (folder / "scene.toml").write_text(scene_text(args, present, gravity, levels, septa, probes))
     write_overview(folder / "overview.png", patient, labels, present,
                    f"{Path(args.t1).name}: the brain found and the carried labels")
-
-
-def inner_skull(segmentation: Path, labels: list[str], brain: np.ndarray, patient: sitk.Image, args):
-    """The inner skull (RAS mm, triangles): --gap mm out from the brain and from the voxel
-    mesh `brainshift run` builds of it (whose corners stand up to half a voxel's diagonal
-    past the brain's surface: the contact acts on the mesh), by marching cubes of the
-    distance to their union on a SKULL_GRID mm grid (closed by construction)."""
-    from skimage.measure import marching_cubes
-
-    from ..meshing.voxelize import voxelize
-    from ..physics.skull import closed_surface_problem
-
-    model = voxelize(segmentation, args.voxel * 1e-3, 1e-3, 0.5, 1, labels)
-    kept = np.zeros(model.voxels.max(axis=0) + 1, dtype=bool)
-    kept[tuple(model.voxels.T)] = True
-    origin = model.origin * 1e3 - 3 * args.gap  # RAS mm: the mesh's lowest corner, with room for the offset
-    shape = np.ceil((np.array(kept.shape) * args.voxel + 6 * args.gap) / SKULL_GRID).astype(int) + 1
-    axes = [origin[d] + SKULL_GRID * np.arange(shape[d]) for d in range(3)]
-    grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)  # RAS mm
-    cell = np.floor((grid - model.origin * 1e3) / args.voxel).astype(np.int64)
-    inside_mesh = np.all((cell >= 0) & (cell < kept.shape), axis=1)
-    body = np.zeros(len(grid), dtype=bool)
-    body[inside_mesh] = kept[tuple(cell[inside_mesh].T)]
-    ijk = np.rint(lps_to_index(patient, grid @ LPS_TO_RAS)).astype(np.int64)
-    inside_image = np.all((ijk >= 0) & (ijk < np.array(patient.GetSize())), axis=1)
-    body[inside_image] |= brain[ijk[inside_image, 2], ijk[inside_image, 1], ijk[inside_image, 0]]
-    distance = ndimage.distance_transform_edt(~body.reshape(shape), sampling=SKULL_GRID).astype(np.float32)
-    # the level just off the grid's exact distances (1.5 mm x sqrt(n): 3 mm is one), so that no
-    # vertex falls on a grid point: those make zero-area triangles, and the STL's holes
-    level = args.gap + 1e-3 * SKULL_GRID * np.pi
-    points, triangles, _, _ = marching_cubes(np.pad(distance, 1, constant_values=distance.max()), level,
-                                           allow_degenerate=False)
-    points = origin + (points - 1.0) * SKULL_GRID
-    problem = closed_surface_problem(triangles)
-    if problem:  # not the user's input: say so plainly
-        raise RuntimeError(f"prepare: the inner skull's surface came out open ({problem})")
-    return points, triangles.astype(np.int64)
 
 
 def _stored(image: sitk.Image) -> sitk.Image:

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import SimpleITK as sitk
+from scipy import ndimage
 
 MR_IMAGE_STORAGE = "1.2.840.10008.5.1.4.1.1.4"
 
@@ -24,6 +25,27 @@ class SyntheticPatient:
     image: sitk.Image  # float32, the patient's T1
     known: sitk.Transform  # patient LPS mm -> template LPS mm
     rotation: np.ndarray  # the head's turn (template <- patient, LPS), without the scale
+
+
+def with_head(template: sitk.Image, head: sitk.Image, head_brain: sitk.Image, brain: sitk.Image) -> sitk.Image:
+    """The skull-stripped ``template`` put inside a whole ``head`` (FSL's MNI152, the same
+    space; ``head_brain`` its brain mask): the head's intensities resampled onto the template's
+    grid and scaled so the two brains' medians agree, the template's own inside its ``brain``
+    mask, and CSF (dark) where the head's brain reaches past the template's. A scanner's T1
+    shows brain, CSF, skull, scalp and neck; a synthetic patient made from this has them, and
+    its brain is still exactly the template's, carried by the known transform."""
+    on_grid = sitk.Resample(head, template, sitk.Transform(), sitk.sitkLinear, 0.0, sitk.sitkFloat32)
+    head_inside = sitk.GetArrayFromImage(sitk.Resample(head_brain, template, sitk.Transform(),
+                                                       sitk.sitkNearestNeighbor, 0)) > 0
+    inside = sitk.GetArrayViewFromImage(brain) > 0
+    t, h = sitk.GetArrayFromImage(template), sitk.GetArrayFromImage(on_grid)
+    brain_median = np.median(t[inside])
+    h *= brain_median / max(np.median(h[inside]), 1e-12)
+    csf = ndimage.binary_dilation(head_inside, iterations=2) & ~inside
+    h[csf] = 0.15 * brain_median
+    out = sitk.GetImageFromArray(np.where(inside, t, h).astype(np.float32))
+    out.CopyInformation(template)
+    return out
 
 
 def synthetic_patient(template: sitk.Image, spacing=(1.0, 1.0, 1.5), size=(200, 230, 130),
