@@ -38,7 +38,8 @@ CORRELATION_SIGMA = 2.0  # mm: both images smoothed by this for the fit's measur
 # mm: after the head, the brain stages' metric sees the template's brain and this much around
 # it (the CSF and the skull's inner table, dark in both; not the scalp). Measured on the real
 # MPRAGE: unmasked, the B-spline grew the brain onto the skull (1.59 l); on a synthetic head, a
-# tighter mask shrank it (a masked metric gains by leaving hard voxels out: 3 % at 6 mm)
+# tighter mask shrank it (a masked metric gains by leaving hard voxels out: 3 % at 6 mm). The
+# affine's mask changed little on the real MPRAGE (1.29 l without, 1.32 l with)
 MASK_MARGIN = 6.0  # the affine stage
 BSPLINE_MARGIN = 10.0  # the B-spline
 INVERSE_GRID = 2.0  # mm: the grid the B-spline's displacement is inverted on
