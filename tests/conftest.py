@@ -94,6 +94,30 @@ def subprocess_env() -> dict:
     return env
 
 
+def run_group(cmd: list[str], timeout: float, **kwargs):
+    """subprocess.run(cmd, capture_output=True, text=True), but on timeout the command is
+    terminated, mpirun's ranks with it (subprocess.run kills mpirun alone, and left two ranks
+    spinning for 40 minutes of a CI run), then its group killed, and the test fails with what
+    the command had said."""
+    import signal
+    import subprocess
+
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            **kwargs)
+    try:
+        out, err = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.terminate()  # mpirun passes SIGTERM on to its ranks (they are not in its group)
+        try:
+            out, err = proc.communicate(timeout=10)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            out, err = proc.communicate()
+        pytest.fail(f"{' '.join(map(str, cmd[:6]))} ... ran past {timeout:g} s; its last words:\n"
+                    f"{out[-1500:]}\n{err[-3000:]}")
+    return subprocess.CompletedProcess(cmd, proc.returncode, out, err)
+
+
 @pytest.fixture
 def serial_only():
     if COMM.size > 1:

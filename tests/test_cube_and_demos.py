@@ -2,13 +2,12 @@
 from __future__ import annotations
 
 import json
-import subprocess
 import sys
 
 import numpy as np
 import pytest
 
-from conftest import ROOT, mpirun, subprocess_env
+from conftest import ROOT, mpirun, run_group, subprocess_env
 from fenics_brainshift.data import scene_path
 from fenics_brainshift.cli import main
 from fenics_brainshift.scene import load_scene
@@ -20,7 +19,7 @@ def _run(out, ranks: int, *cmd):
     cmd = [sys.executable, *cmd]
     if ranks > 1:
         cmd = mpirun() + cmd
-    proc = subprocess.run(cmd, capture_output=True, text=True, env=subprocess_env(), cwd=ROOT, timeout=900)
+    proc = run_group(cmd, 900, env=subprocess_env(), cwd=ROOT)
     assert proc.returncode == 0, proc.stderr[-3000:]
     return proc.stdout
 
