@@ -200,20 +200,54 @@ def test_dicom_nifti_and_nrrd_of_one_scan_give_one_image_and_one_mask(patient, t
     assert np.array_equal(label_mask(segmentation, ["brain", "brain_stem", "occipital_pole"]), labels.data > 0)
 
 
+def _spheres(patient: Path) -> dict[str, np.ndarray]:
+    """A tumour sphere of 12 mm in the brain found, off its centre, and a 20 mm oedema around
+    it ([k, j, i] on the T1's grid)."""
+    brain = _found_mask(patient)
+    centre_kji = np.argwhere(brain).mean(axis=0) + np.array([2, -3, 4])
+    kji = np.indices(brain.shape).reshape(3, -1).T
+    mm = np.linalg.norm((kji - centre_kji) * np.array(SPACING)[::-1], axis=1).reshape(brain.shape)
+    return {"tumour": mm <= 12.0, "oedema": mm <= 20.0}
+
+
+def _as_nifti(mask: np.ndarray, patient: Path, path: Path) -> Path:
+    image = sitk.GetImageFromArray(mask.astype(np.uint8))
+    image.CopyInformation(sitk.ReadImage(str(patient / "P" / "t1.nii.gz")))
+    sitk.WriteImage(image, str(path))
+    return path
+
+
+@pytest.mark.usefixtures("serial_only")
+def test_a_dicom_seg_lands_on_the_voxels_of_its_nifti_export(patient, tmp_path):
+    """highdicom writes the segments as a DICOM-SEG of the oblique series (BINARY, overlapping,
+    empty planes left out; and LABELMAP); read back onto the T1, each is its NIfTI export."""
+    from fenics_brainshift.images.dicom_seg import read_dicom_seg
+    from fenics_brainshift.patients.synthetic import write_dicom_seg
+
+    spheres = _spheres(patient)
+    t1 = sitk.ReadImage(str(patient / "P" / "t1.nii.gz"))
+    binary = read_dicom_seg(write_dicom_seg(spheres, patient / "dicom", tmp_path / "seg.dcm"), t1, "--tumour")
+    disjoint = {"tumour": spheres["tumour"], "oedema": spheres["oedema"] & ~spheres["tumour"]}
+    labelmap = read_dicom_seg(write_dicom_seg(disjoint, patient / "dicom", tmp_path / "labelmap.dcm", labelmap=True),
+                              t1, "--tumour")
+    for name in spheres:
+        exported = sitk.ReadImage(str(_as_nifti(spheres[name], patient, tmp_path / f"{name}.nii.gz")))
+        assert np.array_equal(binary[name], sitk.GetArrayFromImage(exported) > 0), name
+        assert np.array_equal(labelmap[name], disjoint[name]), name
+    assert spheres["tumour"].sum() > 100 and (spheres["oedema"].sum(axis=(1, 2)) > 0).sum() < t1.GetSize()[2]
+
+
 @pytest.mark.usefixtures("serial_only")
 def test_a_tumour_lands_on_its_voxels(patient, tmp_path):
-    grid = sitk.ReadImage(str(patient / "P" / "t1.nii.gz"))
-    brain = _found_mask(patient)
-    centre_kji = np.argwhere(brain).mean(axis=0)
-    kji = np.indices(brain.shape).reshape(3, -1).T
-    mm = (kji - centre_kji) * np.array(SPACING)[::-1]
-    sphere = (np.linalg.norm(mm, axis=1) <= 12.0).reshape(brain.shape)
-    image = sitk.GetImageFromArray(sphere.astype(np.uint8))
-    image.CopyInformation(grid)
-    sitk.WriteImage(image, str(tmp_path / "tumour.nii.gz"))
+    """The tumour segment of a two-segment DICOM-SEG, named, is meshed on its own voxels."""
+    from fenics_brainshift.patients.synthetic import write_dicom_seg
+
+    spheres = _spheres(patient)
+    write_dicom_seg(spheres, patient / "dicom", tmp_path / "seg.dcm")
     code = _prepare([str(patient / "dicom"), "-o", str(tmp_path / "P"), "--voxel", "8",
-                     "--tumour", str(tmp_path / "tumour.nii.gz"), "--affine-only"])
+                     "--tumour", str(tmp_path / "seg.dcm"), "--tumour-segment", "tumour", "--affine-only"])
     assert code == 0
+    sphere = spheres["tumour"]
     labels = sitk.GetArrayFromImage(sitk.ReadImage(str(tmp_path / "P" / "labels.nii.gz")))
     assert np.array_equal(labels == 2, sphere)
     record = json.loads((tmp_path / "P" / "prepare.json").read_text())
@@ -260,6 +294,14 @@ def _bad_inputs(base: Path, tmp: Path) -> dict:
     other = sitk.Image([10, 10, 10], sitk.sitkUInt8)
     other[5, 5, 5] = 1
     sitk.WriteImage(other, str(tmp / "tumour_elsewhere.nii.gz"))
+    from fenics_brainshift.patients.synthetic import write_dicom_seg
+
+    spheres = _spheres(base)
+    write_dicom_seg(spheres, base / "dicom", tmp / "two.dcm")
+    write_dicom_series(small.image, tmp / "small")
+    write_dicom_seg({"tumour": np.ones(sitk.GetArrayFromImage(small.image).shape, bool)}, tmp / "small",
+                    tmp / "other_series.dcm")
+    _as_nifti(spheres["tumour"] * 1 + spheres["oedema"], base, tmp / "two_labels.nii.gz")
     (tmp / "notes").mkdir()
     (tmp / "notes" / "a.txt").write_text("mine")
     dicom = str(base / "dicom")
@@ -272,6 +314,11 @@ def _bad_inputs(base: Path, tmp: Path) -> dict:
         "no such file": ([str(tmp / "nothing.nii.gz")], "no file"),
         "registration fails": ([str(tmp / "noise.nii.gz")], "failed"),
         "tumour on another grid": ([dicom, "--tumour", str(tmp / "tumour_elsewhere.nii.gz")], "another grid"),
+        "DICOM-SEG of another series": ([dicom, "--tumour", str(tmp / "other_series.dcm")], "another grid"),
+        "DICOM-SEG of two segments": ([dicom, "--tumour", str(tmp / "two.dcm")], "'tumour', 'oedema'"),
+        "no such segment": ([dicom, "--tumour", str(tmp / "two.dcm"), "--tumour-segment", "core"], "'core'"),
+        "two labels": ([dicom, "--tumour", str(tmp / "two_labels.nii.gz")], "--tumour-segment"),
+        "a T1 slice as tumour": ([dicom, "--tumour", str(base / "dicom" / "slice0001.dcm")], "not a segmentation"),
         "craniotomy far away": ([dicom, "--craniotomy", "0,0,400"], "from the brain's surface"),
         "craniotomy not numbers": ([dicom, "--craniotomy", "1,2"], "three numbers"),
         "position": ([dicom, "--position", "sitting"], "--position"),

@@ -14,7 +14,11 @@ def add_prepare(sub) -> None:
                           formatter_class=Defaults)
     prep.add_argument("t1", metavar="T1", help="the pre-operative T1: a DICOM series folder, .nii, .nii.gz or .nrrd")
     prep.add_argument("-o", "--output", required=True, metavar="PATIENT", help="the patient's folder to write")
-    prep.add_argument("--tumour", help="a tumour segmentation on the T1's grid (.nii.gz, .nrrd, .seg.nrrd)")
+    prep.add_argument("--tumour", help="a tumour segmentation on the T1's grid: a DICOM-SEG (.dcm, or a folder "
+                                       "holding one), .nii.gz, .nrrd or .seg.nrrd")
+    prep.add_argument("--tumour-segment", metavar="NAME[,NAME]",
+                      help="the segments of --tumour that are the tumour (names or label values); needed when "
+                           "the file holds more than one")
     prep.add_argument("--position", default="supine",
                       help="the head on the table: supine, prone, left, right (side down), or angles 'ax,ay,az' "
                            "(degrees, the supine gravity turned about the head's x, y, z)")

@@ -24,7 +24,8 @@ from scipy import ndimage
 from ..data.templates import largest_part, mni_brain_mask, mni_head, mni_t1
 from ..errors import InputError
 from ..images.frames import LPS_TO_RAS
-from ..images.volumes import label_mask, read_volume
+from ..images.dicom_seg import is_dicom_seg_path, read_dicom_seg
+from ..images.volumes import label_mask, read_volume, segment_names
 from ..outputs.fine_surface import write_slicer_stl
 from .anatomy import BRAIN_SCENE, template_anatomy
 from .carry import index_to_lps, labels_on_patient, ras_affine
@@ -60,7 +61,7 @@ def prepare_command(args) -> int:
     times = {}
     t = time.perf_counter()
     patient = read_t1(args.t1)
-    tumour = _tumour(args.tumour, patient) if args.tumour else None
+    tumour = _tumour(args.tumour, patient, args.tumour_segment) if args.tumour else None
     template = sitk.ReadImage(str(mni_t1()), sitk.sitkFloat32)
     template_brain_image = sitk.ReadImage(str(mni_brain_mask()))
     template_brain = sitk.GetArrayFromImage(template_brain_image) > 0
@@ -141,21 +142,44 @@ def _point(text: str, what: str) -> np.ndarray:
     return np.array(values)
 
 
-def _tumour(path: str, patient: sitk.Image) -> np.ndarray:
-    """The tumour segmentation's voxels ([k, j, i]) on the T1's grid; refused on another grid."""
-    if Path(path).is_dir() or str(path).lower().endswith(".dcm"):
-        raise InputError(f"--tumour: '{Path(path).name}': DICOM-SEG is not read yet; export the segment from 3D "
-                         f"Slicer as a .seg.nrrd or NIfTI on the T1's grid")
-    volume = read_volume(path, "--tumour", layered=True)
-    size = tuple(patient.GetSize())
-    if volume.data.shape != size or not np.allclose(volume.affine, ras_affine(patient), atol=1e-3):
-        raise InputError(f"--tumour: '{Path(path).name}' is on another grid than the T1 ({volume.data.shape} "
-                         f"against {size}, or another origin, spacing or orientation); export it from 3D Slicer "
-                         f"with the T1 as reference geometry")
-    mask = np.transpose(label_mask(volume, None), (2, 1, 0))
+def _tumour(path: str, patient: sitk.Image, segments: str | None) -> np.ndarray:
+    """The tumour segmentation's voxels ([k, j, i]) on the T1's grid: a DICOM-SEG (placed by its
+    frames' positions), a NIfTI or a (.seg).nrrd; the segments named by ``segments`` (names or
+    label values, comma-separated), needed when the file holds more than one; refused on
+    another grid."""
+    chosen = [s.strip() for s in segments.split(",") if s.strip()] if segments else None
+    if is_dicom_seg_path(path):
+        by_name = read_dicom_seg(path, patient, "--tumour")
+        names = list(by_name)
+        _check_segments(path, names, chosen)
+        unknown = [s for s in chosen or [] if s not in by_name]
+        if unknown:
+            raise InputError(f"--tumour-segment: no segment '{unknown[0]}' in '{Path(path).name}'; its segments: "
+                             + ", ".join(f"'{n}'" for n in names))
+        mask = np.logical_or.reduce([by_name[n] for n in (chosen or names)])
+    else:
+        volume = read_volume(path, "--tumour", layered=True)
+        size = tuple(patient.GetSize())
+        if volume.data.shape != size or not np.allclose(volume.affine, ras_affine(patient), atol=1e-3):
+            raise InputError(f"--tumour: '{Path(path).name}' is on another grid than the T1 ({volume.data.shape} "
+                             f"against {size}, or another origin, spacing or orientation); export it from 3D "
+                             f"Slicer with the T1 as reference geometry")
+        present = segment_names(volume) or [str(v) for v in np.unique(volume.data) if v > 0]
+        _check_segments(path, present, chosen)
+        mask = np.transpose(label_mask(volume, chosen, "--tumour-segment"), (2, 1, 0))
     if not mask.any():
-        raise InputError(f"--tumour: '{Path(path).name}' has no labelled voxel")
+        raise InputError(f"--tumour: '{Path(path).name}' has no labelled voxel"
+                         + (f" in {', '.join(chosen)}" if chosen else ""))
     return np.ascontiguousarray(mask)
+
+
+def _check_segments(path: str, present: list[str], chosen: list[str] | None) -> None:
+    """A file with several segments (a tumour's core and oedema, or brain and tumour) is not
+    taken whole: the user says which are the tumour."""
+    if chosen is None and len(present) > 1:
+        raise InputError(f"--tumour: '{Path(path).name}' holds {len(present)} segments ("
+                         + ", ".join(f"'{n}'" for n in present)
+                         + "); say which are the tumour with --tumour-segment NAME[,NAME]")
 
 
 def _tumour_report(tumour: np.ndarray, brain: np.ndarray, patient: sitk.Image) -> dict:

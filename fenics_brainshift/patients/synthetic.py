@@ -111,9 +111,10 @@ def write_dicom_series(image: sitk.Image, folder: Path, skip: tuple[int, ...] = 
     common = {"0008|0060": "MR", "0008|0016": MR_IMAGE_STORAGE, "0008|0021": now.strftime("%Y%m%d"),
               "0008|0031": now.strftime("%H%M%S"), "0008|103e": "T1 synthetic", "0010|0010": "Synthetic^Patient",
               "0010|0020": "SYN0001", "0020|000d": series_uid + ".0", "0020|000e": series_uid,
+              "0020|0052": series_uid + ".9",  # the frame of reference a DICOM-SEG of it refers to
               "0020|0037": "\\".join(f"{v:.9f}" for v in (direction[0], direction[3], direction[6],
                                                           direction[1], direction[4], direction[7])),
-              "0018|0050": f"{image.GetSpacing()[2]:.6f}", "0028|1050": "1000", "0028|1051": "2000"}
+              "0018|0050": f"{image.GetSpacing()[2]:.6f}", "0018|0088": f"{image.GetSpacing()[2]:.6f}", "0028|1050": "1000", "0028|1051": "2000"}
     writer = sitk.ImageFileWriter()
     writer.KeepOriginalImageUIDOn()
     saved = locale.setlocale(locale.LC_ALL)  # GDCM's writer sets the C locale and leaves it: Python's
@@ -141,3 +142,39 @@ def _write_slices(writer, scaled, image, common, series_uid, folder, skip, repea
             writer.SetFileName(str(folder / f"slice{written:04d}.dcm"))
             writer.Execute(piece)
     return written
+
+
+def write_dicom_seg(segments: dict[str, np.ndarray], series: Path, path: Path, labelmap: bool = False) -> Path:
+    """``segments`` (name -> bool [k, j, i] on the series' grid) as a DICOM-SEG of the DICOM
+    series in ``series``, written by highdicom as a planning system would: BINARY, one frame per
+    plane and segment that holds something (``labelmap``: a LABELMAP, one frame per plane)."""
+    import highdicom as hd
+    import pydicom
+
+    sources = [pydicom.dcmread(f) for f in sorted(Path(series).iterdir())]
+    reader = sitk.ImageSeriesReader()
+    reader.SetFileNames(reader.GetGDCMSeriesFileNames(str(series)))
+    grid = reader.Execute()
+    # the plane k of each source file, by its position: the masks are indexed as the series reads
+    planes = [int(round(grid.TransformPhysicalPointToContinuousIndex(tuple(float(v) for v in s.ImagePositionPatient))[2]))
+              for s in sources]
+    masks = list(segments.values())
+    if labelmap:
+        pixels = np.zeros((len(sources), *masks[0].shape[1:]), dtype=np.uint8)
+        for number, mask in enumerate(masks, start=1):
+            pixels[mask[planes]] = number
+    else:
+        pixels = np.stack([mask[planes] for mask in masks], axis=-1).astype(np.uint8)
+    tissue = hd.sr.CodedConcept("85756007", "SCT", "Tissue")
+    descriptions = [hd.seg.SegmentDescription(segment_number=n, segment_label=name, segmented_property_category=tissue,
+                                              segmented_property_type=hd.sr.CodedConcept("108369006", "SCT", "Neoplasm"),
+                                              algorithm_type=hd.seg.SegmentAlgorithmTypeValues.MANUAL)
+                    for n, name in enumerate(segments, start=1)]
+    kind = hd.seg.SegmentationTypeValues.LABELMAP if labelmap else hd.seg.SegmentationTypeValues.BINARY
+    seg = hd.seg.Segmentation(source_images=sources, pixel_array=pixels, segmentation_type=kind,
+                              segment_descriptions=descriptions, series_instance_uid=hd.UID(), series_number=100,
+                              sop_instance_uid=hd.UID(), instance_number=1, manufacturer="fenics-brainshift",
+                              manufacturer_model_name="synthetic", software_versions="1",
+                              device_serial_number="1")
+    seg.save_as(path)
+    return Path(path)
