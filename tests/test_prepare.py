@@ -220,7 +220,8 @@ def _as_nifti(mask: np.ndarray, patient: Path, path: Path) -> Path:
 @pytest.mark.usefixtures("serial_only")
 def test_a_dicom_seg_lands_on_the_voxels_of_its_nifti_export(patient, tmp_path):
     """highdicom writes the segments as a DICOM-SEG of the oblique series (BINARY, overlapping,
-    empty planes left out; and LABELMAP); read back onto the T1, each is its NIfTI export."""
+    empty planes left out; FRACTIONAL, probabilities 0.9 in and 0.3 out; LABELMAP); read back
+    onto the T1, each is its NIfTI export."""
     from fenics_brainshift.images.dicom_seg import read_dicom_seg
     from fenics_brainshift.patients.synthetic import write_dicom_seg
 
@@ -228,12 +229,16 @@ def test_a_dicom_seg_lands_on_the_voxels_of_its_nifti_export(patient, tmp_path):
     t1 = sitk.ReadImage(str(patient / "P" / "t1.nii.gz"))
     binary = read_dicom_seg(write_dicom_seg(spheres, patient / "dicom", tmp_path / "seg.dcm"), t1, "--tumour")
     disjoint = {"tumour": spheres["tumour"], "oedema": spheres["oedema"] & ~spheres["tumour"]}
-    labelmap = read_dicom_seg(write_dicom_seg(disjoint, patient / "dicom", tmp_path / "labelmap.dcm", labelmap=True),
+    labelmap = read_dicom_seg(write_dicom_seg(disjoint, patient / "dicom", tmp_path / "labelmap.dcm", "LABELMAP"),
                               t1, "--tumour")
+    probabilities = {name: np.where(mask, 0.9, 0.3) for name, mask in spheres.items()}
+    fractional = read_dicom_seg(write_dicom_seg(probabilities, patient / "dicom", tmp_path / "fractional.dcm",
+                                                "FRACTIONAL"), t1, "--tumour")
     for name in spheres:
         exported = sitk.ReadImage(str(_as_nifti(spheres[name], patient, tmp_path / f"{name}.nii.gz")))
         assert np.array_equal(binary[name], sitk.GetArrayFromImage(exported) > 0), name
         assert np.array_equal(labelmap[name], disjoint[name]), name
+        assert np.array_equal(fractional[name], spheres[name]), name
     assert spheres["tumour"].sum() > 100 and (spheres["oedema"].sum(axis=(1, 2)) > 0).sum() < t1.GetSize()[2]
 
 

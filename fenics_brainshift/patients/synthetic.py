@@ -144,10 +144,11 @@ def _write_slices(writer, scaled, image, common, series_uid, folder, skip, repea
     return written
 
 
-def write_dicom_seg(segments: dict[str, np.ndarray], series: Path, path: Path, labelmap: bool = False) -> Path:
-    """``segments`` (name -> bool [k, j, i] on the series' grid) as a DICOM-SEG of the DICOM
-    series in ``series``, written by highdicom as a planning system would: BINARY, one frame per
-    plane and segment that holds something (``labelmap``: a LABELMAP, one frame per plane)."""
+def write_dicom_seg(segments: dict[str, np.ndarray], series: Path, path: Path, kind: str = "BINARY") -> Path:
+    """``segments`` (name -> [k, j, i] on the series' grid) as a DICOM-SEG of the DICOM series
+    in ``series``, written by highdicom as a planning system would: ``kind`` BINARY (bool
+    masks; one frame per plane and segment that holds something), FRACTIONAL (probabilities
+    0-1) or LABELMAP (disjoint masks; one frame per plane)."""
     import highdicom as hd
     import pydicom
 
@@ -159,18 +160,18 @@ def write_dicom_seg(segments: dict[str, np.ndarray], series: Path, path: Path, l
     planes = [int(round(grid.TransformPhysicalPointToContinuousIndex(tuple(float(v) for v in s.ImagePositionPatient))[2]))
               for s in sources]
     masks = list(segments.values())
-    if labelmap:
+    if kind == "LABELMAP":
         pixels = np.zeros((len(sources), *masks[0].shape[1:]), dtype=np.uint8)
         for number, mask in enumerate(masks, start=1):
             pixels[mask[planes]] = number
     else:
-        pixels = np.stack([mask[planes] for mask in masks], axis=-1).astype(np.uint8)
+        pixels = np.stack([mask[planes] for mask in masks], axis=-1)
+        pixels = pixels.astype(np.float32 if kind == "FRACTIONAL" else np.uint8)
     tissue = hd.sr.CodedConcept("85756007", "SCT", "Tissue")
     descriptions = [hd.seg.SegmentDescription(segment_number=n, segment_label=name, segmented_property_category=tissue,
                                               segmented_property_type=hd.sr.CodedConcept("108369006", "SCT", "Neoplasm"),
                                               algorithm_type=hd.seg.SegmentAlgorithmTypeValues.MANUAL)
                     for n, name in enumerate(segments, start=1)]
-    kind = hd.seg.SegmentationTypeValues.LABELMAP if labelmap else hd.seg.SegmentationTypeValues.BINARY
     seg = hd.seg.Segmentation(source_images=sources, pixel_array=pixels, segmentation_type=kind,
                               segment_descriptions=descriptions, series_instance_uid=hd.UID(), series_number=100,
                               sop_instance_uid=hd.UID(), instance_number=1, manufacturer="fenics-brainshift",
