@@ -7,10 +7,14 @@
   with code 3, and the last good state is kept.
 - Interrupted: the user stopped the run (Ctrl-C): the last good state is kept, the summary
   says "interrupted", and the CLI exits with code 130 (as a shell does for SIGINT).
+
+Any other exception is a bug; under mpirun ``abort_on_uncaught`` makes it end the whole job.
 """
 from __future__ import annotations
 
-__all__ = ["BrainshiftError", "InputError", "Interrupted", "SolverError"]
+import sys
+
+__all__ = ["BrainshiftError", "InputError", "Interrupted", "SolverError", "abort_on_uncaught"]
 
 
 class BrainshiftError(Exception):
@@ -27,3 +31,25 @@ class SolverError(BrainshiftError, RuntimeError):
 
 class Interrupted(SolverError):
     """The run was interrupted (Ctrl-C); the last good state was kept."""
+
+
+def abort_on_uncaught() -> None:
+    """Under mpirun, an exception nobody catches on one rank ends that rank, and MPI's
+    finalisation at its exit waits for ranks that wait in their next collective for it: the
+    job hangs with the traceback unread. This hook prints the traceback, then aborts every
+    rank (as ``python -m mpi4py`` does). Installed by the entry points (logs.configure);
+    idempotent; on one rank it changes nothing."""
+    if getattr(sys.excepthook, "aborts_mpi", False):
+        return
+    previous = sys.excepthook
+
+    def hook(kind, value, traceback):
+        previous(kind, value, traceback)
+        MPI = sys.modules.get("mpi4py.MPI")
+        if MPI is not None and MPI.Is_initialized() and not MPI.Is_finalized() and MPI.COMM_WORLD.size > 1:
+            sys.stderr.write(f"[rank {MPI.COMM_WORLD.rank}] an uncaught {kind.__name__}: aborting every rank\n")
+            sys.stderr.flush()
+            MPI.COMM_WORLD.Abort(1)
+
+    hook.aborts_mpi = True
+    sys.excepthook = hook

@@ -20,9 +20,14 @@ def get_logger(name: str = "") -> logging.Logger:
 
 
 def configure(level: str = "INFO", all_ranks: bool = False) -> None:
-    """Install one stderr handler on the package logger (idempotent)."""
+    """Install one stderr handler on the package logger (idempotent), and, as every entry
+    point (the CLI, the demos) calls this first, the hook that aborts every rank on an error
+    no one caught (errors.abort_on_uncaught)."""
     from mpi4py import MPI
 
+    from .errors import abort_on_uncaught
+
+    abort_on_uncaught()
     rank = MPI.COMM_WORLD.rank
     logger = get_logger()
     logger.setLevel(level.upper())
