@@ -18,7 +18,13 @@ prepare_stripped.*.
 
 With --real T1 (a DICOM folder, NIfTI or NRRD of a real scan), the same path on it instead,
 with what can be measured without a truth (brain volume, correlation, times): writes
-benchmarks/results/prepare_real.{json,md} and prepare_real_overview.png.
+benchmarks/results/prepare_NAME.{json,md} and prepare_NAME_overview.png (--name, default
+real). --tumour SEG [--tumour-segment S] carries a tumour segmentation too: its volume and its
+share inside the brain found, and the label map warped with the T1.
+
+    OMP_NUM_THREADS=1 python benchmarks/prepare.py --real FOLDER          # a scanner's head T1
+    OMP_NUM_THREADS=1 python benchmarks/prepare.py --real t1n.nii.gz --tumour segmentation.nii.gz \
+        --tumour-segment 1,3 --name brats                                    # a stripped glioma case
 """
 from __future__ import annotations
 
@@ -57,10 +63,13 @@ def main_(argv=None) -> int:
     p.add_argument("--spacing", type=float, nargs=3, default=[1.0, 1.0, 1.0])
     p.add_argument("--stripped", action="store_true", help="the brain alone, no head around it")
     p.add_argument("--real", help="a real T1 instead of the synthetic patient")
+    p.add_argument("--tumour", help="with --real: its tumour segmentation")
+    p.add_argument("--tumour-segment", help="with --tumour: the tumour's segments")
+    p.add_argument("--name", default="real", help="with --real: the results' name, prepare_NAME.*")
     args = p.parse_args(argv)
     sitk.ProcessObject.SetGlobalDefaultNumberOfThreads(1)  # one core, as the issue's budget says
     if args.real:
-        return real(args.real)
+        return real(args.real, args.name, args.tumour, args.tumour_segment)
     template = sitk.ReadImage(str(mni_t1()), sitk.sitkFloat32)
     if not args.stripped:
         template = with_head(template, sitk.ReadImage(str(mni_head()), sitk.sitkFloat32),
@@ -137,34 +146,52 @@ def main_(argv=None) -> int:
     return 0
 
 
-def real(t1: str) -> int:
-    """prepare, run and warp on a real T1: times, the brain's volume and the correlation."""
+def real(t1: str, name: str, tumour: str | None, segments: str | None) -> int:
+    """prepare, run and warp on a real T1: times, the brain's volume and the correlation (and
+    the tumour's volume, its share in the brain, and the labels warped)."""
+    extra = (["--tumour", tumour] if tumour else []) + (["--tumour-segment", segments] if segments else [])
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        seconds = {"prepare": timed(["prepare", t1, "-o", str(tmp / "P")])}
+        seconds = {"prepare": timed(["prepare", t1, "-o", str(tmp / "P"), *extra])}
         record = json.loads((tmp / "P" / "prepare.json").read_text())
         RESULTS.mkdir(exist_ok=True)
-        (RESULTS / "prepare_real_overview.png").write_bytes((tmp / "P" / "overview.png").read_bytes())
+        (RESULTS / f"prepare_{name}_overview.png").write_bytes((tmp / "P" / "overview.png").read_bytes())
         seconds["run"] = timed(["run", str(tmp / "P" / "scene.toml"), "--out", str(tmp / "P" / "run")])
         seconds["warp"] = timed(["warp", str(tmp / "P" / "run"), "--image", str(tmp / "P" / "t1.nii.gz"),
                                  "-o", str(tmp / "P" / "t1_intra.nii.gz")])
         summary = json.loads((tmp / "P" / "run" / "summary.json").read_text())
-    result = {"machine": machine_line(), "command": f"OMP_NUM_THREADS=1 python benchmarks/prepare.py --real {t1}",
+        moved = None
+        if tumour:
+            timed(["warp", str(tmp / "P" / "run"), "--image", str(tmp / "P" / "labels.nii.gz"),
+                   "-o", str(tmp / "P" / "labels_intra.nii.gz"), "--labels"])
+            before, after = (sitk.GetArrayFromImage(sitk.ReadImage(str(tmp / "P" / f))) == 2
+                             for f in ("labels.nii.gz", "labels_intra.nii.gz"))
+            spacing = np.array(sitk.ReadImage(str(tmp / "P" / "labels.nii.gz")).GetSpacing())[::-1]
+            shift = (np.argwhere(after).mean(axis=0) - np.argwhere(before).mean(axis=0)) * spacing
+            moved = {"voxels_before": int(before.sum()), "voxels_after": int(after.sum()),
+                     "centroid_shift_mm": round(float(np.linalg.norm(shift)), 2)}
+    command = f"OMP_NUM_THREADS=1 python benchmarks/prepare.py --real {t1}" + "".join(f" {a}" for a in extra) \
+        + (f" --name {name}" if name != "real" else "")
+    result = {"machine": machine_line(), "command": command,
               "grid": record["grid"], "head_first": record["head_first"],
+              "bounded_by_stripping": record.get("bounded_by_stripping", False),
               "seconds": {k: round(v, 1) for k, v in seconds.items()}, "registration": record["registration"],
               "brain_litres": record["brain_litres"], "correlation": record["correlation"],
+              "tumour": record.get("tumour"), "tumour_warped": moved,
               "max_displacement_mm": round(summary["max_displacement_m"] * 1e3, 3)}
-    (RESULTS / "prepare_real.json").write_text(json.dumps(result, indent=2) + "\n")
+    (RESULTS / f"prepare_{name}.json").write_text(json.dumps(result, indent=2) + "\n")
     stages = ", ".join(f"{s['stage']} {s['seconds']:.1f} s" for s in record["registration"])
     total = sum(seconds.values())
+    kind = ("; the whole head placed first" if record["head_first"] else
+            "; skull-stripped, the brain bounded by the scan's own stripping" if result["bounded_by_stripping"]
+            else "; skull-stripped")
     lines = [
         "# `brainshift prepare` on a real T1",
         "",
         f"Machine: {result['machine']}. Command: `{result['command']}` (one process, one thread).",
         "",
         f"T1: {' x '.join(map(str, record['grid']['size']))} voxels of "
-        f"{' x '.join(f'{s:g}' for s in record['grid']['spacing_mm'])} mm"
-        f"{'; the whole head placed first' if record['head_first'] else '; skull-stripped'}.",
+        f"{' x '.join(f'{s:g}' for s in record['grid']['spacing_mm'])} mm{kind}.",
         "",
         "| Step | Seconds | Goal |",
         "|---|---|---|",
@@ -179,7 +206,12 @@ def real(t1: str) -> int:
         f"largest displacement of the settled state {result['max_displacement_mm']:.2f} mm.",
         "",
     ]
-    (RESULTS / "prepare_real.md").write_text("\n".join(lines))
+    if record.get("tumour"):
+        lines += [f"Tumour ({segments or 'every label'}): {record['tumour']['ml']:.1f} ml, "
+                  f"{record['tumour']['inside_brain']:.1%} of it inside the brain found (the rest is meshed with "
+                  f"the brain); warped with `--labels`: {moved['voxels_before']} voxels before, "
+                  f"{moved['voxels_after']} after, its centroid moved {moved['centroid_shift_mm']:.2f} mm.", ""]
+    (RESULTS / f"prepare_{name}.md").write_text("\n".join(lines))
     print("\n".join(lines))
     return 0
 

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import SimpleITK as sitk
+from scipy import ndimage
 
 from conftest import COMM, shared_tmp  # noqa: F401  (fixture)
 from fenics_brainshift.cli import main
@@ -31,6 +32,7 @@ from fenics_brainshift.runner import run
 from fenics_brainshift.data.templates import mni_brain_mask, mni_head, mni_t1
 
 SPACING, SIZE = (2.5, 2.5, 3.0), (80, 92, 64)
+SPACING_STRIPPED = (3.0, 3.0, 3.0)
 
 
 def _template():
@@ -261,25 +263,78 @@ def test_a_tumour_lands_on_its_voxels(patient, tmp_path):
     assert "tumour" in (tmp_path / "P" / "scene.toml").read_text()
 
 
+def _stripping_tool(cut_z_mm: float) -> sitk.Image:
+    """A skull-stripping tool's brain on the template's grid: 3 mm tighter than the template's
+    mask (the template is 1 mm), and nothing below z = ``cut_z_mm`` (RAS = LPS in z; the BraTS
+    case of benchmarks/results/prepare_brats.md has no cerebellum or brain stem)."""
+    mask = sitk.BinaryErode(sitk.ReadImage(str(mni_brain_mask())) > 0, [3, 3, 3])
+    z = np.array([mask.TransformIndexToPhysicalPoint((0, 0, k))[2] for k in range(mask.GetSize()[2])])
+    values = sitk.GetArrayFromImage(mask)
+    values[z <= cut_z_mm] = 0
+    tool = sitk.GetImageFromArray(values)
+    tool.CopyInformation(mask)
+    return tool
+
+
 @pytest.mark.usefixtures("serial_only")
 def test_a_skull_stripped_t1_is_registered_brain_to_brain(tmp_path):
-    """A T1 without scalp and skull (a research scan, stripped) has no head to place: the brain
-    stages start from the brains' moments, and find the known brain all the same."""
+    """A T1 without scalp and skull (stripped by a tool that leaves exact zeros, a brain 3 mm
+    tighter than the template's mask and cut 5 mm above the template's brain-stem support, at
+    z = -45 mm) has no head to place: the brain stages start from the brains' moments, the
+    brain found is the scan's own, and the brain stem is kept on the cut face (a 10 mm band of
+    the brain nearest to where it was carried); cut 45 mm above it, prepare refuses: the brain
+    would have no support."""
     from fenics_brainshift.patients.registration import shows_head
     from fenics_brainshift.patients.synthetic import synthetic_patient
 
-    stripped = synthetic_patient(_template(), spacing=(3.0, 3.0, 3.0), size=(66, 76, 64), warp_mm=0.0)
+    tool = _stripping_tool(-40.0)
+    stripped = synthetic_patient(_template(), spacing=(3.0, 3.0, 3.0), size=(66, 76, 64), warp_mm=0.0,
+                                 stripped_by=tool)
     assert not shows_head(stripped.image)
     assert shows_head(synthetic_patient(_head_template(), spacing=(3.0, 3.0, 3.0), size=(66, 76, 64)).image)
     sitk.WriteImage(stripped.image, str(tmp_path / "t1.nii.gz"))
     assert _prepare([str(tmp_path / "t1.nii.gz"), "-o", str(tmp_path / "P"), "--voxel", "8", "--affine-only"]) == 0
     record = json.loads((tmp_path / "P" / "prepare.json").read_text())
     assert not record["head_first"] and [s["stage"] for s in record["registration"]] == ["rigid", "affine"]
+    assert record["bounded_by_stripping"]
     grid = sitk.ReadImage(str(tmp_path / "P" / "t1.nii.gz"))
-    mask = sitk.Cast(sitk.ReadImage(str(mni_brain_mask())), sitk.sitkFloat32)
-    truth = sitk.GetArrayFromImage(sitk.Resample(mask, grid, stripped.known, sitk.sitkLinear, 0.0)) >= 0.5
-    found = sitk.GetArrayFromImage(sitk.ReadImage(str(tmp_path / "P" / "labels.nii.gz"))) > 0
+    moved = sitk.Resample(sitk.Cast(tool, sitk.sitkFloat32), grid, stripped.known, sitk.sitkLinear, 0.0)
+    truth = sitk.GetArrayFromImage(moved) >= 0.5
+    labels = sitk.GetArrayFromImage(sitk.ReadImage(str(tmp_path / "P" / "labels.nii.gz")))
+    found = labels > 0
     assert 2.0 * (truth & found).sum() / (truth.sum() + found.sum()) >= 0.95
+    assert found.sum() == pytest.approx(truth.sum(), rel=0.03)
+    # the brain stem: the bundled scene's region carried by the known transform, then 10 mm
+    stem = sitk.GetArrayFromImage(sitk.Resample(sitk.Cast(_template_stem(), sitk.sitkFloat32), grid, stripped.known,
+                                                sitk.sitkLinear, 0.0)) >= 0.5
+    assert not (stem & truth).any()  # cut away by the tool
+    kept = labels == record["labels"]["brain_stem"]
+    distance = ndimage.distance_transform_edt(~stem, sampling=np.array(SPACING_STRIPPED)[::-1])
+    nearest = distance[found].min()
+    assert 2.0 <= nearest <= 8.0 and record["supports_moved_mm"]["brain_stem"] == pytest.approx(nearest, abs=3.0)
+    assert np.all(distance[kept] <= nearest + 10.0 + 3.0)  # a band of 10 mm, and a voxel for the registration
+    assert kept.sum() * np.prod(SPACING_STRIPPED) > 1000.0  # a face of the brain, not a pin (1 ml and more)
+    assert 'label = "brain_stem"' in (tmp_path / "P" / "scene.toml").read_text()
+
+    high = synthetic_patient(_template(), spacing=(3.0, 3.0, 3.0), size=(66, 76, 64), warp_mm=0.0,
+                             stripped_by=_stripping_tool(0.0))
+    sitk.WriteImage(high.image, str(tmp_path / "high.nii.gz"))
+    from fenics_brainshift.errors import InputError
+
+    with pytest.raises(InputError, match="the brain stem, the scene's support, is not in 'high.nii.gz'"):
+        _prepare([str(tmp_path / "high.nii.gz"), "-o", str(tmp_path / "Q"), "--voxel", "8", "--affine-only"])
+    assert not (tmp_path / "Q").exists()
+
+
+def _template_stem() -> sitk.Image:
+    """The bundled brain scene's brain-stem support on the template (its own predicate)."""
+    from fenics_brainshift.patients.anatomy import template_anatomy
+
+    mask_image = sitk.ReadImage(str(mni_brain_mask()))
+    stem = template_anatomy(mask_image, sitk.GetArrayFromImage(mask_image) > 0).supports["brain_stem"]
+    image = sitk.GetImageFromArray(stem.astype(np.uint8))
+    image.CopyInformation(mask_image)
+    return image
 
 
 def _bad_inputs(base: Path, tmp: Path) -> dict:

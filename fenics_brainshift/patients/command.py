@@ -30,7 +30,7 @@ from ..outputs.fine_surface import write_slicer_stl
 from .anatomy import BRAIN_SCENE, template_anatomy
 from .carry import index_to_lps, labels_on_patient, ras_affine
 from .position import G, anatomical_gravity, craniotomy_levels, patient_direction
-from .registration import correlation_in, register, shows_head
+from .registration import correlation_in, register, shows_head, stripped_region
 from .series import read_t1
 from .skull import inner_skull
 from .overview import write_overview
@@ -43,6 +43,9 @@ VOLUME_RANGE = (0.6, 2.6)  # litres: a brain found outside this is a failed regi
 PLAUSIBLE = (1.0, 1.7)  # litres: an adult brain; outside it, a warning
 MIN_CORRELATION = 0.5  # the template and the T1 in the brain found: below this the registration failed
 PREPARE_RECORD = "prepare.json"
+SUPPORT = "brain_stem"  # the bundled scene's support that a patient scene fixes (the occipital pin gives way to the skull)
+SUPPORT_REACH_MM = 20.0  # a support the brain lost is kept on the brain if it is this close to it,
+SUPPORT_BAND_MM = 10.0  # on the brain's voxels within this of the nearest
 
 
 def prepare_command(args) -> int:
@@ -81,10 +84,25 @@ def prepare_command(args) -> int:
         names[TUMOUR + 1 + n] = name
         masks[TUMOUR + 1 + n] = mask
     labels = labels_on_patient(masks, template_brain_image, patient, registration)
-    brain = ndimage.binary_fill_holes(largest_part(labels > 0))
+    carried = labels.copy()
+    brain = labels > 0
+    own = stripped_region(patient) if head is None else None
+    if own is not None:  # a stripped scan: its stripping bounds the template's brain
+        brain &= own
+    brain = ndimage.binary_fill_holes(largest_part(brain))
     labels[~brain] = 0
     labels[brain & (labels == 0)] = BRAIN
+    moved_supports = _keep_supports(labels, carried, brain, patient)
+    for value, mm in moved_supports.items():
+        log.warning("prepare: the %s lies %.0f mm off the brain found (the T1's stripping or field of view cut it): "
+                    "kept on the brain's face nearest to it", names[value].replace("_", " "), mm)
+    if not any(np.any(labels == v) for v, n in names.items() if n == SUPPORT):
+        raise InputError(f"prepare: the brain stem, the scene's support, is not in '{Path(args.t1).name}' (below its "
+                         f"field of view or its skull stripping, more than {SUPPORT_REACH_MM:g} mm from the brain "
+                         f"found): without it the brain has no support; give a T1 that shows the brain stem")
     report = {"t1": str(Path(args.t1).resolve()), "grid": _grid(patient), "head_first": head is not None,
+              "bounded_by_stripping": own is not None,
+              "supports_moved_mm": {names[v]: d for v, d in moved_supports.items()},
               "registration": registration.stages}
     if tumour is not None:
         report["tumour"] = _tumour_report(tumour, brain, patient)
@@ -191,6 +209,26 @@ def _tumour_report(tumour: np.ndarray, brain: np.ndarray, patient: sitk.Image) -
             "inside_brain": round(inside, 4)}
 
 
+def _keep_supports(labels: np.ndarray, carried: np.ndarray, brain: np.ndarray, patient: sitk.Image) -> dict:
+    """A support the brain found lost (the brain stem below a skull stripping's or a field of
+    view's cut) is kept on the cut face: the brain's voxels within SUPPORT_BAND_MM of the
+    nearest one to where it was carried, the face through which the stem goes on to the spinal
+    cord (a few voxels would pin the brain at a point, about which it turns). Unless that is
+    more than SUPPORT_REACH_MM away. Returns {value: the distance (mm) it was moved}."""
+    spacing = np.array(patient.GetSpacing())[::-1]
+    moved = {}
+    for value in np.unique(carried[carried > TUMOUR]):
+        if np.any(labels == value):
+            continue
+        distance = ndimage.distance_transform_edt(carried != value, sampling=spacing)
+        free = brain & (labels == BRAIN)
+        nearest = float(distance[free].min()) if free.any() else np.inf
+        if nearest <= SUPPORT_REACH_MM:
+            labels[free & (distance <= nearest + SUPPORT_BAND_MM)] = value
+            moved[int(value)] = round(nearest, 1)
+    return moved
+
+
 def _check_fit(litres: float, correlation: float, t1: str) -> None:
     low, high = VOLUME_RANGE
     if not low <= litres <= high or correlation < MIN_CORRELATION:
@@ -262,7 +300,7 @@ def scene_text(args, present: dict, gravity, levels: dict, septa: dict, probes: 
 
     bundled = tomllib.loads(BRAIN_SCENE.read_text())
     material = bundled["material"]
-    supports = [n for n in present.values() if n == "brain_stem"]
+    supports = [n for n in present.values() if n == SUPPORT]
     q = json.dumps
     vec = lambda v: "[" + ", ".join(f"{float(x):.6g}" for x in v) + "]"  # noqa: E731
     lines = [f"# A patient scene made by `brainshift prepare` from {q(Path(args.t1).name)} "

@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import SimpleITK as sitk
+from scipy import ndimage
 
 log = logging.getLogger(__name__)
 
@@ -34,6 +35,7 @@ STAGES = {"head rigid": ((4, 2), (2.0, 1.0), 100),
           "affine": ((4, 2), (2.0, 1.0), 200),
           "deformable": ((4, 2), (2.0, 1.0), 20)}
 HEAD_LITRES = 2.5  # a T1 with more than this above a tenth of its brightest is a head, not a stripped brain
+STRIPPED_ZEROS = 0.2  # a T1 with this share of voxels exactly 0 was skull-stripped by a tool
 CORRELATION_SIGMA = 2.0  # mm: both images smoothed by this for the fit's measure
 # mm: after the head, the brain stages' metric sees the template's brain and this much around
 # it (the CSF and the skull's inner table, dark in both; not the scalp). Measured on the real
@@ -112,6 +114,17 @@ def shows_head(patient: sitk.Image) -> bool:
     values = sitk.GetArrayViewFromImage(patient)
     bright = np.count_nonzero(values > 0.1 * np.percentile(values, 99))
     return bright * float(np.prod(patient.GetSpacing())) * 1e-6 > HEAD_LITRES
+
+
+def stripped_region(patient: sitk.Image) -> np.ndarray | None:
+    """Where a skull-stripping tool left a T1's intensities ([k, j, i]; dark ventricles inside
+    filled): the scan's own brain, which bounds the template's (a stripped BraTS T1 is 1.02 l,
+    the ICBM152 mask carried onto it 1.26 l). None when fewer than STRIPPED_ZEROS of the voxels
+    are exactly 0 (a scanner's background is noise, not zeros)."""
+    zero = sitk.GetArrayViewFromImage(patient) == 0
+    if zero.mean() < STRIPPED_ZEROS:
+        return None
+    return ndimage.binary_fill_holes(ndimage.binary_closing(~zero, iterations=1))
 
 
 def register(patient: sitk.Image, template: sitk.Image, deformable: bool = True, head: sitk.Image | None = None,

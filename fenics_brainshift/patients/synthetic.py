@@ -50,12 +50,15 @@ def with_head(template: sitk.Image, head: sitk.Image, head_brain: sitk.Image, br
 
 def synthetic_patient(template: sitk.Image, spacing=(1.0, 1.0, 1.5), size=(200, 230, 130),
                       angles_deg=(8.0, -6.0, 10.0), shift_mm=(6.0, -4.0, 5.0), scale=0.9, warp_mm=3.0,
-                      tilt_deg=(15.0, 5.0, -10.0), bias=0.15, noise=0.03, seed=0) -> SyntheticPatient:
+                      tilt_deg=(15.0, 5.0, -10.0), bias=0.15, noise=0.03, seed=0,
+                      stripped_by: sitk.Image | None = None) -> SyntheticPatient:
     """The template seen by a scanner: a head ``scale`` times the template's size (0.9: a
     brain of 1.5 l, the template's is 2.05 l) turned by ``angles_deg`` (about x, y, z) and
     shifted, a smooth deformation of ``warp_mm`` amplitude (sines of 25-35 mm wavelength/2pi),
     on a grid of ``spacing`` and ``size`` tilted by ``tilt_deg``, with a linear-bilinear bias
-    field of ``bias`` and Gaussian noise of ``noise`` of the brightest voxel."""
+    field of ``bias`` and Gaussian noise of ``noise`` of the brightest voxel. ``stripped_by``:
+    a brain mask on the template's grid; outside it the T1 is exactly 0, as a skull-stripping
+    tool leaves a scan (BraTS's, say)."""
     centre = np.array(template.TransformContinuousIndexToPhysicalPoint([s / 2 for s in template.GetSize()]))
     rotation = sitk.Euler3DTransform()
     rotation.SetRotation(*np.radians(angles_deg))
@@ -78,7 +81,11 @@ def synthetic_patient(template: sitk.Image, spacing=(1.0, 1.0, 1.5), size=(200, 
     z, y, x = np.meshgrid(*[np.linspace(-1.0, 1.0, n) for n in values.shape], indexing="ij")
     values = values * (1.0 + bias * x + 0.7 * bias * y * z)
     values += np.random.default_rng(seed).normal(0.0, noise * values.max(), values.shape)
-    out = sitk.GetImageFromArray(np.clip(values, 0.0, None).astype(np.float32))
+    values = np.clip(values, 0.0, None)
+    if stripped_by is not None:
+        kept = sitk.Resample(sitk.Cast(stripped_by, sitk.sitkFloat32), image, known, sitk.sitkLinear, 0.0)
+        values[sitk.GetArrayFromImage(kept) < 0.5] = 0.0
+    out = sitk.GetImageFromArray(values.astype(np.float32))
     out.CopyInformation(image)
     return SyntheticPatient(out, known, np.array(rotation.GetMatrix()).reshape(3, 3))
 
