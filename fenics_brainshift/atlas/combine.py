@@ -9,7 +9,11 @@ displacement from the scene's own prediction over the mesh's nodes, in mm^2 (the
 the prediction no farther than the data ask); with a skull, rows of C keep the boundary nodes
 inside it (rows.py). Each problem is solved exactly by Lawson and Hanson's reduction
 to a least-distance problem solved by scipy's NNLS (Solving Least Squares Problems, 1974,
-ch. 23): a factor of the Hessian, one NNLS of the constraints' size.
+ch. 23): a factor of the Hessian, one NNLS of the constraints' size. The many refits of
+cross-validation, leave-one-out and the bootstrap start from a nearby solution's active
+constraints: held as equalities, one linear (KKT) solve; kept if it is the constrained
+minimiser (feasible, multipliers of the inequalities >= 0: then it is the exact answer, the
+problem being convex), else NNLS.
 
 alpha is chosen by K-fold cross-validation over the measured points (the error at points left
 out), from a grid; leave-one-out errors and a bootstrap over the points (the spread of the
@@ -18,6 +22,7 @@ displacement over refits) come from the same solver.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve, solve_triangular
@@ -29,6 +34,8 @@ ALPHAS = tuple(10.0 ** np.arange(-4, 3.5, 1.0))  # the cross-validation grid of 
 FOLDS = 5
 RIDGE = 1e-9  # of the Hessian's mean diagonal: a numerically positive definite factor
 MM2 = 1e-6  # R in mm^2
+WARM_START = True  # False: every refit from scratch by NNLS (the baseline benchmarks/update.py times)
+ACTIVE = 1e-9  # a constraint within this (relative) of equality is active; a multiplier this far below 0 is not
 
 
 @dataclass
@@ -44,16 +51,30 @@ class Problem:
     C: np.ndarray
     d: np.ndarray
 
+    @cached_property
+    def partner(self) -> np.ndarray:
+        return partners(self.C, self.d)
+
+    @cached_property
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        return bound_rows(self.C)
+
     def with_constraints(self, C: np.ndarray, d: np.ndarray) -> "Problem":
         return Problem(self.A, self.b, self.groups, self.noise, self.gram, self.cross,
                        np.vstack([self.C, C]), np.concatenate([self.d, d]))
 
-    def solve(self, alpha: float, rows: np.ndarray | None = None) -> np.ndarray:
-        """The constrained minimiser with the data rows `rows` (default: all)."""
+    def solve(self, alpha: float, rows: np.ndarray | None = None, near: np.ndarray | None = None) -> np.ndarray:
+        """The constrained minimiser with the data rows `rows` (default: all); `near`: weights
+        whose active constraints are tried first (a refit of a nearby problem)."""
         A, b = (self.A, self.b) if rows is None else (self.A[rows], self.b[rows])
         H = A.T @ A / self.noise ** 2 + (alpha / MM2) * self.gram
         g = A.T @ b / self.noise ** 2 + (alpha / MM2) * self.cross
         H[np.diag_indices_from(H)] += RIDGE * max(float(np.trace(H)) / len(H), 1e-300)
+        if near is not None and WARM_START:
+            c = solve_on_active(H, g, self.C, self.d, active_set(self.C, self.d, near), self.partner,
+                                bounds=self.bounds)
+            if c is not None:
+                return c
         return least_distance(H, g, self.C, self.d)
 
     def misfit(self, c: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
@@ -83,6 +104,107 @@ def least_distance(H: np.ndarray, g: np.ndarray, C: np.ndarray, d: np.ndarray) -
     return solve_triangular(R, z + f)
 
 
+def active_set(C: np.ndarray, d: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """The constraints that hold with equality at c (to round-off)."""
+    return np.flatnonzero(C @ c - d <= ACTIVE * (1.0 + np.abs(d)))
+
+
+def solve_on_active(H: np.ndarray, g: np.ndarray, C: np.ndarray, d: np.ndarray, active: np.ndarray,
+                    partner: np.ndarray, swaps: int = 30, bounds: tuple | None = None):
+    """argmin c.H.c - 2 g.c subject to C c >= d from a guess of the active constraints: held as
+    equalities (H c - C_a' lam = g, C_a c = d_a), the guess mended up to `swaps` times (the
+    violated constraints added; else the inequality of most negative multiplier dropped) until
+    the KKT conditions of the convex problem hold (feasible, lam >= 0): then c is the exact
+    minimiser. None if they do not within `swaps` (the caller falls back to NNLS). A pair of
+    rows that are each other's negative (`partner`: a bound with lower = upper, the family's
+    sum fixed) is one equality, its multiplier of either sign. Bounds on one weight (most of
+    the family's weights sit at 0) fix it and leave the problem; the rest is a small KKT
+    system over the free weights."""
+    tolerance = ACTIVE * (1.0 + np.abs(d))
+    working = np.zeros(len(d), dtype=bool)
+    working[active] = True
+    rows = np.arange(len(d))
+    bound_of, sign = bounds if bounds is not None else bound_rows(C)
+    for _ in range(swaps + 1):
+        # of an equality pair both in the set, the first row stands for both
+        second = (partner >= 0) & (partner < rows) & working[np.maximum(partner, 0)]
+        held = np.flatnonzero(working & ~second)
+        solved = _equality_solve(H, g, C, d, held, bound_of, sign)
+        if solved is None:
+            return None
+        c, multipliers = solved
+        slack = C @ c - d
+        violated = slack < -tolerance
+        if violated.any():
+            working |= violated
+            continue
+        inequality = partner[held] < 0
+        scale = max(float(np.abs(multipliers).max(initial=0.0)), 1e-300)
+        worst = int(np.argmin(np.where(inequality, multipliers, np.inf))) if inequality.any() else -1
+        if worst < 0 or multipliers[worst] >= -ACTIVE * scale:
+            return c
+        working[held[worst]] = False
+    return None
+
+
+def bound_rows(C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For each row, the one weight it bounds (a row +-e_k), or -1; and the row's sign there."""
+    nonzero = C != 0
+    single = (nonzero.sum(axis=1) == 1)
+    column = np.argmax(nonzero, axis=1)
+    value = C[np.arange(len(C)), column]
+    unit = single & (np.abs(np.abs(value) - 1.0) < 1e-12)
+    return np.where(unit, column, -1), np.where(unit, np.sign(value), 0.0)
+
+
+def _equality_solve(H, g, C, d, held, bound_of, sign):
+    """(c, lam) of H c - C_h' lam = g, C_h c = d_h (lam in the order of `held`): the weights a
+    held bound fixes are set, the rest solved from the KKT system of the free weights and the
+    other held rows. None if the rows are dependent (a weight bounded twice, dependent rows)."""
+    n = len(g)
+    bounds = held[bound_of[held] >= 0]
+    general = held[bound_of[held] < 0]
+    fixed_index = bound_of[bounds]
+    if len(np.unique(fixed_index)) < len(fixed_index):
+        return None
+    c = np.zeros(n)
+    c[fixed_index] = d[bounds] * sign[bounds]
+    free = np.setdiff1d(np.arange(n), fixed_index)
+    Cg = C[general][:, free]
+    k = len(general)
+    kkt = np.zeros((len(free) + k, len(free) + k))
+    kkt[:len(free), :len(free)] = H[np.ix_(free, free)]
+    kkt[:len(free), len(free):], kkt[len(free):, :len(free)] = -Cg.T, Cg
+    rhs = np.concatenate([g[free] - H[np.ix_(free, fixed_index)] @ c[fixed_index],
+                          d[general] - C[general][:, fixed_index] @ c[fixed_index]])
+    try:
+        solution = np.linalg.solve(kkt, rhs)
+    except np.linalg.LinAlgError:  # dependent rows: NNLS sorts them out
+        return None
+    # nearly dependent rows solve to garbage without an error: keep only a solution that solves
+    if not np.all(np.isfinite(solution)) or np.linalg.norm(kkt @ solution - rhs) > 1e-8 * (
+            np.linalg.norm(rhs) + np.linalg.norm(kkt, 1) * np.linalg.norm(solution)):
+        return None
+    c[free] = solution[:len(free)]
+    lam_general = solution[len(free):]
+    # a bound's multiplier from the stationarity of its weight: (H c - g)_k = C[:, k]' lam
+    gradient = H @ c - g - C[general].T @ lam_general
+    multipliers = np.zeros(len(held))
+    is_bound = bound_of[held] >= 0  # `bounds` and `general` are held's rows in held's order
+    multipliers[~is_bound] = lam_general
+    multipliers[is_bound] = sign[bounds] * gradient[bound_of[bounds]]
+    return c, multipliers
+
+
+def partners(C: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """For each row of C c >= d, the row that is its negative (an equality written as two), or -1."""
+    def key(row, value):
+        return (np.round(np.append(row, value), 12) + 0.0).tobytes()  # + 0.0: -0.0 and 0.0 alike
+
+    index = {key(row, v): i for i, (row, v) in enumerate(zip(C, d))}
+    return np.array([index.get(key(-row, -v), -1) for row, v in zip(C, d)], dtype=np.int64)
+
+
 def fold_of(groups: np.ndarray, folds: int, seed: int = 0) -> np.ndarray:
     """The fold of every row: the points dealt at random into `folds` folds."""
     points = np.unique(groups)
@@ -90,14 +212,18 @@ def fold_of(groups: np.ndarray, folds: int, seed: int = 0) -> np.ndarray:
     return deal[np.searchsorted(points, groups)]
 
 
-def choose_alpha(problem: Problem, alphas=ALPHAS, folds: int = FOLDS) -> tuple[float, list[dict]]:
-    """The alpha of least mean error at points left out (K-fold), and the curve."""
+def choose_alpha(problem: Problem, alphas=ALPHAS, folds: int = FOLDS,
+                 near: np.ndarray | None = None) -> tuple[float, list[dict]]:
+    """The alpha of least mean error at points left out (K-fold), and the curve. `near`:
+    weights to start from (each alpha's fit then starts from the last alpha's)."""
     fold = fold_of(problem.groups, min(folds, len(np.unique(problem.groups))))
     curve = []
+    whole = near
     for alpha in alphas:
         errors = []
+        whole = problem.solve(alpha, near=whole)
         for k in np.unique(fold):
-            c = problem.solve(alpha, np.flatnonzero(fold != k))
+            c = problem.solve(alpha, np.flatnonzero(fold != k), near=whole)
             errors.append(problem.misfit(c, np.flatnonzero(fold == k)))
         e = np.concatenate(errors)
         curve.append({"alpha": float(alpha), "cv_rms_mm": float(np.sqrt(np.mean(e ** 2)) * 1e3)})
@@ -105,9 +231,11 @@ def choose_alpha(problem: Problem, alphas=ALPHAS, folds: int = FOLDS) -> tuple[f
     return best["alpha"], curve
 
 
-def leave_one_out(problem: Problem, alpha: float, most: int | None = None, seed: int = 2) -> np.ndarray:
+def leave_one_out(problem: Problem, alpha: float, most: int | None = None, seed: int = 2,
+                  near: np.ndarray | None = None) -> np.ndarray:
     """Each point's error (m) when the fit is made without it; with more points than `most`,
-    a random sample of `most` of them (NaN for the others)."""
+    a random sample of `most` of them (NaN for the others). `near`: the fit to all of them."""
+    near = problem.solve(alpha) if near is None else near
     points = np.unique(problem.groups)
     out = np.full(len(points), np.nan)
     chosen = np.arange(len(points))
@@ -115,20 +243,23 @@ def leave_one_out(problem: Problem, alpha: float, most: int | None = None, seed:
         chosen = np.sort(np.random.default_rng(seed).choice(len(points), most, replace=False))
     for i in chosen:
         p = points[i]
-        c = problem.solve(alpha, np.flatnonzero(problem.groups != p))
+        c = problem.solve(alpha, np.flatnonzero(problem.groups != p), near=near)
         out[i] = problem.misfit(c, np.flatnonzero(problem.groups == p))[0]
     return out
 
 
-def bootstrap(problem: Problem, alpha: float, samples: int, seed: int = 1) -> np.ndarray:
-    """(samples, M) weights refitted to the points resampled with replacement."""
+def bootstrap(problem: Problem, alpha: float, samples: int, seed: int = 1,
+              near: np.ndarray | None = None) -> np.ndarray:
+    """(samples, M) weights refitted to the points resampled with replacement. `near`: the fit
+    to all of them."""
+    near = problem.solve(alpha) if near is None else near
     points = np.unique(problem.groups)
     rng = np.random.default_rng(seed)
     rows_of = [np.flatnonzero(problem.groups == p) for p in points]
     out = []
     for _ in range(samples):
         pick = rng.integers(0, len(points), len(points))
-        out.append(problem.solve(alpha, np.concatenate([rows_of[i] for i in pick])))
+        out.append(problem.solve(alpha, np.concatenate([rows_of[i] for i in pick]), near=near))
     return np.array(out)
 
 

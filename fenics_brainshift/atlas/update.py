@@ -143,9 +143,9 @@ def update(atlas, target, noise: float, samples: int = 30, keep_inside: bool = T
             problem = problem.with_constraints(*skull.rows(c, nodes))
         if alpha is None:  # alpha once, at the first rows (the nearest points change little after)
             t = time.perf_counter()
-            alpha, curve = choose_alpha(problem)
+            alpha, curve = choose_alpha(problem, near=c)
             cv_s = time.perf_counter() - t
-        c_new = problem.solve(alpha)
+        c_new = problem.solve(alpha, near=c)
         change, c = float(np.abs(c_new - c).max()), c_new
         deepest = float(max(0.0, -skull.room(c).min())) if skull is not None else 0.0
         if (point_to_point or change < 1e-6) and deepest <= PAST_SKULL:
@@ -156,8 +156,8 @@ def update(atlas, target, noise: float, samples: int = 30, keep_inside: bool = T
     else:
         residual = np.abs(surface.rows(c, target.measured)[3])
     t = time.perf_counter()
-    loo = leave_one_out(problem, alpha, LEAVE_OUT_MAX)
-    sampled = bootstrap(problem, alpha, samples) if samples else np.zeros((0, len(c)))
+    loo = leave_one_out(problem, alpha, LEAVE_OUT_MAX, near=c)
+    sampled = bootstrap(problem, alpha, samples, near=c) if samples else np.zeros((0, len(c)))
     u = np.tensordot(c, modes, axes=1)
     spread = np.zeros(len(u))
     if len(sampled):

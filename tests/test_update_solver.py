@@ -1,0 +1,87 @@
+"""atlas/combine.py's solvers on small random problems of the update's shape (a convex family
+of correlated states, bounded swelling amplitudes, the family's sum fixed or within a range,
+data rows from 20 points): the constrained least squares against brute force, and the
+warm-started refits of cross-validation, leave-one-out and the bootstrap against a solve from
+scratch by Lawson and Hanson's NNLS."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.optimize import minimize
+
+from fenics_brainshift.atlas.combine import Problem, active_set, least_distance, solve_on_active, weight_constraints
+
+pytestmark = pytest.mark.usefixtures("serial_only")
+
+
+def _problem(total: tuple[float, float], seed: int = 0, family_size: int = 40, swelling: int = 3,
+             points: int = 20) -> Problem:
+    rng = np.random.default_rng(seed)
+    m = family_size + swelling
+    family = np.zeros(m, dtype=bool)
+    family[:family_size] = True
+    lower, upper = np.zeros(m), np.zeros(m)
+    lower[family_size:], upper[family_size:] = -1.0, 1.0
+    upper[-1] = lower[-1] = 0.25  # a swelling fixed by its bounds: an equality written as two rows
+    C, d = weight_constraints(family, lower, upper, total)
+    modes = rng.normal(size=(m, 500)).cumsum(axis=0) * 1e-3  # neighbouring states alike, as a grid's are
+    gram = modes @ modes.T / 500
+    truth = np.r_[rng.dirichlet(np.full(family_size, 0.2)), rng.uniform(-0.8, 0.8, swelling - 1), 0.25]
+    cross = gram @ np.r_[np.full(family_size, 1.0 / family_size), np.zeros(swelling)]
+    A = rng.normal(size=(3 * points, m)) * 1e-3
+    b = A @ truth + rng.normal(0.0, 5e-4, 3 * points)
+    return Problem(A, b, np.repeat(np.arange(points), 3), 5e-4, gram, cross, C, d)
+
+
+def _hessian(problem: Problem, alpha: float, rows: np.ndarray):
+    A, b = problem.A[rows], problem.b[rows]
+    H = A.T @ A / problem.noise ** 2 + alpha / 1e-6 * problem.gram
+    g = A.T @ b / problem.noise ** 2 + alpha / 1e-6 * problem.cross
+    H[np.diag_indices_from(H)] += 1e-9 * np.trace(H) / len(H)
+    return H, g
+
+
+@pytest.mark.parametrize("total", [(1.0, 1.0), (0.5, 2.0)])
+def test_the_least_distance_solve_is_the_constrained_minimiser(total):
+    """Against SLSQP from several starts (brute force on a small problem): the same objective,
+    and the KKT answer no worse than any."""
+    problem = _problem(total, family_size=8, swelling=3)
+    H, g = _hessian(problem, 0.1, np.arange(len(problem.b)))
+    c = least_distance(H, g, problem.C, problem.d)
+    assert np.all(problem.C @ c - problem.d >= -1e-9)
+    objective = lambda x: x @ H @ x - 2 * g @ x  # noqa: E731
+    for seed in range(3):
+        start = np.random.default_rng(seed).uniform(0, 0.2, len(g))
+        other = minimize(objective, start, jac=lambda x: 2 * (H @ x - g), method="SLSQP",
+                         constraints=[{"type": "ineq", "fun": lambda x: problem.C @ x - problem.d,
+                                       "jac": lambda x: problem.C}], options={"ftol": 1e-14, "maxiter": 500})
+        assert objective(c) <= objective(other.x) + 1e-9 * abs(objective(c))
+
+
+@pytest.mark.parametrize("total", [(1.0, 1.0), (0.25, 4.0)])
+@pytest.mark.parametrize("alpha", [1e-3, 1e-1, 10.0])
+def test_warm_started_refits_are_the_solves_from_scratch(total, alpha):
+    problem = _problem(total, seed=3)
+    whole = problem.solve(alpha)
+    accepted = 0
+    for point in range(20):
+        rows = np.flatnonzero(problem.groups != point)
+        scratch = problem.solve(alpha, rows)
+        warm = problem.solve(alpha, rows, near=whole)
+        assert np.abs(warm - scratch).max() <= 1e-9 * max(np.abs(scratch).max(), 1.0)
+        H, g = _hessian(problem, alpha, rows)
+        accepted += solve_on_active(H, g, problem.C, problem.d, active_set(problem.C, problem.d, whole),
+                                    problem.partner) is not None
+    assert accepted >= 15  # most refits are the mended active set's, not NNLS's
+
+
+def test_a_wrong_guess_is_mended_or_refused_never_returned():
+    """From the empty set and from every constraint held, the mended answer is the minimiser
+    or None: never a point that breaks the KKT conditions."""
+    problem = _problem((0.5, 2.0), seed=5)
+    H, g = _hessian(problem, 1e-2, np.arange(len(problem.b)))
+    exact = least_distance(H, g, problem.C, problem.d)
+    for guess in (np.zeros(0, dtype=np.int64), np.arange(len(problem.d))):
+        for swaps in (0, 3, 60):
+            c = solve_on_active(H, g, problem.C, problem.d, guess, problem.partner, swaps=swaps)
+            assert c is None or np.abs(c - exact).max() <= 1e-9 * np.abs(exact).max()
