@@ -234,6 +234,9 @@ def main(argv: list[str] | None = None) -> int:
             where = f" '{exc.filename}'" if exc.filename else ""
             print(f"brainshift: error: {exc.strerror or exc}{where}: free space or choose another folder (a run's "
                   f"summary.json says \"running\", not \"ok\": its files are incomplete)", file=sys.stderr)
+        if comm.size > 1:  # a write fails on the rank that writes: the others wait in its barrier
+            sys.stderr.flush()
+            comm.Abort(1)
         return 1
 
 

@@ -44,12 +44,18 @@ def abort_on_uncaught() -> None:
     previous = sys.excepthook
 
     def hook(kind, value, traceback):
-        previous(kind, value, traceback)
-        MPI = sys.modules.get("mpi4py.MPI")
-        if MPI is not None and MPI.Is_initialized() and not MPI.Is_finalized() and MPI.COMM_WORLD.size > 1:
-            sys.stderr.write(f"[rank {MPI.COMM_WORLD.rank}] an uncaught {kind.__name__}: aborting every rank\n")
-            sys.stderr.flush()
-            MPI.COMM_WORLD.Abort(1)
+        try:
+            previous(kind, value, traceback)
+        finally:  # even if the traceback cannot be printed (stderr closed), the job must end
+            MPI = sys.modules.get("mpi4py.MPI")
+            if MPI is not None and MPI.Is_initialized() and not MPI.Is_finalized() and MPI.COMM_WORLD.size > 1:
+                try:
+                    sys.stderr.write(f"[rank {MPI.COMM_WORLD.rank}] an uncaught {kind.__name__}: aborting every "
+                                     f"rank\n")
+                    sys.stderr.flush()
+                except Exception:
+                    pass
+                MPI.COMM_WORLD.Abort(130 if issubclass(kind, KeyboardInterrupt) else 1)
 
     hook.aborts_mpi = True
     sys.excepthook = hook

@@ -362,6 +362,16 @@ def _bad_inputs(base: Path, tmp: Path) -> dict:
     write_dicom_seg({"tumour": np.ones(sitk.GetArrayFromImage(small.image).shape, bool)}, tmp / "small",
                     tmp / "other_series.dcm")
     _as_nifti(spheres["tumour"] * 1 + spheres["oedema"], base, tmp / "two_labels.nii.gz")
+    import pydicom
+
+    drifting = pydicom.dcmread(write_dicom_seg({"tumour": spheres["tumour"]}, base / "dicom", tmp / "drift.dcm"))
+    drifting.SharedFunctionalGroupsSequence[0].PixelMeasuresSequence[0].PixelSpacing = [2.5125, 2.5125]  # 0.5 %: 0.45 voxel
+    drifting.save_as(tmp / "drift.dcm")
+    striped = spheres["tumour"].copy()
+    striped[1::2] = False  # frames on every second plane: drawn on slices twice as thick
+    write_dicom_seg({"tumour": striped}, base / "dicom", tmp / "thick.dcm")
+    whole = (tmp / "drift.dcm").read_bytes()
+    (tmp / "cut.dcm").write_bytes(whole[: len(whole) - 500])  # a copy that stopped short
     (tmp / "notes").mkdir()
     (tmp / "notes" / "a.txt").write_text("mine")
     dicom = str(base / "dicom")
@@ -378,6 +388,10 @@ def _bad_inputs(base: Path, tmp: Path) -> dict:
         "DICOM-SEG of two segments": ([dicom, "--tumour", str(tmp / "two.dcm")], "'tumour', 'oedema'"),
         "no such segment": ([dicom, "--tumour", str(tmp / "two.dcm"), "--tumour-segment", "core"], "'core'"),
         "two labels": ([dicom, "--tumour", str(tmp / "two_labels.nii.gz")], "--tumour-segment"),
+        "DICOM-SEG 0.5 % off the grid": ([dicom, "--tumour", str(tmp / "drift.dcm")], "another grid"),
+        "DICOM-SEG of thicker slices": ([dicom, "--tumour", str(tmp / "thick.dcm")], "thicker slices"),
+        "DICOM-SEG cut short": ([dicom, "--tumour", str(tmp / "cut.dcm")], "could not be read"),
+        "no segment named": ([dicom, "--tumour", str(tmp / "two.dcm"), "--tumour-segment", ","], "names no segment"),
         "a T1 slice as tumour": ([dicom, "--tumour", str(base / "dicom" / "slice0001.dcm")], "not a segmentation"),
         "craniotomy far away": ([dicom, "--craniotomy", "0,0,400"], "from the brain's surface"),
         "craniotomy not numbers": ([dicom, "--craniotomy", "1,2"], "three numbers"),

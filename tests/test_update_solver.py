@@ -85,3 +85,25 @@ def test_a_wrong_guess_is_mended_or_refused_never_returned():
         for swaps in (0, 3, 60):
             c = solve_on_active(H, g, problem.C, problem.d, guess, problem.partner, swaps=swaps)
             assert c is None or np.abs(c - exact).max() <= 1e-9 * np.abs(exact).max()
+
+
+def test_rows_of_any_scale_and_every_weight_pinned():
+    """An equality written as two rows of different scale (r.c >= 1, -s r.c >= -s) and a
+    problem whose bounds fix every weight: the warm start gives the exact answer or none
+    (found by a review: the pair was held as two inequalities, a singular system solved to
+    a wrong, feasible c; with no free weight the empty system raised)."""
+    H, g = np.eye(2), np.zeros(2)
+    r = np.array([0.3, 0.7])
+    exact = r / (r @ r)  # the nearest point of the line r.c = 1
+    for scale in (0.37, 4.1355, 1e3):
+        C, d = np.vstack([r, -scale * r]), np.array([1.0, -scale])
+        problem = Problem(np.zeros((3, 2)), np.zeros(3), np.zeros(3, dtype=int), 1.0, np.eye(2) * 1e-12,
+                          np.zeros(2), C, d)
+        unit_C, unit_d = problem.unit_rows
+        c = solve_on_active(H, g, unit_C, unit_d, np.array([0, 1]), problem.partner, bounds=problem.bounds)
+        assert c is not None and np.allclose(c, exact, atol=1e-12), scale
+    pinned = np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]]), np.array([1.0, -1.0, 0.25, -0.25])
+    problem = Problem(np.zeros((3, 2)), np.zeros(3), np.zeros(3, dtype=int), 1.0, np.eye(2), np.zeros(2), *pinned)
+    c = solve_on_active(np.eye(2), np.zeros(2), *problem.unit_rows, np.arange(4), problem.partner,
+                        bounds=problem.bounds)
+    assert c is not None and np.allclose(c, [1.0, 0.25])

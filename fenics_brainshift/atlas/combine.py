@@ -52,12 +52,20 @@ class Problem:
     d: np.ndarray
 
     @cached_property
+    def unit_rows(self) -> tuple[np.ndarray, np.ndarray]:
+        """C and d with each row scaled to unit norm (the warm start's tolerances, and its
+        equality pairs, are then alike for every row; zero rows stay)."""
+        norm = np.linalg.norm(self.C, axis=1)
+        norm[norm == 0] = 1.0
+        return self.C / norm[:, None], self.d / norm
+
+    @cached_property
     def partner(self) -> np.ndarray:
-        return partners(self.C, self.d)
+        return partners(*self.unit_rows)
 
     @cached_property
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        return bound_rows(self.C)
+        return bound_rows(self.unit_rows[0])
 
     def with_constraints(self, C: np.ndarray, d: np.ndarray) -> "Problem":
         return Problem(self.A, self.b, self.groups, self.noise, self.gram, self.cross,
@@ -71,8 +79,8 @@ class Problem:
         g = A.T @ b / self.noise ** 2 + (alpha / MM2) * self.cross
         H[np.diag_indices_from(H)] += RIDGE * max(float(np.trace(H)) / len(H), 1e-300)
         if near is not None and WARM_START:
-            c = solve_on_active(H, g, self.C, self.d, active_set(self.C, self.d, near), self.partner,
-                                bounds=self.bounds)
+            C, d = self.unit_rows
+            c = solve_on_active(H, g, C, d, active_set(C, d, near), self.partner, bounds=self.bounds)
             if c is not None:
                 return c
         return least_distance(H, g, self.C, self.d)
@@ -153,7 +161,7 @@ def bound_rows(C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     single = (nonzero.sum(axis=1) == 1)
     column = np.argmax(nonzero, axis=1)
     value = C[np.arange(len(C)), column]
-    unit = single & (np.abs(np.abs(value) - 1.0) < 1e-12)
+    unit = single & (np.abs(np.abs(value) - 1.0) < 1e-12)  # (rows of unit norm: unit_rows)
     return np.where(unit, column, -1), np.where(unit, np.sign(value), 0.0)
 
 
@@ -177,13 +185,18 @@ def _equality_solve(H, g, C, d, held, bound_of, sign):
     kkt[:len(free), len(free):], kkt[len(free):, :len(free)] = -Cg.T, Cg
     rhs = np.concatenate([g[free] - H[np.ix_(free, fixed_index)] @ c[fixed_index],
                           d[general] - C[general][:, fixed_index] @ c[fixed_index]])
-    try:
-        solution = np.linalg.solve(kkt, rhs)
-    except np.linalg.LinAlgError:  # dependent rows: NNLS sorts them out
-        return None
-    # nearly dependent rows solve to garbage without an error: keep only a solution that solves
-    if not np.all(np.isfinite(solution)) or np.linalg.norm(kkt @ solution - rhs) > 1e-8 * (
-            np.linalg.norm(rhs) + np.linalg.norm(kkt, 1) * np.linalg.norm(solution)):
+    if kkt.size == 0:  # every weight fixed by its bound
+        solution = np.zeros(0)
+    else:
+        try:
+            solution = np.linalg.solve(kkt, rhs)
+        except np.linalg.LinAlgError:  # dependent rows: NNLS sorts them out
+            return None
+    # nearly dependent rows solve to garbage without an error: keep only a solution that solves,
+    # measured against the weights' part (dependent rows' multipliers grow without bound)
+    size = np.linalg.norm(rhs) + np.abs(kkt).sum(axis=0).max(initial=0.0) * np.linalg.norm(solution[:len(free)])
+    if not np.all(np.isfinite(solution)) or np.linalg.norm(kkt @ solution - rhs) > 1e-8 * max(size, 1e-300) \
+            or np.abs(solution[len(free):]).max(initial=0.0) > 1e8 * max(size, 1e-300):
         return None
     c[free] = solution[:len(free)]
     lam_general = solution[len(free):]

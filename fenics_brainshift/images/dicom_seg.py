@@ -36,7 +36,13 @@ def read_dicom_seg(path: str | Path, reference, what: str) -> dict[str, np.ndarr
     to_index = np.linalg.inv(_index_to_lps(reference))
     labelmap = str(seg.SegmentationType) == "LABELMAP"
     fractional = str(seg.SegmentationType) == "FRACTIONAL"
-    frames = np.asarray(seg.pixel_array)
+    try:
+        frames = np.asarray(seg.pixel_array)
+    except Exception as exc:  # truncated or undecodable pixel data
+        raise InputError(f"{what}: '{name}': its pixel data could not be read ({exc}); is the file complete?") from None
+    if "PerFrameFunctionalGroupsSequence" not in seg or len(seg.PerFrameFunctionalGroupsSequence) != len(frames):
+        raise InputError(f"{what}: '{name}' does not say where each of its {len(frames)} frames lies (no per-frame "
+                         f"functional groups); it is not a DICOM-SEG this reader can place")
     if frames.ndim == 2:
         frames = frames[None]
     half = 0.5 * float(getattr(seg, "MaximumFractionalValue", 1)) if fractional else 0.5
@@ -44,11 +50,14 @@ def read_dicom_seg(path: str | Path, reference, what: str) -> dict[str, np.ndarr
     numbers = [int(n) for n in seg.get_segment_numbers()]
     labels = _labels(seg, numbers)
     masks = {number: np.zeros(tuple(size[::-1]), dtype=bool) for number in numbers}
+    planes = set()  # the T1 planes the frames lie on
     for f, group in enumerate(seg.PerFrameFunctionalGroupsSequence):
         frame_to_index = to_index @ _frame_to_lps(seg, group, what, name)
         i, j, k = _frame_voxels(frame_to_index, frames.shape[1:], what, name)
+        if np.ptp(k) == 0:
+            planes.add(int(k[0, 0]))
         frame = frames[f]
-        for number in (numbers if labelmap else [_segment_of(seg, group, what, name)]):
+        for number in (numbers if labelmap else [_segment_of(seg, group, numbers, what, name)]):
             on = frame == number if labelmap else frame >= half
             r, c = np.nonzero(on)
             if r.size == 0:
@@ -59,7 +68,18 @@ def read_dicom_seg(path: str | Path, reference, what: str) -> dict[str, np.ndarr
                 raise InputError(f"{what}: '{name}' labels voxels outside the T1 (segment '{labels[number]}'); "
                                  f"it was drawn on another image; export it with the T1 as its reference")
             masks[number][kk, jj, ii] = True
+    _check_planes(planes, what, name)
     return {labels[number]: mask for number, mask in masks.items()}
+
+
+def _check_planes(planes: set, what: str, name: str) -> None:
+    """Frames on every second (third...) plane of the T1 only: drawn on a series of thicker
+    slices, whose voxels span planes between them; laid on the T1's it would be striped."""
+    k = np.array(sorted(planes))
+    if len(k) > 1 and np.gcd.reduce(np.diff(k)) > 1:
+        raise InputError(f"{what}: '{name}' has frames on every {np.gcd.reduce(np.diff(k))}th plane of the T1 only: "
+                         f"it was drawn on a series of thicker slices; export it on the T1's grid (3D Slicer: "
+                         f"resample the segmentation with the T1 as reference)")
 
 
 def _seg_file(path: Path, what: str) -> Path:
@@ -135,13 +155,14 @@ def _frame_to_lps(seg, group, what: str, name: str) -> np.ndarray:
 
 
 def _frame_voxels(frame_to_index: np.ndarray, shape, what: str, name: str):
-    """The reference's (i, j, k) of each pixel [row, column] of a frame; refused unless each
-    pixel sits on a voxel centre and neighbouring pixels on neighbouring voxels."""
+    """The reference's (i, j, k) of each pixel [row, column] of a frame; refused unless every
+    pixel, to the frame's far corner, sits on a voxel centre and neighbouring pixels on
+    neighbouring voxels (a step off by 0.01 voxel drifts a voxel over 100 pixels)."""
     steps = frame_to_index[:3, :2]
     offset = frame_to_index[:3, 3]
-    unit = np.abs(np.abs(steps) - np.round(np.abs(steps)))
-    if unit.max() > GRID_TOLERANCE or not np.allclose(np.abs(steps).sum(axis=0), 1.0, atol=GRID_TOLERANCE) \
-            or np.abs(offset - np.round(offset)).max() > GRID_TOLERANCE:
+    off_step = np.abs(steps - np.round(steps))  # (3, 2): per pixel along columns, along rows
+    drift = off_step[:, 0] * (shape[1] - 1) + off_step[:, 1] * (shape[0] - 1) + np.abs(offset - np.round(offset))
+    if drift.max() > GRID_TOLERANCE or not np.allclose(np.abs(np.round(steps)).sum(axis=0), 1.0):
         raise InputError(f"{what}: '{name}' is on another grid than the T1 (its planes do not fall on the T1's "
                          f"voxels: another orientation, spacing or origin); export it with the T1 as its reference")
     rows, columns = np.indices(shape)
@@ -150,7 +171,11 @@ def _frame_voxels(frame_to_index: np.ndarray, shape, what: str, name: str):
     return ijk.astype(np.int64)
 
 
-def _segment_of(seg, group, what: str, name: str) -> int:
+def _segment_of(seg, group, numbers: list[int], what: str, name: str) -> int:
     """The segment a frame belongs to (its own, or, with one segment, the shared group's)."""
     item = _functional(seg, group, "SegmentIdentificationSequence", what, name)
-    return int(item.ReferencedSegmentNumber)
+    number = int(item.ReferencedSegmentNumber)
+    if number not in numbers:
+        raise InputError(f"{what}: '{name}' has a frame of segment {number}, which it does not describe "
+                         f"(its segments: {', '.join(map(str, numbers))}); the file is damaged")
+    return number

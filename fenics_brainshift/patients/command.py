@@ -46,6 +46,7 @@ PREPARE_RECORD = "prepare.json"
 SUPPORT = "brain_stem"  # the bundled scene's support that a patient scene fixes (the occipital pin gives way to the skull)
 SUPPORT_REACH_MM = 20.0  # a support the brain lost is kept on the brain if it is this close to it,
 SUPPORT_BAND_MM = 10.0  # on the brain's voxels within this of the nearest
+SUPPORT_KEPT = 0.25  # a support with less than this share of its carried voxels in the brain is laid anew
 
 
 def prepare_command(args) -> int:
@@ -92,7 +93,7 @@ def prepare_command(args) -> int:
     brain = ndimage.binary_fill_holes(largest_part(brain))
     labels[~brain] = 0
     labels[brain & (labels == 0)] = BRAIN
-    moved_supports = _keep_supports(labels, carried, brain, patient)
+    moved_supports = _keep_supports(labels, carried, brain, patient, tumour)
     for value, mm in moved_supports.items():
         log.warning("prepare: the %s lies %.0f mm off the brain found (the T1's stripping or field of view cut it): "
                     "kept on the brain's face nearest to it", names[value].replace("_", " "), mm)
@@ -106,7 +107,7 @@ def prepare_command(args) -> int:
               "registration": registration.stages}
     if tumour is not None:
         report["tumour"] = _tumour_report(tumour, brain, patient)
-        labels[tumour] = TUMOUR
+        labels[tumour & (labels <= TUMOUR)] = TUMOUR  # a support keeps its voxels (the scene must be held)
         brain |= tumour
         names[TUMOUR] = "tumour"
     voxel_ml = float(np.prod(patient.GetSpacing())) * 1e-3
@@ -165,7 +166,10 @@ def _tumour(path: str, patient: sitk.Image, segments: str | None) -> np.ndarray:
     frames' positions), a NIfTI or a (.seg).nrrd; the segments named by ``segments`` (names or
     label values, comma-separated), needed when the file holds more than one; refused on
     another grid."""
-    chosen = [s.strip() for s in segments.split(",") if s.strip()] if segments else None
+    chosen = [s.strip() for s in segments.split(",") if s.strip()] if segments is not None else None
+    if chosen == []:
+        raise InputError(f"--tumour-segment: '{segments}' names no segment; give names or label values, "
+                         f"comma-separated")
     if is_dicom_seg_path(path):
         by_name = read_dicom_seg(path, patient, "--tumour")
         names = list(by_name)
@@ -209,19 +213,23 @@ def _tumour_report(tumour: np.ndarray, brain: np.ndarray, patient: sitk.Image) -
             "inside_brain": round(inside, 4)}
 
 
-def _keep_supports(labels: np.ndarray, carried: np.ndarray, brain: np.ndarray, patient: sitk.Image) -> dict:
+def _keep_supports(labels: np.ndarray, carried: np.ndarray, brain: np.ndarray, patient: sitk.Image,
+                   tumour: np.ndarray | None) -> dict:
     """A support the brain found lost (the brain stem below a skull stripping's or a field of
-    view's cut) is kept on the cut face: the brain's voxels within SUPPORT_BAND_MM of the
-    nearest one to where it was carried, the face through which the stem goes on to the spinal
-    cord (a few voxels would pin the brain at a point, about which it turns). Unless that is
-    more than SUPPORT_REACH_MM away. Returns {value: the distance (mm) it was moved}."""
+    view's cut), or kept less than SUPPORT_KEPT of, is laid on the cut face: the brain's voxels
+    (not the tumour's) within SUPPORT_BAND_MM of the nearest one to where it was carried, the
+    face through which the stem goes on to the spinal cord (a sliver would pin the brain at a
+    point, about which it turns). Unless that is more than SUPPORT_REACH_MM away. Returns
+    {value: the distance (mm) it was moved}."""
     spacing = np.array(patient.GetSpacing())[::-1]
     moved = {}
     for value in np.unique(carried[carried > TUMOUR]):
-        if np.any(labels == value):
+        if np.count_nonzero(labels == value) >= SUPPORT_KEPT * np.count_nonzero(carried == value):
             continue
         distance = ndimage.distance_transform_edt(carried != value, sampling=spacing)
-        free = brain & (labels == BRAIN)
+        free = brain & ((labels == BRAIN) | (labels == value))
+        if tumour is not None:
+            free &= ~tumour
         nearest = float(distance[free].min()) if free.any() else np.inf
         if nearest <= SUPPORT_REACH_MM:
             labels[free & (distance <= nearest + SUPPORT_BAND_MM)] = value

@@ -124,7 +124,9 @@ def stripped_region(patient: sitk.Image) -> np.ndarray | None:
     zero = sitk.GetArrayViewFromImage(patient) == 0
     if zero.mean() < STRIPPED_ZEROS:
         return None
-    return ndimage.binary_fill_holes(ndimage.binary_closing(~zero, iterations=1))
+    kept = ~zero
+    # closing pads with zeros: a brain that leaves the image's edge would lose its edge layer
+    return ndimage.binary_fill_holes(kept | ndimage.binary_closing(kept, iterations=1))
 
 
 def register(patient: sitk.Image, template: sitk.Image, deformable: bool = True, head: sitk.Image | None = None,
