@@ -242,6 +242,11 @@ def test_a_dicom_seg_lands_on_the_voxels_of_its_nifti_export(patient, tmp_path):
         assert np.array_equal(labelmap[name], disjoint[name]), name
         assert np.array_equal(fractional[name], spheres[name]), name
     assert spheres["tumour"].sum() > 100 and (spheres["oedema"].sum(axis=(1, 2)) > 0).sum() < t1.GetSize()[2]
+    one_plane = np.zeros_like(spheres["tumour"])  # a SEG of a single frame (pydicom gives it as 2-D)
+    one_plane[30] = spheres["oedema"][30]
+    single = read_dicom_seg(write_dicom_seg({"tumour": one_plane}, patient / "dicom", tmp_path / "one.dcm"), t1,
+                            "--tumour")
+    assert one_plane.sum() > 10 and np.array_equal(single["tumour"], one_plane)
 
 
 @pytest.mark.usefixtures("serial_only")

@@ -40,11 +40,11 @@ def read_dicom_seg(path: str | Path, reference, what: str) -> dict[str, np.ndarr
         frames = np.asarray(seg.pixel_array)
     except Exception as exc:  # truncated or undecodable pixel data
         raise InputError(f"{what}: '{name}': its pixel data could not be read ({exc}); is the file complete?") from None
+    if frames.ndim == 2:  # a single frame
+        frames = frames[None]
     if "PerFrameFunctionalGroupsSequence" not in seg or len(seg.PerFrameFunctionalGroupsSequence) != len(frames):
         raise InputError(f"{what}: '{name}' does not say where each of its {len(frames)} frames lies (no per-frame "
                          f"functional groups); it is not a DICOM-SEG this reader can place")
-    if frames.ndim == 2:
-        frames = frames[None]
     half = 0.5 * float(getattr(seg, "MaximumFractionalValue", 1)) if fractional else 0.5
 
     numbers = [int(n) for n in seg.get_segment_numbers()]
