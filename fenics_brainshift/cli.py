@@ -156,46 +156,6 @@ def _add_bench(sub) -> None:
                             "in --out, keeping the other rows as measured")
 
 
-def _info() -> dict:
-    import dolfinx
-    from mpi4py import MPI
-    from petsc4py import PETSc
-
-    return {
-        "fenics_brainshift": __version__,
-        "dolfinx": dolfinx.__version__,
-        "petsc": ".".join(map(str, PETSc.Sys.getVersion())),
-        "scalar_type": str(PETSc.ScalarType.__name__),
-        "mpi": MPI.Get_library_version().splitlines()[0].strip(),
-        "ranks": MPI.COMM_WORLD.size,
-        "mumps": bool(PETSc.Sys.hasExternalPackage("mumps")),
-        "blas": _blas(),
-        **{f"extra {name}": _version_of(name) for name in ("pyvista", "tqdm", "nibabel", "matplotlib", "gmsh", "meshio")},
-    }
-
-
-def _version_of(module: str) -> str:
-    import importlib
-
-    try:
-        return str(getattr(importlib.import_module(module), "__version__", "present"))
-    except ImportError:
-        return "absent"
-
-
-def _blas() -> str:
-    """Which BLAS library this process loaded (Debian's alternatives pick it), from the
-    process's memory map: no architecture-specific path assumed."""
-    import os
-
-    try:
-        with open("/proc/self/maps") as maps:
-            paths = {line.split()[-1] for line in maps if "blas" in line.rsplit("/", 1)[-1]}
-    except OSError:
-        return "unknown"
-    return ", ".join(sorted(os.path.relpath(os.path.realpath(p), "/usr/lib") for p in paths)) or "none loaded"
-
-
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     from mpi4py import MPI
@@ -256,8 +216,10 @@ def _run(args, comm) -> int:
 
 
 def _info_command(args, comm) -> int:
+    from .machine import versions
+
     if comm.rank == 0:
-        for key, value in _info().items():
+        for key, value in versions().items():
             print(f"{key:18s} {value}")
     return 0
 
