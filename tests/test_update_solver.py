@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize
 
-from fenics_brainshift.atlas.combine import Problem, active_set, least_distance, solve_on_active, weight_constraints
+from fenics_brainshift.atlas.combine import Problem, least_distance, solve_on_active, weight_constraints
 
 pytestmark = pytest.mark.usefixtures("serial_only")
 
@@ -61,37 +61,50 @@ def test_the_least_distance_solve_is_the_constrained_minimiser(total):
 @pytest.mark.parametrize("total", [(1.0, 1.0), (0.25, 4.0)])
 @pytest.mark.parametrize("alpha", [1e-3, 1e-1, 10.0])
 def test_warm_started_refits_are_the_solves_from_scratch(total, alpha):
+    """Leave-one-out refits started from the fit to all the points: the primal active-set
+    method's answer equals NNLS's from scratch, and it gets there every time (no refit falls
+    back to NNLS)."""
     problem = _problem(total, seed=3)
     whole = problem.solve(alpha)
-    accepted = 0
     for point in range(20):
         rows = np.flatnonzero(problem.groups != point)
         scratch = problem.solve(alpha, rows)
         warm = problem.solve(alpha, rows, near=whole)
         assert np.abs(warm - scratch).max() <= 1e-9 * max(np.abs(scratch).max(), 1.0)
         H, g = _hessian(problem, alpha, rows)
-        accepted += solve_on_active(H, g, problem.C, problem.d, active_set(problem.C, problem.d, whole),
-                                    problem.partner) is not None
-    assert accepted >= 15  # most refits are the mended active set's, not NNLS's
+        primal = solve_on_active(H, g, *problem.unit_rows, whole, problem.partner, bounds=problem.bounds)
+        assert primal is not None, point
+        assert np.abs(primal - scratch).max() <= 1e-9 * max(np.abs(scratch).max(), 1.0)
 
 
-def test_a_wrong_guess_is_mended_or_refused_never_returned():
-    """From the empty set and from every constraint held, the mended answer is the minimiser
-    or None: never a point that breaks the KKT conditions."""
+def test_any_feasible_start_reaches_the_minimiser_and_an_infeasible_one_is_refused():
+    """From far starts (a vertex of the family's simplex, the family's centre with the swelling
+    on a bound), the answer is the minimiser, or None when the iterations run out: never a
+    point that breaks the KKT conditions; a start outside the constraints is refused."""
     problem = _problem((0.5, 2.0), seed=5)
     H, g = _hessian(problem, 1e-2, np.arange(len(problem.b)))
     exact = least_distance(H, g, problem.C, problem.d)
-    for guess in (np.zeros(0, dtype=np.int64), np.arange(len(problem.d))):
-        for swaps in (0, 3, 60):
-            c = solve_on_active(H, g, problem.C, problem.d, guess, problem.partner, swaps=swaps)
+    vertex = np.r_[1.0, np.zeros(39), 0.0, 0.0, 0.25]
+    centre = np.r_[np.full(40, 1.0 / 40), -1.0, 1.0, 0.25]
+    reached = 0
+    for start in (vertex, centre):
+        assert np.all(problem.C @ start - problem.d >= -1e-12)
+        for iterations in (2, 200):
+            c = solve_on_active(H, g, *problem.unit_rows, start, problem.partner, iterations=iterations,
+                                bounds=problem.bounds)
             assert c is None or np.abs(c - exact).max() <= 1e-9 * np.abs(exact).max()
+            reached += c is not None
+    assert reached >= 2  # with room to iterate, both starts get there
+    outside = centre.copy()
+    outside[0] = -0.01
+    assert solve_on_active(H, g, *problem.unit_rows, outside, problem.partner, bounds=problem.bounds) is None
 
 
 def test_rows_of_any_scale_and_every_weight_pinned():
     """An equality written as two rows of different scale (r.c >= 1, -s r.c >= -s) and a
-    problem whose bounds fix every weight: the warm start gives the exact answer or none
-    (found by a review: the pair was held as two inequalities, a singular system solved to
-    a wrong, feasible c; with no free weight the empty system raised)."""
+    problem whose bounds fix every weight: the warm start gives the exact answer (found by a
+    review: the pair was held as two inequalities, a singular system solved to a wrong,
+    feasible c; with no free weight the empty system raised)."""
     H, g = np.eye(2), np.zeros(2)
     r = np.array([0.3, 0.7])
     exact = r / (r @ r)  # the nearest point of the line r.c = 1
@@ -99,11 +112,11 @@ def test_rows_of_any_scale_and_every_weight_pinned():
         C, d = np.vstack([r, -scale * r]), np.array([1.0, -scale])
         problem = Problem(np.zeros((3, 2)), np.zeros(3), np.zeros(3, dtype=int), 1.0, np.eye(2) * 1e-12,
                           np.zeros(2), C, d)
-        unit_C, unit_d = problem.unit_rows
-        c = solve_on_active(H, g, unit_C, unit_d, np.array([0, 1]), problem.partner, bounds=problem.bounds)
+        c = solve_on_active(H, g, *problem.unit_rows, np.array([1.0 / 0.3, 0.0]), problem.partner,
+                            bounds=problem.bounds)
         assert c is not None and np.allclose(c, exact, atol=1e-12), scale
     pinned = np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]]), np.array([1.0, -1.0, 0.25, -0.25])
     problem = Problem(np.zeros((3, 2)), np.zeros(3), np.zeros(3, dtype=int), 1.0, np.eye(2), np.zeros(2), *pinned)
-    c = solve_on_active(np.eye(2), np.zeros(2), *problem.unit_rows, np.arange(4), problem.partner,
+    c = solve_on_active(np.eye(2), np.zeros(2), *problem.unit_rows, np.array([1.0, 0.25]), problem.partner,
                         bounds=problem.bounds)
     assert c is not None and np.allclose(c, [1.0, 0.25])

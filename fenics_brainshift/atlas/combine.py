@@ -10,10 +10,9 @@ the prediction no farther than the data ask); with a skull, rows of C keep the b
 inside it (rows.py). Each problem is solved exactly by Lawson and Hanson's reduction
 to a least-distance problem solved by scipy's NNLS (Solving Least Squares Problems, 1974,
 ch. 23): a factor of the Hessian, one NNLS of the constraints' size. The many refits of
-cross-validation, leave-one-out and the bootstrap start from a nearby solution's active
-constraints: held as equalities, one linear (KKT) solve; kept if it is the constrained
-minimiser (feasible, multipliers of the inequalities >= 0: then it is the exact answer, the
-problem being convex), else NNLS.
+cross-validation, leave-one-out and the bootstrap start from a nearby solution (the full
+fit's: the constraints are the same, the data rows change) by the primal active-set method,
+a few small KKT solves over the free weights; NNLS if it does not get there.
 
 alpha is chosen by K-fold cross-validation over the measured points (the error at points left
 out), from a grid; leave-one-out errors and a bootstrap over the points (the spread of the
@@ -75,21 +74,54 @@ class Problem:
         """The constrained minimiser with the data rows `rows` (default: all); `near`: weights
         whose active constraints are tried first (a refit of a nearby problem)."""
         A, b = (self.A, self.b) if rows is None else (self.A[rows], self.b[rows])
-        H = A.T @ A / self.noise ** 2 + (alpha / MM2) * self.gram
+        H = DataHessian(A, self.noise, self.gram, alpha / MM2)
         g = A.T @ b / self.noise ** 2 + (alpha / MM2) * self.cross
-        H[np.diag_indices_from(H)] += RIDGE * max(float(np.trace(H)) / len(H), 1e-300)
         if near is not None and WARM_START:
-            C, d = self.unit_rows
-            c = solve_on_active(H, g, C, d, active_set(C, d, near), self.partner, bounds=self.bounds)
+            c = solve_on_active(H, g, *self.unit_rows, near, self.partner, bounds=self.bounds)
             if c is not None:
                 return c
-        return least_distance(H, g, self.C, self.d)
+        return least_distance(H.dense(), g, self.C, self.d)
 
     def misfit(self, c: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
         """Each point's error (m): the norm of its rows' residuals."""
         rows = np.arange(len(self.b)) if rows is None else rows
         r = self.A[rows] @ c - self.b[rows]
         return np.sqrt(np.bincount(np.searchsorted(np.unique(self.groups[rows]), self.groups[rows]), weights=r * r))
+
+
+class DataHessian:
+    """H = A'A / noise^2 + s G + ridge I, not formed: a refit's active-set iterations need a
+    small block of it and its products with c (forming it cost more than the iterations)."""
+
+    def __init__(self, A: np.ndarray, noise: float, gram: np.ndarray, s: float):
+        self.A, self.w, self.gram, self.s = A, 1.0 / noise ** 2, gram, s
+        trace = self.w * float(np.einsum("ij,ij->", A, A)) + s * float(np.trace(gram))
+        self.ridge = RIDGE * max(trace / len(gram), 1e-300)  # a numerically positive definite H
+
+    def block(self, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+        out = self.w * (self.A[:, i].T @ self.A[:, j]) + self.s * self.gram[np.ix_(i, j)]
+        out[i[:, None] == j[None, :]] += self.ridge
+        return out
+
+    def __matmul__(self, c: np.ndarray) -> np.ndarray:
+        return self.w * (self.A.T @ (self.A @ c)) + self.s * (self.gram @ c) + self.ridge * c
+
+    def dense(self) -> np.ndarray:
+        every = np.arange(len(self.gram))
+        return self.block(every, every)
+
+
+class DenseHessian:
+    """A formed H with DataHessian's interface."""
+
+    def __init__(self, H: np.ndarray):
+        self.H = H
+
+    def block(self, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+        return self.H[np.ix_(i, j)]
+
+    def __matmul__(self, c: np.ndarray) -> np.ndarray:
+        return self.H @ c
 
 
 def least_distance(H: np.ndarray, g: np.ndarray, C: np.ndarray, d: np.ndarray) -> np.ndarray:
@@ -112,40 +144,53 @@ def least_distance(H: np.ndarray, g: np.ndarray, C: np.ndarray, d: np.ndarray) -
     return solve_triangular(R, z + f)
 
 
-def active_set(C: np.ndarray, d: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """The constraints that hold with equality at c (to round-off)."""
-    return np.flatnonzero(C @ c - d <= ACTIVE * (1.0 + np.abs(d)))
-
-
-def solve_on_active(H: np.ndarray, g: np.ndarray, C: np.ndarray, d: np.ndarray, active: np.ndarray,
-                    partner: np.ndarray, swaps: int = 30, bounds: tuple | None = None):
-    """argmin c.H.c - 2 g.c subject to C c >= d from a guess of the active constraints: held as
-    equalities (H c - C_a' lam = g, C_a c = d_a), the guess mended up to `swaps` times (the
-    violated constraints added; else the inequality of most negative multiplier dropped) until
-    the KKT conditions of the convex problem hold (feasible, lam >= 0): then c is the exact
-    minimiser. None if they do not within `swaps` (the caller falls back to NNLS). A pair of
-    rows that are each other's negative (`partner`: a bound with lower = upper, the family's
-    sum fixed) is one equality, its multiplier of either sign. Bounds on one weight (most of
-    the family's weights sit at 0) fix it and leave the problem; the rest is a small KKT
-    system over the free weights."""
+def solve_on_active(H: np.ndarray, g: np.ndarray, C: np.ndarray, d: np.ndarray, start: np.ndarray,
+                    partner: np.ndarray, iterations: int = 60, bounds: tuple | None = None):
+    """argmin c.H.c - 2 g.c subject to C c >= d by the primal active-set method (Nocedal and
+    Wright, Numerical Optimization, 2006, algorithm 16.3) from a feasible `start` (a nearby
+    problem's answer: the refits keep the constraints and change the data), its active
+    constraints the first working set. Each iteration solves the problem with the working
+    set held as equalities (H c - C_w' lam = g, C_w c = d_w); a step that would cross a
+    constraint stops on it and adds it; at the working set's minimiser the inequality of
+    most negative multiplier is dropped, until none is negative: the KKT conditions of the
+    convex problem, so c is the exact minimiser. None if `start` is not feasible or the
+    iterations run out (the caller then solves from scratch). A pair of rows that are each
+    other's negative (`partner`: a bound with lower = upper, the family's sum fixed) is one
+    equality, its multiplier of either sign. A held bound fixes its weight and leaves the
+    problem (most of the family's weights sit at 0): each solve is a small KKT system over
+    the free weights."""
+    H = H if isinstance(H, (DataHessian, DenseHessian)) else DenseHessian(H)
     tolerance = ACTIVE * (1.0 + np.abs(d))
-    working = np.zeros(len(d), dtype=bool)
-    working[active] = True
-    rows = np.arange(len(d))
     bound_of, sign = bounds if bounds is not None else bound_rows(C)
-    for _ in range(swaps + 1):
-        # of an equality pair both in the set, the first row stands for both
-        second = (partner >= 0) & (partner < rows) & working[np.maximum(partner, 0)]
-        held = np.flatnonzero(working & ~second)
+    slack = _Slack(C, d, bound_of, sign)
+    c = np.array(start, dtype=float)
+    if np.any(slack(c) < -tolerance):
+        return None
+    working = slack(c) <= tolerance
+    rows = np.arange(len(d))
+    if _equality_solve(H, g, C, d, _held(working, partner, rows), bound_of, sign) is None:
+        working &= bound_of >= 0  # dependent general rows at the start: they join one at a time
+    for _ in range(iterations):
+        held = _held(working, partner, rows)
         solved = _equality_solve(H, g, C, d, held, bound_of, sign)
         if solved is None:
             return None
-        c, multipliers = solved
-        slack = C @ c - d
-        violated = slack < -tolerance
-        if violated.any():
-            working |= violated
+        x, multipliers = solved
+        p = x - c
+        if np.abs(p).max() > 1e-12 * (1.0 + np.abs(c).max()):
+            Cp = slack.along(p)
+            blocking = np.flatnonzero(~working & (Cp < -1e-12 * np.abs(p).sum()))
+            step, hit = 1.0, -1
+            if len(blocking):
+                ratios = np.maximum(slack(c)[blocking], 0.0) / -Cp[blocking]
+                k = int(np.argmin(ratios))
+                if ratios[k] < 1.0:
+                    step, hit = float(ratios[k]), int(blocking[k])
+            c = c + step * p
+            if hit >= 0:
+                working[hit] = True
             continue
+        c = x
         inequality = partner[held] < 0
         scale = max(float(np.abs(multipliers).max(initial=0.0)), 1e-300)
         worst = int(np.argmin(np.where(inequality, multipliers, np.inf))) if inequality.any() else -1
@@ -153,6 +198,31 @@ def solve_on_active(H: np.ndarray, g: np.ndarray, C: np.ndarray, d: np.ndarray, 
             return c
         working[held[worst]] = False
     return None
+
+
+class _Slack:
+    """C c - d and C p with the bound rows (most of them: +-e_k) read off c, not multiplied."""
+
+    def __init__(self, C, d, bound_of, sign):
+        self.d, self.is_bound = d, bound_of >= 0
+        self.column, self.sign = bound_of[self.is_bound], sign[self.is_bound]
+        self.general = np.flatnonzero(~self.is_bound)
+        self.C_general = C[self.general]
+
+    def along(self, p: np.ndarray) -> np.ndarray:
+        out = np.empty(len(self.d))
+        out[self.is_bound] = self.sign * p[self.column]
+        out[self.general] = self.C_general @ p
+        return out
+
+    def __call__(self, c: np.ndarray) -> np.ndarray:
+        return self.along(c) - self.d
+
+
+def _held(working: np.ndarray, partner: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """The working rows held as equalities: of an equality pair both in the set, the first."""
+    second = (partner >= 0) & (partner < rows) & working[np.maximum(partner, 0)]
+    return np.flatnonzero(working & ~second)
 
 
 def bound_rows(C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -170,21 +240,23 @@ def _equality_solve(H, g, C, d, held, bound_of, sign):
     held bound fixes are set, the rest solved from the KKT system of the free weights and the
     other held rows. None if the rows are dependent (a weight bounded twice, dependent rows)."""
     n = len(g)
-    bounds = held[bound_of[held] >= 0]
-    general = held[bound_of[held] < 0]
-    fixed_index = bound_of[bounds]
-    if len(np.unique(fixed_index)) < len(fixed_index):
+    of = bound_of[held]
+    is_bound = of >= 0  # `bounds` and `general` are held's rows in held's order
+    bounds, general, fixed_index = held[is_bound], held[~is_bound], of[is_bound]
+    is_free = np.ones(n, dtype=bool)
+    is_free[fixed_index] = False
+    free = np.flatnonzero(is_free)
+    if len(free) != n - len(fixed_index):  # a weight bounded twice
         return None
     c = np.zeros(n)
     c[fixed_index] = d[bounds] * sign[bounds]
-    free = np.setdiff1d(np.arange(n), fixed_index)
-    Cg = C[general][:, free]
-    k = len(general)
-    kkt = np.zeros((len(free) + k, len(free) + k))
-    kkt[:len(free), :len(free)] = H[np.ix_(free, free)]
-    kkt[:len(free), len(free):], kkt[len(free):, :len(free)] = -Cg.T, Cg
-    rhs = np.concatenate([g[free] - H[np.ix_(free, fixed_index)] @ c[fixed_index],
-                          d[general] - C[general][:, fixed_index] @ c[fixed_index]])
+    C_general = C[general]
+    C_free = C_general[:, free]
+    nf, k = len(free), len(general)
+    kkt = np.zeros((nf + k, nf + k))
+    kkt[:nf, :nf] = H.block(free, free)
+    kkt[:nf, nf:], kkt[nf:, :nf] = -C_free.T, C_free
+    rhs = np.concatenate([g[free] - (H @ c)[free], d[general] - C_general @ c])  # (c: the fixed weights so far)
     if kkt.size == 0:  # every weight fixed by its bound
         solution = np.zeros(0)
     else:
@@ -194,18 +266,17 @@ def _equality_solve(H, g, C, d, held, bound_of, sign):
             return None
     # nearly dependent rows solve to garbage without an error: keep only a solution that solves,
     # measured against the weights' part (dependent rows' multipliers grow without bound)
-    size = np.linalg.norm(rhs) + np.abs(kkt).sum(axis=0).max(initial=0.0) * np.linalg.norm(solution[:len(free)])
+    size = np.linalg.norm(rhs) + np.abs(kkt).sum(axis=0).max(initial=0.0) * np.linalg.norm(solution[:nf])
     if not np.all(np.isfinite(solution)) or np.linalg.norm(kkt @ solution - rhs) > 1e-8 * max(size, 1e-300) \
-            or np.abs(solution[len(free):]).max(initial=0.0) > 1e8 * max(size, 1e-300):
+            or np.abs(solution[nf:]).max(initial=0.0) > 1e8 * max(size, 1e-300):
         return None
-    c[free] = solution[:len(free)]
-    lam_general = solution[len(free):]
+    c[free] = solution[:nf]
+    lam_general = solution[nf:]
     # a bound's multiplier from the stationarity of its weight: (H c - g)_k = C[:, k]' lam
-    gradient = H @ c - g - C[general].T @ lam_general
-    multipliers = np.zeros(len(held))
-    is_bound = bound_of[held] >= 0  # `bounds` and `general` are held's rows in held's order
+    gradient = (H @ c)[fixed_index] - g[fixed_index] - C_general[:, fixed_index].T @ lam_general
+    multipliers = np.empty(len(held))
     multipliers[~is_bound] = lam_general
-    multipliers[is_bound] = sign[bounds] * gradient[bound_of[bounds]]
+    multipliers[is_bound] = sign[bounds] * gradient
     return c, multipliers
 
 
@@ -282,14 +353,13 @@ def weight_constraints(family: np.ndarray, lower: np.ndarray, upper: np.ndarray,
     combination; G0/G for a stiffness G: u is proportional to 1/G), the other coefficients
     within [lower, upper] (entries of those arrays at the family's are unused)."""
     m = len(family)
-    rows, rhs = [], []
-    for k in np.flatnonzero(family):
-        rows.append(np.eye(m)[k])
-        rhs.append(0.0)
-    sum_row = family.astype(float)
-    rows += [sum_row, -sum_row]
-    rhs += [total[0], -total[1]]
-    for k in np.flatnonzero(~family):
-        rows += [np.eye(m)[k], -np.eye(m)[k]]
-        rhs += [lower[k], -upper[k]]
-    return np.array(rows), np.array(rhs)
+    weights, others = np.flatnonzero(family), np.flatnonzero(~family)
+    C = np.zeros((len(weights) + 2 + 2 * len(others), m))
+    C[np.arange(len(weights)), weights] = 1.0
+    C[len(weights), family], C[len(weights) + 1, family] = 1.0, -1.0
+    first = len(weights) + 2
+    C[first + 2 * np.arange(len(others)), others] = 1.0
+    C[first + 2 * np.arange(len(others)) + 1, others] = -1.0
+    d = np.concatenate([np.zeros(len(weights)), [total[0], -total[1]],
+                        np.column_stack([lower[others], -upper[others]]).ravel()])
+    return C, d

@@ -44,6 +44,9 @@ class Atlas:
     skull_triangles: np.ndarray | None = None  # (T, 3, 3) m
     skull_gap: float | None = None  # a gap skull: the brain's surface dilated by this (its triangles)
     info: dict = field(default_factory=dict)  # the rest of atlas.json
+    # what every update of this atlas needs and none changes (the point locator, the prior's
+    # weights): made by the first update, in theatre before the measurements arrive
+    once: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def family(self) -> np.ndarray:
@@ -51,7 +54,9 @@ class Atlas:
 
     @property
     def surface_vertices(self) -> np.ndarray:
-        return boundary_vertices(self.tetrahedra)
+        if "surface_vertices" not in self.once:
+            self.once["surface_vertices"] = boundary_vertices(self.tetrahedra)
+        return self.once["surface_vertices"]
 
     def mesh_id(self) -> str:
         return mesh_id(self.points, self.tetrahedra)

@@ -95,7 +95,19 @@ def family_sum(atlas) -> tuple[float, float]:
 
 def prior_weights(atlas) -> np.ndarray:
     """The weights whose combination is nearest the scene's own prediction (least squares
-    over the nodes, within the constraints): where the update starts."""
+    over the nodes, within the constraints): where the update starts (once per atlas)."""
+    if "prior_weights" not in atlas.once:
+        atlas.once["prior_weights"] = _prior_weights(atlas)
+    return atlas.once["prior_weights"]
+
+
+def locator(atlas) -> MeshLocator:
+    if "locator" not in atlas.once:
+        atlas.once["locator"] = MeshLocator(atlas.points, atlas.tetrahedra)
+    return atlas.once["locator"]
+
+
+def _prior_weights(atlas) -> np.ndarray:
     from .combine import least_distance
 
     lower, upper = bounds(atlas)
@@ -116,11 +128,11 @@ def update(atlas, target, noise: float, samples: int = 30, keep_inside: bool = T
     if n_points < need:
         raise InputError(f"--target: {n_points} point(s) are too few for the update: give at least {need} "
                          f"{'point pairs' if point_to_point else 'points on the surface'}")
-    modes = atlas.vertex_modes.astype(np.float64)
+    modes = atlas.vertex_modes  # float32; the rows and sums take float64 slices of it
     lower, upper = bounds(atlas)
     C0, d0 = weight_constraints(atlas.family, lower, upper, family_sum(atlas))
     if point_to_point:
-        pairs = PointRows(MeshLocator(atlas.points, atlas.tetrahedra), target.pre, target.measured, target.labels)
+        pairs = PointRows(locator(atlas), target.pre, target.measured, target.labels)
         fixed_rows = pairs.rows(modes)
         prior_residual = pairs.errors(atlas.prior_vertex)
     else:
@@ -158,13 +170,14 @@ def update(atlas, target, noise: float, samples: int = 30, keep_inside: bool = T
     t = time.perf_counter()
     loo = leave_one_out(problem, alpha, LEAVE_OUT_MAX, near=c)
     sampled = bootstrap(problem, alpha, samples, near=c) if samples else np.zeros((0, len(c)))
-    u = np.tensordot(c, modes, axes=1)
+    u = combination(c, modes)
     spread = np.zeros(len(u))
     if len(sampled):
-        fields = np.tensordot(sampled, modes, axes=1)  # (B, N, 3)
+        used = np.flatnonzero(np.any(sampled != 0, axis=0))  # (most of the family's weights are 0)
+        fields = np.tensordot(sampled[:, used], modes[used], axes=1)  # (B, N, 3)
         spread = np.sqrt(np.mean(np.sum((fields - fields.mean(axis=0)) ** 2, axis=2), axis=0))
     spread_s = time.perf_counter() - t
-    surface_u = None if atlas.surface_modes is None else np.tensordot(c, atlas.surface_modes.astype(np.float64), axes=1)
+    surface_u = None if atlas.surface_modes is None else combination(c, atlas.surface_modes)
     skull_report = {}
     if atlas.skull_triangles is not None:
         past = _skull(atlas, modes).room(c)
@@ -175,6 +188,12 @@ def update(atlas, target, noise: float, samples: int = 30, keep_inside: bool = T
                "leave_one_out_and_bootstrap_ms": spread_s * 1e3, "total_ms": (time.perf_counter() - start) * 1e3}
     return UpdateResult(c, alpha, curve, prior_residual, residual, loo, u, surface_u, spread, skull_report, seconds,
                         warning)
+
+
+def combination(c: np.ndarray, modes: np.ndarray) -> np.ndarray:
+    """sum_k c_k modes_k over the weights that are not 0 (in float64)."""
+    used = np.flatnonzero(c)
+    return np.tensordot(c[used], modes[used].astype(np.float64), axes=1)
 
 
 def _surface(atlas, modes: np.ndarray) -> SurfaceRows:
