@@ -1,7 +1,7 @@
 """`brainshift update` against the scene's own prediction and `brainshift fit`, on operations the
 atlas does not contain exactly; and what the atlas and the update cost. One process, one rank.
 
-The atlas: the bundled brain (linear, no skull) at --voxel, the default family (8 levels x 25
+The atlas: the bundled brain (linear, no skull) at --voxel, the default family (14 levels x 25
 poses) and the whole-brain swelling mode. Each operation is the settled state of a scene built
 on its own by the full model: a level and a pose between the atlas's samples, the neo-Hookean
 material, a rigid skull 3 mm out (contact), a swelling region the atlas does not have, a

@@ -110,6 +110,33 @@ def test_an_operation_inside_the_span_is_recovered_to_the_noise_from_20_cortex_p
     assert result.seconds["fit_ms"] < 100
 
 
+def test_a_point_far_off_is_set_aside_and_the_update_is_made_without_it(atlas):
+    """One of 20 cortex points 8 mm off (a pointer slip): it pulled every node's answer and
+    passed silently. It is found by its left-out error, set aside, reported, and the update
+    is the one made from the other 19 (a fit made by hand without it)."""
+    _, truth = _operation(atlas)
+    rng = np.random.default_rng(0)
+    points = atlas.points
+    top = np.flatnonzero(points[:, 1] > np.percentile(points[:, 1], 85))
+    picked = rng.choice(top, 20, replace=False)
+    noise = 0.5e-3
+    measured = points[picked] + truth[picked] + rng.normal(0.0, noise, (20, 3))
+    measured[7] += [0.0, 0.008, 0.0]
+    labels = [f"p{i}" for i in range(20)]
+    slipped = update(atlas, Target(measured, points[picked], labels), noise)
+    assert slipped.outliers == [7] and "p7" in slipped.warning and "set aside" in slipped.warning
+    keep = np.flatnonzero(np.arange(20) != 7)
+    by_hand = update(atlas, Target(measured[keep], points[picked][keep], [labels[i] for i in keep]), noise,
+                     set_aside=False)
+    np.testing.assert_allclose(slipped.displacement, by_hand.displacement, atol=1e-12)
+    assert slipped.residual[7] > 0.006  # its error at the update made without it: the 8 mm slip
+    kept_in = update(atlas, Target(measured, points[picked], labels), noise, set_aside=False)
+    error = lambda r: np.linalg.norm(r.displacement - truth, axis=1).mean()  # noqa: E731
+    assert error(slipped) < 0.7 * noise < error(kept_in)  # the slip, kept, pulls the answer off
+    honest = update(atlas, Target(np.delete(measured, 7, axis=0), points[picked][keep], labels[:19]), noise)
+    assert honest.outliers == []  # noise alone sets nothing aside
+
+
 def test_a_stiffer_brain_is_the_family_scaled_down(atlas):
     """A linear body 1.25x stiffer sags 0.8x as far: the family's weights sum to G0/G."""
     c = np.zeros(len(atlas.scenarios))

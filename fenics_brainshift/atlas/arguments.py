@@ -13,8 +13,8 @@ def add_atlas(sub) -> None:
     atlas.add_argument("-o", "--output", required=True, help="atlas folder")
     atlas.add_argument("--vary", action="append", default=[], metavar="KEY=VALUES",
                        help="fluid.level=0.02,0.03 or 0.01:0.05:5 (m), gravity.angle_x|y|z=-10,0,10 (degrees), "
-                            "material.G=LOW,HIGH (Pa), swelling.N=LOW,HIGH (volume change of region N); default: 8 "
-                            "levels x 25 poses, G from half to twice the scene's")
+                            "material.G=LOW,HIGH (Pa), swelling.N=LOW,HIGH (volume change of region N); default: 14 "
+                            "levels x 25 poses, G from a third to three times the scene's")
     atlas.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", help="scene overrides")
 
 

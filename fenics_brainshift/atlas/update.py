@@ -14,6 +14,7 @@ Order of the work, each step on the last one's weights:
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 
@@ -32,6 +33,9 @@ ROUNDS = 4  # of nearest points (point to surface) and of the skull's rows
 PAST_SKULL = 0.15e-3  # m: a node deeper past the skull after the last round is reported
 FAR_FROM_PREDICTION = 0.25  # of the body's diagonal: the median prior residual of another frame
 UNEXPLAINED = 10.0  # residual RMS over the stated noise: the atlas does not explain the data
+OUTLIER = 5.0  # a point left out farther than this many times the noise's expected error...
+OUTLIER_MEDIAN = 3.0  # ...and this many times the median left-out error is set aside
+OUTLIERS_MAX = 0.25  # of the points: more than that is not a few slips, it is the model or the frame
 
 
 @dataclass
@@ -48,6 +52,7 @@ class UpdateResult:
     skull: dict = field(default_factory=dict)
     seconds: dict = field(default_factory=dict)
     warning: str | None = None
+    outliers: list[int] = field(default_factory=list)  # the points set aside (not in the fit)
 
     def volume_changes(self, atlas) -> dict[str, float]:
         """Each swelling region's fitted volume change."""
@@ -117,10 +122,54 @@ def _prior_weights(atlas) -> np.ndarray:
     return least_distance(H, atlas.cross, C, d)
 
 
-def update(atlas, target, noise: float, samples: int = 30, keep_inside: bool = True) -> UpdateResult:
+def update(atlas, target, noise: float, samples: int = 30, keep_inside: bool = True,
+           set_aside: bool = True) -> UpdateResult:
     """The update of an atlas (store.Atlas) to a target (fit.targets.Target), noise in m;
     keep_inside: the skull's rows in the fit (False: the modes' own contact alone, to measure
-    what the rows add)."""
+    what the rows add); set_aside: points whose left-out error is far past the noise and the
+    other points' (a pointer slip, a landmark on the wrong structure) are set aside and the
+    update made again without them (they are reported, with their error at the new fit)."""
+    result = _update(atlas, target, noise, samples, keep_inside)
+    if not set_aside:
+        return result
+    dims = 3 if target.pre is not None else 1
+    loo = result.leave_one_out
+    limit = max(OUTLIER * noise * np.sqrt(dims), OUTLIER_MEDIAN * float(np.nanmedian(loo)))
+    far = np.flatnonzero(loo > limit)
+    need = MIN_POINT_PAIRS if target.pre is not None else MIN_SURFACE_POINTS
+    if not len(far) or len(far) > OUTLIERS_MAX * len(loo) or len(loo) - len(far) < need:
+        return result
+    keep = np.setdiff1d(np.arange(len(loo)), far)
+    kept = type(target)(target.measured[keep], None if target.pre is None else target.pre[keep],
+                        [target.labels[i] for i in keep])
+    again = _update(atlas, kept, noise, samples, keep_inside)
+    # every point's errors at the new fit (the set-aside ones' "left out" is their error now)
+    residual = np.zeros(len(loo))
+    residual[keep] = again.residual
+    residual[far] = _errors(atlas, target, again.displacement, again.surface_displacement)[far]
+    left_out = residual.copy()
+    left_out[keep] = again.leave_one_out
+    names = ", ".join(f"{target.labels[i]} ({loo[i] * 1e3:.3g} mm)" for i in far[:5])
+    note = (f"{len(far)} point(s) set aside as outliers, their error when left out far past the noise and "
+            f"the others' ({names}; limit {limit * 1e3:.3g} mm): a pointer slip, a landmark on another "
+            f"structure, or points mismatched between --pre and --target")
+    seconds = {k: v + result.seconds.get(k, 0.0) for k, v in again.seconds.items()}
+    return dataclasses.replace(again, prior_residual=result.prior_residual, residual=residual, leave_one_out=left_out,
+                               warning="; ".join(w for w in (note, again.warning) if w), outliers=[int(i) for i in far],
+                               seconds=seconds)
+
+
+def _errors(atlas, target, u: np.ndarray, surface_u) -> np.ndarray:
+    """Each point's distance from where the displacement puts it (pairs) or from the moved
+    surface (points on the surface), m."""
+    if target.pre is not None:
+        return PointRows(locator(atlas), target.pre, target.measured, target.labels).errors(u)
+    surface = _surface(atlas, atlas.vertex_modes)
+    shift = surface_u if atlas.surface_points is not None else u[boundary_triangles(atlas.points, atlas.tetrahedra)[0]]
+    return np.abs(surface.distances(shift, target.measured))
+
+
+def _update(atlas, target, noise: float, samples: int, keep_inside: bool) -> UpdateResult:
     start = time.perf_counter()
     n_points = len(target.measured)
     point_to_point = target.pre is not None

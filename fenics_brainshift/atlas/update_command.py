@@ -120,19 +120,29 @@ def _uncertainty_grid(atlas, spread: np.ndarray, image) -> np.ndarray:
     return data
 
 
+def _kept(result) -> np.ndarray:
+    """The points the fit used (not set aside as outliers)."""
+    keep = np.ones(len(result.residual), dtype=bool)
+    keep[result.outliers] = False
+    return keep
+
+
 def _report(atlas, target, result, args, seconds: float) -> dict:
     mm = 1e3
+    keep = _kept(result)
     return {
         "atlas": str(Path(args.atlas).resolve()), "mesh_id": atlas.mesh_id(), "target": str(args.target),
         "kind": target.kind, "points": len(target.measured), "noise_mm": args.noise,
         "alpha": result.alpha, "cross_validation": result.curve,
         "prior_residual_rms_mm": float(np.sqrt(np.mean(result.prior_residual ** 2))) * mm,
-        "residual_rms_mm": float(np.sqrt(np.mean(result.residual ** 2))) * mm,
-        "leave_one_out_rms_mm": float(np.sqrt(np.nanmean(result.leave_one_out ** 2))) * mm,
-        "leave_one_out_points": int(np.count_nonzero(np.isfinite(result.leave_one_out))),
-        "per_point": [{"label": label, "prior_mm": p * mm, "updated_mm": r * mm, "left_out_mm": o * mm}
-                      for label, p, r, o in zip(target.labels, result.prior_residual, result.residual,
-                                                result.leave_one_out)],
+        "residual_rms_mm": float(np.sqrt(np.mean(result.residual[keep] ** 2))) * mm,
+        "leave_one_out_rms_mm": float(np.sqrt(np.nanmean(result.leave_one_out[keep] ** 2))) * mm,
+        "leave_one_out_points": int(np.count_nonzero(np.isfinite(result.leave_one_out[keep]))),
+        "set_aside": [target.labels[i] for i in result.outliers],
+        "per_point": [{"label": label, "prior_mm": p * mm, "updated_mm": r * mm, "left_out_mm": o * mm,
+                       "set_aside": not k}
+                      for label, p, r, o, k in zip(target.labels, result.prior_residual, result.residual,
+                                                   result.leave_one_out, keep)],
         "family_weights": result.family_weights(atlas),
         "volume_changes": result.volume_changes(atlas),
         "stiffness_G_Pa": result.stiffness(atlas), "stiffness_range_Pa": atlas.info.get("stiffness"),
@@ -147,11 +157,13 @@ def _report(atlas, target, result, args, seconds: float) -> dict:
 
 def _lines(atlas, target, result, out: Path, image: bool) -> list[str]:
     rms = lambda r: float(np.sqrt(np.mean(r ** 2))) * 1e3  # noqa: E731
+    keep = _kept(result)
     top = ", ".join(f"{s['weight']:.2f} x " + " ".join(f"{k}={v:g}" for k, v in s.items() if k != "weight")
                     for s in result.family_weights(atlas)[:3])
     lines = [f"update: {target.kind}, {len(target.measured)} points, {len(result.weights)} modes; residual RMS "
-             f"{rms(result.prior_residual):.2f} mm (scene) -> {rms(result.residual):.2f} mm (updated), "
-             f"left out {float(np.sqrt(np.nanmean(result.leave_one_out ** 2))) * 1e3:.2f} mm; fit {result.seconds['fit_ms']:.0f} ms "
+             f"{rms(result.prior_residual):.2f} mm (scene) -> {rms(result.residual[keep]):.2f} mm (updated), "
+             f"left out {float(np.sqrt(np.nanmean(result.leave_one_out[keep] ** 2))) * 1e3:.2f} mm; fit "
+             f"{result.seconds['fit_ms']:.0f} ms "
              f"(alpha {result.alpha:g} by cross-validation)",
              f"  scenarios: {top or 'none'}"]
     if result.stiffness(atlas) is not None:
