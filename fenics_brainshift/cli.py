@@ -161,7 +161,7 @@ def main(argv: list[str] | None = None) -> int:
     from mpi4py import MPI
 
     from . import logs
-    from .errors import InputError, Interrupted, SolverError
+    from .errors import InputError, Interrupted, SolverError, write_failed
 
     logs.configure(args.log_level, args.log_all_ranks)
     if args.no_progress:
@@ -189,11 +189,16 @@ def main(argv: list[str] | None = None) -> int:
         if comm.rank == 0:
             print(f"brainshift: stopped: {exc}", file=sys.stderr)
         return 3
-    except OSError as exc:  # a file that could not be written mid-way: a full disk, a quota, a lost mount
+    except (OSError, RuntimeError) as exc:  # a file that could not be written mid-way: a full disk, a quota
+        if not write_failed(exc):
+            raise
         if comm.rank == 0:
-            where = f" '{exc.filename}'" if exc.filename else ""
-            print(f"brainshift: error: {exc.strerror or exc}{where}: free space or choose another folder (a run's "
-                  f"summary.json says \"running\", not \"ok\": its files are incomplete)", file=sys.stderr)
+            if isinstance(exc, OSError):
+                what = f"{exc.strerror or exc}" + (f" '{exc.filename}'" if exc.filename else "")
+            else:  # (a C++ writer's message: its first line says which file)
+                what = f"a file could not be written ({str(exc).strip().splitlines()[0][:200]})"
+            print(f"brainshift: error: {what}: free space or choose another folder (a run's summary.json says "
+                  f"\"running\", not \"ok\": its files are incomplete)", file=sys.stderr)
         if comm.size > 1:  # a write fails on the rank that writes: the others wait in its barrier
             sys.stderr.flush()
             comm.Abort(1)

@@ -33,6 +33,15 @@ class Interrupted(SolverError):
     """The run was interrupted (Ctrl-C); the last good state was kept."""
 
 
+def write_failed(exc: BaseException) -> bool:
+    """Whether an exception is a file that could not be written: an OSError, or the
+    RuntimeError a C++ writer raises instead (DOLFINx's HDF5 "Failed to write ...", ITK's
+    ImageFileWriter / WriteTransform on a full disk)."""
+    if isinstance(exc, OSError):
+        return True
+    return isinstance(exc, RuntimeError) and not isinstance(exc, BrainshiftError) and "writ" in str(exc).lower()
+
+
 def abort_on_uncaught() -> None:
     """Under mpirun, an exception nobody catches on one rank ends that rank, and MPI's
     finalisation at its exit waits for ranks that wait in their next collective for it: the

@@ -201,6 +201,10 @@ def test_fit_command_writes_a_scene_that_runs_and_agrees_on_two_ranks(tmp_path, 
     (["--target", "metres.mrk.json"], "positions in metres?"),
     (["--pre", "twice.mrk.json"], "the label(s) a name more than one point"),
     (["--frame", "LPS"], "--frame is for a CSV or surface target"),
+    (["--target", "one_intra.mrk.json", "--pre", "one_pre.mrk.json",
+      "--params", "fluid.level,material.G,gravity.angle_x,gravity.angle_z"],
+     "1 point pairs, 3 values each, cannot fit 4 parameters"),  # (exit 0 with four "+-" values)
+    (["--target", "garbage.csv", "--pre", None], "'garbage.csv' is not a text CSV file"),  # (a traceback)
 ])
 def test_bad_fit_input_is_one_line(tmp_path, capsys, args, words):
     from fenics_brainshift.cli import main
@@ -211,15 +215,50 @@ def test_bad_fit_input_is_one_line(tmp_path, capsys, args, words):
     write_markups(tmp_path / "intra.mrk.json", ["a", "b"], points + 1.0)
     write_markups(tmp_path / "metres.mrk.json", ["a", "b"], points * 1e-3)
     write_markups(tmp_path / "twice.mrk.json", ["a", "a"], points)
+    write_markups(tmp_path / "one_pre.mrk.json", ["a"], points[:1])
+    write_markups(tmp_path / "one_intra.mrk.json", ["a"], points[:1] + 1.0)
+    (tmp_path / "garbage.csv").write_bytes(bytes(range(256)) * 4)
     base = {"--target": str(tmp_path / "intra.mrk.json"), "--pre": str(tmp_path / "pre.mrk.json"),
             "--params": "fluid.level", "--out": str(tmp_path / "out")}
     for key, value in zip(args[::2], args[1::2]):
-        base[key] = str(tmp_path / value) if key in ("--target", "--pre") else value
+        if value is None:
+            del base[key]
+        else:
+            base[key] = str(tmp_path / value) if key in ("--target", "--pre") else value
     argv = ["fit", "brain", *[a for kv in base.items() for a in kv], "--set", "mesh.voxel=0.01"]
     assert main(argv) == 2
     err = capsys.readouterr().err.strip()
     assert words in err and len(err.splitlines()) == 1
     assert not (tmp_path / "out" / "fit.json").exists()
+
+
+@pytest.mark.mpi
+def test_fit_slips_are_refused_alike_on_two_ranks(shared_tmp):
+    """The fit's checks on 1 and 2 ranks (every rank raises the same InputError, none hangs):
+    too few values for the parameters, a --pre point outside the body, a CSV that is not text,
+    a NaN in a CSV target, and a Slicer CSV with a byte-order mark read as it should be."""
+    from fenics_brainshift.errors import InputError
+    from fenics_brainshift.fit.targets import read_target
+
+    points = np.array([[10.0, 40.0, 20.0], [-15.0, 50.0, 25.0]]) * 1e-3
+    forward = ForwardModel(load_scene("brain", COARSE))
+    params = parameters(forward.scene, ["fluid.level", "material.G", "gravity.angle_x", "gravity.angle_z"],
+                        forward.heights())
+    with pytest.raises(InputError, match="1 point pairs, 3 values each, cannot fit 4 parameters"):
+        fit(forward, Target(points[:1] + 1e-3, points[:1], ["a"]), params, 0.5e-3)
+    with pytest.raises(InputError, match=r"--pre: 1 point\(s\) \(b\) lie outside the body"):
+        fit(forward, Target(points + 1e-3, points + [[0, 0, 0], [0, 0.3, 0]], ["a", "b"]), params[:1], 0.5e-3)
+    forward.destroy()
+    if MPI.COMM_WORLD.rank == 0:
+        (shared_tmp / "garbage.csv").write_bytes(bytes(range(256)) * 4)
+        (shared_tmp / "nan.csv").write_text("x, y, z\n10, 40, 20\nnan, 50, 25\n")
+        (shared_tmp / "bom.csv").write_bytes("x,y,z\n10,40,20\n-15,50,25\n".encode("utf-8-sig"))
+    MPI.COMM_WORLD.barrier()
+    with pytest.raises(InputError, match="'garbage.csv' is not a text CSV file"):
+        read_target(shared_tmp / "garbage.csv")
+    with pytest.raises(InputError, match="line 3: x = nan is not a finite number"):
+        read_target(shared_tmp / "nan.csv")
+    assert np.allclose(read_target(shared_tmp / "bom.csv").measured, points)  # (refused: "it has y, z, \ufeffx")
 
 
 @pytest.mark.mpi

@@ -88,14 +88,26 @@ def test_markups_in_metres_are_refused(tmp_path):
 
 
 @pytest.mark.mpi
-@pytest.mark.parametrize("scale, refused", [(1e-3, True), (1.0, False)])
-def test_a_fine_surface_in_another_unit_than_the_mesh_is_refused(shared_tmp, scale, refused):
+@pytest.mark.parametrize("scale, words", [
+    (1e-3, r"\[mesh\] surface: it is 7.5e\+04 mm across .* the mesh 75 mm \(1e\+03x\): is it in another unit"),
+    (1e3, r"\[mesh\] surface: it is 0.075 mm across .* \(0.001x\)"),
+    ("slivers", r"\[mesh\] surface: its triangles cover .* degenerate triangles, or not the body's closed"),
+    (1.0, None)])
+def test_a_fine_surface_in_another_unit_than_the_mesh_is_refused(shared_tmp, scale, words):
     """The box's own surface written in mm under [mesh] unit = "m" came out 1000x too large,
-    exit 0; in metres it follows the mesh."""
+    exit 0; in km (as metres under "mm") it lay at the mesh's corner, 1000x too small, and
+    was written so, exit 0; so was a surface of degenerate triangles. In metres it follows
+    the mesh."""
     x, y, z = BOX["mesh"]["size"]
-    corners = np.array([[i * x, j * y, k * z] for i in (0, 1) for j in (0, 1) for k in (0, 1)]) / scale
+    corners = np.array([[i * x, j * y, k * z] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
     quads = [[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]]
     triangles = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))])
+    if scale == "slivers":  # one sliver across the box, the rest without area
+        corners = np.vstack([corners, corners[7] + [1e-4, 0.0, 0.0]])
+        triangles = np.array([[0, 7, 8]] + [[1, 1, 2]] * 11)
+    else:
+        corners = corners / scale
+    refused = words is not None
     surface = shared_tmp / "box.stl"
     if COMM.rank == 0:
         write_slicer_stl(surface, corners, triangles)  # (its header says RAS: no mirror)
@@ -103,7 +115,7 @@ def test_a_fine_surface_in_another_unit_than_the_mesh_is_refused(shared_tmp, sca
     data = dict(BOX, mesh=dict(BOX["mesh"], surface=str(surface)))
     out = shared_tmp / "out"
     if refused:
-        with pytest.raises(InputError, match=r"\[mesh\] surface: 7 of its 8 vertices lie farther than two cells"):
+        with pytest.raises(InputError, match=words):
             run(scene_from_dict(data), out, COMM)
         assert not out.exists()  # refused before anything is written
     else:

@@ -228,6 +228,14 @@ def test_a_run_that_is_not_of_this_image_or_did_not_finish_is_refused(tmp_path, 
     nib.save(nib.Nifti1Image(np.zeros((20, 20, 20), np.float32), affine), str(tmp_path / "far.nii.gz"))
     with pytest.raises(InputError, match=r"0% of the run's mesh lies on 'far.nii.gz'"):
         Warp.compute(read_volume(tmp_path / "far.nii.gz"), DeformedMesh.from_run(out))
+    body = DeformedMesh.from_run(out)  # on the grid, but on its empty part: the object is elsewhere
+    affine = np.eye(4)
+    affine[:3, 3] = body.points.min(axis=0) - 20.0
+    air = np.zeros(tuple(int(s) for s in np.ptp(body.points, axis=0) + 40), np.float32)
+    air[:10] = 100.0  # a bright slab 10 mm beside the cube
+    nib.save(nib.Nifti1Image(air, affine), str(tmp_path / "air.nii.gz"))
+    with pytest.raises(InputError, match=r"0% of the run's mesh lies on the object in 'air.nii.gz'"):
+        Warp.compute(read_volume(tmp_path / "air.nii.gz"), body)
     killed = tmp_path / "killed"
     shutil.copytree(out, killed)
     (killed / "summary.json").write_text('{"status": "running"}')

@@ -6,8 +6,8 @@ scale is the measurement noise (points far off count linearly, not squared: a fe
 do not pull the fit). The Jacobian is by forward differences, one settled state per parameter
 (each re-solve reuses the one factor and starts from the last answer).
 
-Uncertainty from the Jacobian at the solution: cov = s^2 (J^T J)^-1 with s^2 the residuals'
-mean square (least_squares' robust weights applied). A parameter the points do not constrain
+Uncertainty from the Jacobian at the solution: the robust sandwich covariance H^-1 B H^-1 of
+the soft-l1 fit, its weights the same in H and B (_uncertainty says how). A parameter the points do not constrain
 (its column of J near zero, or a combination of columns near dependence) shows as a standard
 deviation comparable to its bounds and is reported as "not constrained", not as a number.
 """
@@ -107,12 +107,11 @@ def fit(forward: ForwardModel, target: Target, parameters: list[Parameter], nois
             labels = ", ".join(target.labels[i] for i in outside[:5])
             raise InputError(f"--pre: {len(outside)} point(s) ({labels}) lie outside the body, farther than a cell "
                              f"from it: a frame or unit slip (RAS or LPS, mm)? or points not on the brain")
+    check_enough(target, len(parameters))
     x0 = np.array([p.prior for p in parameters]) / scale
     prior = None
     prior = residuals(x0)  # the scene itself must have a settled state
     _check_near(forward, target, _per_point(prior, target))
-    if target.pre is None and len(target.measured) < len(parameters):
-        raise InputError(f"--target: {len(target.measured)} points cannot fit {len(parameters)} parameters")
     result = least_squares(residuals, x0, bounds=(lower, upper), loss="soft_l1", f_scale=noise, method="trf",
                            diff_step=DIFFERENCE_STEP, x_scale=1.0)
     final = residuals(result.x)  # the state left behind is the fitted one
@@ -153,6 +152,16 @@ def _check_near(forward: ForwardModel, target: Target, prior: np.ndarray) -> Non
 
 def _per_point(r: np.ndarray, target: Target) -> np.ndarray:
     return np.linalg.norm(r.reshape(-1, 3), axis=1) if target.pre is not None else np.abs(r)
+
+
+def check_enough(target, count: int) -> None:
+    """InputError for fewer measured values than parameters (they would be fitted to anything,
+    each reported with a standard deviation as if measured)."""
+    values_per_point = 1 if target.pre is None else 3  # a distance, or a displacement's 3 components
+    if values_per_point * len(target.measured) < count:
+        what = "points on the surface, a distance each" if target.pre is None else "point pairs, 3 values each"
+        raise InputError(f"--target: {len(target.measured)} {what}, cannot fit {count} parameters: give more "
+                         f"points or fewer --params")
 
 
 def _uncertainty(result, r: np.ndarray, scale: np.ndarray, span: np.ndarray, noise: float):

@@ -7,7 +7,7 @@ from ..errors import InputError
 from ..outputs.files import check_writable
 from ..runner import run
 from ..scene import load_scene
-from .calibrate import fit
+from .calibrate import check_enough, fit
 from .forward import ForwardModel
 from .parameters import check_names, parameters, scene_changes
 from .report import write_fit_json, write_fitted_scene
@@ -23,6 +23,7 @@ def fit_command(args, comm) -> list[str]:
     if not 0 < args.noise < float("inf"):
         raise InputError(f"--noise must be a finite number of mm > 0 (got {args.noise:g})")
     target = read_target(args.target, args.pre, args.frame)
+    check_enough(target, len(names))  # (before the model is built: nothing else is said first)
     scene = load_scene(args.scene, args.set)
     forward = ForwardModel(load_scene(args.scene, args.set + ["time.mode=quasi-static"]), comm)
     params = parameters(scene, names, forward.heights())

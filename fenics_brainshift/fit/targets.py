@@ -88,11 +88,16 @@ def read_target(target: str | Path, pre: str | Path | None = None, frame: str | 
 
 
 def _read_csv(path: Path, frame: str | None) -> Target:
-    with open(path, newline="") as f:
-        reader = csv.DictReader(f, skipinitialspace=True)  # ("x, y, z" as the docs write it)
-        if reader.fieldnames:
-            reader.fieldnames = [name.strip() for name in reader.fieldnames]
-        rows = list(reader)
+    try:  # utf-8-sig: a byte-order mark, as Excel writes one, is not part of the first column's name
+        with open(path, newline="", encoding="utf-8-sig") as f:
+            reader = csv.DictReader(f, skipinitialspace=True)  # ("x, y, z" as the docs write it)
+            if reader.fieldnames:
+                reader.fieldnames = [name.strip() for name in reader.fieldnames]
+            rows = list(reader)
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise InputError(f"--target: '{path.name}' is not a text CSV file ({type(exc).__name__} at byte "
+                         f"{getattr(exc, 'start', '?')}): give a CSV of x, y, z in mm (a header line, then a row "
+                         f"per point), a Slicer .mrk.json or a surface") from None
     if not rows:
         raise InputError(f"--target: '{path.name}' has no rows under a header line")
     columns = set(rows[0])

@@ -16,6 +16,7 @@ import numpy as np
 
 from .. import formats
 from ..errors import InputError
+from ..meshing.extent import body_diagonal
 from ..meshing.label_surface import label_surface
 from ..meshing.voxelize import read_surface
 from .points import PointEvaluator
@@ -23,12 +24,15 @@ from .points import PointEvaluator
 # a fine surface with more of its vertices than this far outside the coarse mesh does not
 # follow it (a thin gyrus the voxels miss is a few vertices, a unit slip all of them)
 FAR_VERTICES = 0.01
+SIZE_RANGE = (0.5, 2.0)  # the surface's bounding-box diagonal against the mesh's: the same body
+AREA_FRACTION = 0.1  # of the squared diagonal: a closed surface covers about 1x (a sphere pi/3)
 
 
 class SurfaceEmbedding(PointEvaluator):
     """The fine surface's vertices located once in the coarse mesh (see the module note)."""
 
     def __init__(self, mesh, points: np.ndarray, triangles: np.ndarray):
+        _check_size(np.asarray(points), np.asarray(triangles, dtype=np.int64), body_diagonal(mesh))
         super().__init__(mesh, points)
         self.triangles = np.asarray(triangles, dtype=np.int64)
         far = self.far_outside()
@@ -51,6 +55,27 @@ class SurfaceEmbedding(PointEvaluator):
             mesh.write(folder / f"{stem}.vtk")
             write_slicer_stl(folder / f"{stem}.stl", (self.points + d) * 1e3, self.triangles)
         self.comm.barrier()
+
+
+def _check_size(points: np.ndarray, triangles: np.ndarray, body: float) -> None:
+    """InputError for a fine surface of another size than the mesh (a surface in metres under
+    [mesh] unit = "mm" lies near the origin, inside the mesh, 1000x too small: no vertex is
+    far outside it) or of too little area for its size (slivers and degenerate triangles: not
+    a closed surface)."""
+    size = float(np.linalg.norm(np.ptp(points, axis=0))) if len(points) else 0.0
+    corners = points[triangles] if len(triangles) else np.zeros((0, 3, 3))
+    area = 0.5 * float(np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]),
+                                      axis=1).sum())
+    if area < AREA_FRACTION * size ** 2:
+        raise InputError(f"[mesh] surface: its triangles cover {area * 1e6:.3g} mm^2, where a closed surface "
+                         f"{size * 1e3:.3g} mm across covers about {size ** 2 * 1e6:.3g}: degenerate triangles, or "
+                         f"not the body's closed surface")
+    low, high = SIZE_RANGE
+    if not low * body <= size <= high * body:
+        ratio = size / body
+        raise InputError(f"[mesh] surface: it is {size * 1e3:.3g} mm across (bounding-box diagonal), the mesh "
+                         f"{body * 1e3:.3g} mm ({ratio:.3g}x): is it in another unit than the mesh (mm or m: "
+                         f"[mesh] unit applies to both), or of another object?")
 
 
 def write_slicer_stl(path: Path, points_mm: np.ndarray, triangles: np.ndarray) -> Path:

@@ -19,7 +19,9 @@ class Probes:
         coords = np.array([points[n] for n in self.names], dtype=np.float64).reshape(-1, 3)
         self.evaluator = PointEvaluator(mesh, coords)
         for i in self.evaluator.far_outside():
-            raise InputError(f"[probes] {self.names[i]} = {list(coords[i])} lies outside the mesh")
+            raise InputError(f"[probes] {self.names[i]} = {list(coords[i])} lies outside the mesh, farther than a "
+                             f"cell from it: a frame slip (a markups file's coordinateSystem says LPS or RAS: do "
+                             f"its numbers agree?), a unit slip, or a point not on the body")
 
     def values(self, f) -> np.ndarray:
         """(n_points, 3) values of a Function (ghosts must be up to date)."""
