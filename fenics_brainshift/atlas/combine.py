@@ -104,7 +104,11 @@ class DataHessian:
         return out
 
     def __matmul__(self, c: np.ndarray) -> np.ndarray:
-        return self.w * (self.A.T @ (self.A @ c)) + self.s * (self.gram @ c) + self.ridge * c
+        used = np.flatnonzero(c)  # (most weights are 0: the columns of the others only)
+        if len(used) > len(c) // 4:
+            return self.w * (self.A.T @ (self.A @ c)) + self.s * (self.gram @ c) + self.ridge * c
+        part = c[used]
+        return self.w * (self.A.T @ (self.A[:, used] @ part)) + self.s * (self.gram[:, used] @ part) + self.ridge * c
 
     def dense(self) -> np.ndarray:
         every = np.arange(len(self.gram))
