@@ -247,3 +247,12 @@ def test_a_cut_after_a_multiplier_update_steps_the_multipliers(shared_tmp, monke
             fractions.append(round(s, 6))
     assert 0.5 in fractions and 1.0 in fractions  # the full update tried, then half of it
     sim.destroy()
+    monkeypatch.setattr(NewtonStatic, "_solve_loads", original)
+    # the deepest node within a looser tolerance: the tolerance is not what stops it (the
+    # message said "a looser tolerance may settle"), the box's inner edges are
+    data["skull"]["tolerance"] = 1e-4
+    sim = Simulation(scene_from_dict(data), COMM)
+    sim.setup()
+    with pytest.raises(SolverError, match=r"the deepest node is within it, a looser one will not help; where the skull has a sharp inner edge"):
+        sim.solve_to_settled(0.0)
+    sim.destroy()

@@ -356,8 +356,13 @@ class NewtonStatic:
         if self.contact is None:
             return ""
         where = "" if deepest is None else f"the deepest node {deepest:.3g} m past the skull where Newton stopped, "
-        return (f"; with skull contact: {where}[skull] tolerance = {self.contact.tolerance:g} m (if the body is "
-                f"held, a looser tolerance may settle)")
+        if deepest is not None and deepest <= self.contact.tolerance:  # not the tolerance: the skull's shape
+            advice = ("the deepest node is within it, a looser one will not help; where the skull has a sharp "
+                      "inner edge or corner, as a box does, a node pressed by two walls at once finds no single "
+                      "contact normal: round or smooth the skull there, docs/limits.md")
+        else:
+            advice = "if the body is held, a looser tolerance may settle"
+        return f"; with skull contact: {where}[skull] tolerance = {self.contact.tolerance:g} m ({advice})"
 
     def destroy(self) -> None:
         for matrix in (self._A, self._P, self._K0, self._K):
