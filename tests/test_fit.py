@@ -232,6 +232,19 @@ def test_bad_fit_input_is_one_line(tmp_path, capsys, args, words):
     assert not (tmp_path / "out" / "fit.json").exists()
 
 
+def test_a_damaged_vtk_target_is_one_line_on_the_terminal(tmp_path, capfd):
+    """VTK's reader printed six coloured warnings of its own (to the C stderr, past Python's)
+    before the one-line refusal."""
+    from fenics_brainshift.cli import main
+
+    (tmp_path / "garbage.vtk").write_bytes(b"# vtk DataFile Version 4.2\n" + bytes(range(256)) * 8)
+    argv = ["fit", "cube", "--target", str(tmp_path / "garbage.vtk"), "--params", "material.G", "--no-run",
+            "--out", str(tmp_path / "out")]
+    assert main(argv) == 2
+    err = capfd.readouterr().err.strip()
+    assert "'garbage.vtk' could not be read as a surface" in err and len(err.splitlines()) == 1, err
+
+
 @pytest.mark.mpi
 def test_fit_slips_are_refused_alike_on_two_ranks(shared_tmp):
     """The fit's checks on 1 and 2 ranks (every rank raises the same InputError, none hangs):

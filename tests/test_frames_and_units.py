@@ -138,6 +138,16 @@ def test_brainshift_mesh_with_the_wrong_scale_names_it(shared_tmp, capsys):
 
 
 @pytest.mark.mpi
+def test_an_image_in_mm_declared_metres_names_the_unit_not_the_voxel():
+    """The bundled brain's mm image under [mesh] unit = "m": a 284 m object whose grid of 5 mm
+    voxels would need 1.35 PB; the refusal asked whether the voxel size was in the right unit."""
+    from fenics_brainshift import Simulation, load_scene
+
+    with pytest.raises(InputError, match=r"the body is 284 m across .*: is it in mm\? \(a scene's \[mesh\] unit"):
+        Simulation(load_scene("brain", ["mesh.unit=m", "time.mode=quasi-static"]), COMM)
+
+
+@pytest.mark.mpi
 @pytest.mark.parametrize("override, words", [
     ("material.G=2.37", r"E = 7.074 Pa \(G = 2.37 Pa\): the body's weight alone would strain it about 259 .* is it in kPa\?"),
     ("fluid.level=[[0, 85], [10, 30], [16, 30]]", r"\[fluid\] level = 85 at t = 0 s is 84.9 m above the body's top .* is it in mm\?"),

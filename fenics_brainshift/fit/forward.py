@@ -124,7 +124,7 @@ class ForwardModel:
             from ..runner import build
 
             fine = build.fine_surface(self.scene)
-            self._fine = False if fine is None else SurfaceEmbedding(self.model.mesh, fine[0], outward(*fine))
+            self._fine = False if fine is None else SurfaceEmbedding.of_scene(self.model.mesh, fine[0], outward(*fine))
         return self._fine or None
 
     def signed_distances(self, points: np.ndarray) -> np.ndarray:

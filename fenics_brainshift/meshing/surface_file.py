@@ -39,7 +39,16 @@ def read_polygons(path: Path) -> tuple[np.ndarray, np.ndarray]:
         except ImportError:
             pyvista = None
         if pyvista is not None:
-            data = pyvista.read(str(path))
+            from vtkmodules.vtkCommonCore import vtkLogger, vtkObject
+
+            warnings = vtkObject.GetGlobalWarningDisplay()
+            vtkObject.GlobalWarningDisplayOff()  # a damaged file: our one line, not VTK's six
+            vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_OFF)
+            try:
+                data = pyvista.read(str(path))
+            finally:
+                vtkObject.SetGlobalWarningDisplay(warnings)
+                vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_WARNING)
             if not isinstance(data, pyvista.PolyData):  # a .vtu: its boundary
                 data = data.extract_surface(algorithm="dataset_surface")
             surface = data.triangulate()

@@ -29,6 +29,7 @@ from .hexgrid import voxel_mesh
 from .. import formats
 from ..errors import InputError
 from .budget import GRID_BYTES_PER_VOXEL, SAMPLE_BYTES, require
+from .extent import size_problem
 from .surface_file import read_polygons, to_ras
 
 
@@ -36,14 +37,22 @@ class VoxelizeError(InputError):
     """Input that cannot be voxelised; the message says why and what to change."""
 
 
-def check_grid(shape, voxel: float, bytes_per_voxel: float) -> None:
-    """Refuse a voxel grid that would not fit in memory, naming the likely unit slip."""
+def check_grid(shape, voxel: float, bytes_per_voxel: float, size: float, scale: float) -> None:
+    """Refuse a voxel grid that would not fit in memory, naming the likely slip: the object's
+    unit where its size (``size`` m across) is no soft-tissue body's (a mm image under [mesh]
+    unit = "m" is 284 m across: the refusal blamed the voxel size), else the voxel's."""
+    problem = size_problem(size, scale)
+    if problem is not None and problem[1] is not None:  # the object's unit, not the voxel's
+        what, unit = problem
+        hint = (f"{what}: is it in {unit}? (a scene's [mesh] unit = \"{unit}\"; `brainshift mesh --scale` the "
+                f"factor from it to m)")
+    else:
+        hint = ("is the voxel size in the right unit? (a scene's [mesh] voxel is in metres; `brainshift mesh "
+                "--voxel` is in the input's unit, mm for medical images)")
     cells = float(np.prod(np.asarray(shape, dtype=float)))
     extent = np.asarray(shape, dtype=float) * voxel
     require(cells * bytes_per_voxel, f"a grid of {cells:.3g} voxels of {voxel * 1e3:g} mm over an object "
-            f"{extent.max() * 1e3:.4g} mm across",
-            "is the voxel size in the right unit? (a scene's [mesh] voxel is in metres; `brainshift mesh "
-            "--voxel` is in the input's unit, mm for medical images)")
+            f"{extent.max() * 1e3:.4g} mm across", hint)
 
 
 @dataclass
@@ -82,7 +91,7 @@ def voxelize(path: str | Path, voxel: float, scale: float = 1e-3, fill: float = 
     if formats.is_label_volume(path):
         fraction, origin, input_volume = label_occupancy(path, voxel, scale, labels)
     elif formats.is_surface(path):
-        fraction, origin, input_volume = surface_occupancy(read_surface(path, scale), voxel, samples)
+        fraction, origin, input_volume = surface_occupancy(read_surface(path, scale), voxel, samples, scale)
     else:
         raise VoxelizeError(f"'{path.name}': use a label volume ({', '.join(formats.LABEL_SUFFIXES)}) or a "
                             f"surface ({', '.join(formats.SURFACE_SUFFIXES)})")
@@ -173,7 +182,7 @@ def label_occupancy(path: Path, voxel: float, scale: float, labels=None):
     origin = centres.min(axis=0) - half
     index = np.floor((centres - origin) / voxel).astype(np.int64)
     shape = index.max(axis=0) + 1
-    check_grid(shape, voxel, GRID_BYTES_PER_VOXEL)
+    check_grid(shape, voxel, GRID_BYTES_PER_VOXEL, float(np.linalg.norm(np.ptp(centres, axis=0) + 2 * half)), scale)
     counts = np.zeros(shape)
     np.add.at(counts, tuple(index.T), 1.0)
     return np.minimum(counts * fine_volume / voxel**3, 1.0), origin, len(ijk) * fine_volume
@@ -205,12 +214,13 @@ def read_surface(path: Path, scale: float, frame: str | None = None) -> tuple[np
     return points, triangles[area > 0]
 
 
-def surface_occupancy(surface, voxel: float, samples: int):
+def surface_occupancy(surface, voxel: float, samples: int, scale: float = 1.0):
     points, triangles = surface
     lo, hi = points.min(axis=0), points.max(axis=0)
     origin = lo - 0.5 * voxel
     shape = np.floor((hi - origin) / voxel).astype(int) + 1
-    check_grid(shape, voxel, GRID_BYTES_PER_VOXEL + SAMPLE_BYTES * samples**3)
+    check_grid(shape, voxel, GRID_BYTES_PER_VOXEL + SAMPLE_BYTES * samples**3, float(np.linalg.norm(hi - lo)),
+               scale)
     # sample points: samples^3 per voxel, at sub-cell centres
     sub = (np.arange(samples) + 0.5) / samples
     axes = [origin[a] + voxel * (np.arange(shape[a])[:, None] + sub[None, :]).ravel() for a in range(3)]

@@ -31,8 +31,14 @@ AREA_FRACTION = 0.1  # of the squared diagonal: a closed surface covers about 1x
 class SurfaceEmbedding(PointEvaluator):
     """The fine surface's vertices located once in the coarse mesh (see the module note)."""
 
-    def __init__(self, mesh, points: np.ndarray, triangles: np.ndarray):
+    @classmethod
+    def of_scene(cls, mesh, points: np.ndarray, triangles: np.ndarray) -> "SurfaceEmbedding":
+        """The embedding of a scene's fine surface, checked first to be the body's closed
+        surface in the mesh's unit (_check_size)."""
         _check_size(np.asarray(points), np.asarray(triangles, dtype=np.int64), body_diagonal(mesh))
+        return cls(mesh, points, triangles)
+
+    def __init__(self, mesh, points: np.ndarray, triangles: np.ndarray):
         super().__init__(mesh, points)
         self.triangles = np.asarray(triangles, dtype=np.int64)
         far = self.far_outside()

@@ -64,7 +64,7 @@ def run(scene: Scene, out: str | Path | None = None, comm=MPI.COMM_WORLD, raise_
     sim = Simulation(scene, comm)
     sim.plan.material = material_choice
     surface = build.fine_surface(scene) if out is not None else None
-    embedding = SurfaceEmbedding(sim.model.mesh, *surface) if surface is not None else None
+    embedding = SurfaceEmbedding.of_scene(sim.model.mesh, *surface) if surface is not None else None
     sim.setup()
     writer, lock = None, None
     try:
