@@ -115,6 +115,10 @@ def test_rows_of_any_scale_and_every_weight_pinned():
         c = solve_on_active(H, g, *problem.unit_rows, np.array([1.0 / 0.3, 0.0]), problem.partner,
                             bounds=problem.bounds)
         assert c is not None and np.allclose(c, exact, atol=1e-12), scale
+    twice = Problem(np.zeros((3, 2)), np.zeros(3), np.zeros(3, dtype=int), 1.0, np.eye(2), np.zeros(2),
+                    np.vstack([r, 2.0 * r]), np.array([1.0, 2.0]))  # one constraint written twice, both active
+    c = solve_on_active(H, g, *twice.unit_rows, np.array([1.0 / 0.3, 0.0]), twice.partner, bounds=twice.bounds)
+    assert c is not None and np.allclose(c, exact, atol=1e-12)  # (the singular start: its rows join one by one)
     pinned = np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]]), np.array([1.0, -1.0, 0.25, -0.25])
     problem = Problem(np.zeros((3, 2)), np.zeros(3), np.zeros(3, dtype=int), 1.0, np.eye(2), np.zeros(2), *pinned)
     c = solve_on_active(np.eye(2), np.zeros(2), *problem.unit_rows, np.array([1.0, 0.25]), problem.partner,

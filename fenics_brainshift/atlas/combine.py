@@ -172,11 +172,15 @@ def solve_on_active(H: np.ndarray, g: np.ndarray, C: np.ndarray, d: np.ndarray, 
         return None
     working = slack(c) <= tolerance
     rows = np.arange(len(d))
-    if _equality_solve(H, g, C, d, _held(working, partner, rows), bound_of, sign) is None:
-        working &= bound_of >= 0  # dependent general rows at the start: they join one at a time
+    first = True
     for _ in range(iterations):
         held = _held(working, partner, rows)
         solved = _equality_solve(H, g, C, d, held, bound_of, sign)
+        if solved is None and first and np.any(working & (bound_of < 0)):
+            working &= bound_of >= 0  # dependent general rows at the start: they join one at a time
+            first = False
+            continue
+        first = False
         if solved is None:
             return None
         x, multipliers = solved
@@ -190,10 +194,12 @@ def solve_on_active(H: np.ndarray, g: np.ndarray, C: np.ndarray, d: np.ndarray, 
                 k = int(np.argmin(ratios))
                 if ratios[k] < 1.0:
                     step, hit = float(ratios[k]), int(blocking[k])
-            c = c + step * p
             if hit >= 0:
+                c = c + step * p
                 working[hit] = True
-            continue
+                continue
+            # a full step: c is now the working set's minimiser x, whose multipliers are known
+            # (solving the same system again to learn them was half the steps)
         c = x
         inequality = partner[held] < 0
         scale = max(float(np.abs(multipliers).max(initial=0.0)), 1e-300)
