@@ -33,13 +33,24 @@ class Interrupted(SolverError):
     """The run was interrupted (Ctrl-C); the last good state was kept."""
 
 
+# What the C++ writers say when a file cannot be written (a full disk, a quota, a folder
+# gone): DOLFINx's HDF5 and VTK writers (0.5 and 0.9) and ITK's. Specific phrases, not "write":
+# DOLFINx's "Cannot write sub-Functions to VTK file" is a program's error and must stay loud.
+WRITER_FAILURES = ("failed to write", "could not write", "h5dwrite", "failed to create hdf5",
+                   "failed to create/open hdf5", "failed to close hdf5", "failed to flush hdf5",
+                   "failed to create director", "imagefilewriter", "transformfilewriter",
+                   "could not create io object for writing", "no space left", "quota exceeded")
+
+
 def write_failed(exc: BaseException) -> bool:
     """Whether an exception is a file that could not be written: an OSError, or the
-    RuntimeError a C++ writer raises instead (DOLFINx's HDF5 "Failed to write ...", ITK's
-    ImageFileWriter / WriteTransform on a full disk)."""
+    RuntimeError a C++ writer raises instead (WRITER_FAILURES)."""
     if isinstance(exc, OSError):
         return True
-    return isinstance(exc, RuntimeError) and not isinstance(exc, BrainshiftError) and "writ" in str(exc).lower()
+    if not isinstance(exc, RuntimeError) or isinstance(exc, BrainshiftError):
+        return False
+    message = str(exc).lower()
+    return any(phrase in message for phrase in WRITER_FAILURES)
 
 
 def abort_on_uncaught() -> None:

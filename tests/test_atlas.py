@@ -137,6 +137,27 @@ def test_a_point_far_off_is_set_aside_and_the_update_is_made_without_it(atlas):
     assert honest.outliers == []  # noise alone sets nothing aside
 
 
+def test_a_point_not_among_those_left_out_is_judged_by_its_error_at_the_fit(atlas, monkeypatch):
+    """A scan's thousands of points are left out only as a sample: the slip of a point outside
+    it (its left-out error NaN) must still be found, by its error at the fit."""
+    import fenics_brainshift.atlas.update as module
+
+    _, truth = _operation(atlas)
+    rng = np.random.default_rng(0)
+    points = atlas.points
+    top = np.flatnonzero(points[:, 1] > np.percentile(points[:, 1], 85))
+    picked = rng.choice(top, 20, replace=False)
+    noise = 0.5e-3
+    measured = points[picked] + truth[picked] + rng.normal(0.0, noise, (20, 3))
+    measured[8] += [0.0, 0.008, 0.0]
+    monkeypatch.setattr(module, "LEAVE_OUT_MAX", 10)
+    labels = [f"p{i}" for i in range(20)]
+    first = update(atlas, Target(measured, points[picked], labels), noise, set_aside=False)
+    assert np.isnan(first.leave_one_out[8])  # not in the sample: the path this test is for
+    slipped = update(atlas, Target(measured, points[picked], labels), noise)
+    assert slipped.outliers == [8] and "p8" in slipped.warning
+
+
 def test_a_stiffer_brain_is_the_family_scaled_down(atlas):
     """A linear body 1.25x stiffer sags 0.8x as far: the family's weights sum to G0/G."""
     c = np.zeros(len(atlas.scenarios))
@@ -234,6 +255,29 @@ def test_update_writes_a_run_folder_that_warp_takes(atlas, atlas_folder, tmp_pat
     assert spread.data.max() > 0 and spread.data.shape == read_volume(MASK).data.shape
     assert main(["warp", str(out), "--image", str(MASK), "-o", str(tmp_path / "intra.nii.gz")]) == 0
     assert (tmp_path / "intra.nii.gz").is_file()
+
+
+def test_update_reports_a_slip_set_aside_and_keep_all_fits_it(atlas, atlas_folder, tmp_path):
+    """The command line: a pointer slip among 20 markups is named in update.json, the headline
+    compares prior and update over the same (kept) points, and --keep-all fits every point."""
+    from fenics_brainshift.cli import main
+
+    pre, intra = _markups(tmp_path, atlas, noise=0.3e-3)
+    labels = [f"P{i}" for i in range(20)]
+    intra[3] += [0.0, 0.008, 0.0]
+    write_markups(tmp_path / "intra.mrk.json", labels, intra * 1e3)
+    args = ["update", str(atlas_folder), "--target", str(tmp_path / "intra.mrk.json"), "--pre",
+            str(tmp_path / "pre.mrk.json"), "--noise", "0.3", "--bootstrap", "0"]
+    assert main(args + ["--out", str(tmp_path / "a")]) == 0
+    report = json.loads((tmp_path / "a" / "update.json").read_text())
+    assert report["set_aside"] == ["P3"]
+    kept = [p for p in report["per_point"] if not p["set_aside"]]
+    assert len(kept) == 19
+    prior_kept = np.sqrt(np.mean([p["prior_mm"] ** 2 for p in kept]))
+    assert report["prior_residual_rms_mm"] == pytest.approx(prior_kept, rel=1e-9)
+    assert main(args + ["--keep-all", "--out", str(tmp_path / "b")]) == 0
+    report = json.loads((tmp_path / "b" / "update.json").read_text())
+    assert report["set_aside"] == [] and report["residual_rms_mm"] > 1.0  # the slip, fitted, pulls
 
 
 @pytest.mark.parametrize("case, words", [

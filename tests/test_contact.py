@@ -2,6 +2,8 @@
 reactions, sliding supports, nothing past the skull, bad skulls refused."""
 from __future__ import annotations
 
+import re
+
 import meshio
 import numpy as np
 import pytest
@@ -435,9 +437,28 @@ def test_a_settled_state_not_found_in_contact_says_what_the_skull_had_to_do_with
     newton = NewtonStatic._newton
     monkeypatch.setattr(NewtonStatic, "_newton", lambda self, t, factor: newton(self, t, factor) and False)
     sim = Simulation(scene_from_dict(_block([], {"file": floor, "tolerance": 1e-6})), COMM)
+    # (Newton converged each time and was told it had not: the deepest node is within the
+    # tolerance, the advice says so and only supposes the skull's shape)
     with pytest.raises(SolverError, match=r"with skull contact: the deepest node \d\.\d+e-0\d m past the skull where "
-                                          r"Newton stopped, \[skull\] tolerance = 1e-06 m \((if the body is held, a "
-                                          r"looser tolerance may settle|the deepest node is within it, a looser one "
-                                          r"will not help; .*docs/limits.md)\)$") as failure:
+                                          r"Newton stopped, \[skull\] tolerance = 1e-06 m \(the deepest node is "
+                                          r"within it, a looser one will not help; if the skull has a sharp .* may "
+                                          r"find no single contact normal.*docs/limits.md\)$") as failure:
         sim.solve_to_settled(0.0)
     assert "\n" not in str(failure.value)
+
+
+@pytest.mark.parametrize("deepest, words", [
+    (3e-4, r"the deepest node 0.0003 m past .* \(if the body is held, a looser tolerance may settle\)$"),
+    (5e-7, r"the deepest node 5e-07 m past .* \(the deepest node is within it, a looser one will not help"),
+    (None, r"\[skull\] tolerance = 1e-06 m \(if the body is held, a looser tolerance may settle\)$"),
+])
+def test_the_skull_advice_follows_how_deep_the_deepest_node_was(deepest, words):
+    """A node deeper past the skull than the tolerance where Newton stopped: a looser one may
+    settle; within it, the tolerance is not what stopped Newton; not known (a state not
+    finite): the general advice."""
+    from types import SimpleNamespace
+
+    from fenics_brainshift.stepping.newton import NewtonStatic
+
+    stepper = SimpleNamespace(contact=SimpleNamespace(tolerance=1e-6))
+    assert re.search(words, NewtonStatic._contact_note(stepper, deepest))

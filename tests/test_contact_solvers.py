@@ -253,6 +253,6 @@ def test_a_cut_after_a_multiplier_update_steps_the_multipliers(shared_tmp, monke
     data["skull"]["tolerance"] = 1e-4
     sim = Simulation(scene_from_dict(data), COMM)
     sim.setup()
-    with pytest.raises(SolverError, match=r"the deepest node is within it, a looser one will not help; where the skull has a sharp inner edge"):
+    with pytest.raises(SolverError, match=r"the deepest node is within it, a looser one will not help; if the skull has a sharp inner edge"):
         sim.solve_to_settled(0.0)
     sim.destroy()

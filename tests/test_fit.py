@@ -204,7 +204,7 @@ def test_fit_command_writes_a_scene_that_runs_and_agrees_on_two_ranks(tmp_path, 
     (["--target", "one_intra.mrk.json", "--pre", "one_pre.mrk.json",
       "--params", "fluid.level,material.G,gravity.angle_x,gravity.angle_z"],
      "1 point pairs, 3 values each, cannot fit 4 parameters"),  # (exit 0 with four "+-" values)
-    (["--target", "garbage.csv", "--pre", None], "'garbage.csv' is not a text CSV file"),  # (a traceback)
+    (["--target", "garbage.csv", "--pre", None], "'garbage.csv' is not UTF-8 text"),  # (a traceback)
 ])
 def test_bad_fit_input_is_one_line(tmp_path, capsys, args, words):
     from fenics_brainshift.cli import main
@@ -266,9 +266,12 @@ def test_fit_slips_are_refused_alike_on_two_ranks(shared_tmp):
         (shared_tmp / "garbage.csv").write_bytes(bytes(range(256)) * 4)
         (shared_tmp / "nan.csv").write_text("x, y, z\n10, 40, 20\nnan, 50, 25\n")
         (shared_tmp / "bom.csv").write_bytes("x,y,z\n10,40,20\n-15,50,25\n".encode("utf-8-sig"))
+        (shared_tmp / "latin1.csv").write_bytes("label,x,y,z\npr\u00e4zentral,10,40,20\n".encode("latin-1"))
     MPI.COMM_WORLD.barrier()
-    with pytest.raises(InputError, match="'garbage.csv' is not a text CSV file"):
+    with pytest.raises(InputError, match="'garbage.csv' is not UTF-8 text"):
         read_target(shared_tmp / "garbage.csv")
+    with pytest.raises(InputError, match=r"'latin1.csv' is not UTF-8 text \(byte 0xe4 at 14\): save it as UTF-8"):
+        read_target(shared_tmp / "latin1.csv")  # (it said "not a text CSV file": it is one, in Latin-1)
     with pytest.raises(InputError, match="line 3: x = nan is not a finite number"):
         read_target(shared_tmp / "nan.csv")
     assert np.allclose(read_target(shared_tmp / "bom.csv").measured, points)  # (refused: "it has y, z, \ufeffx")

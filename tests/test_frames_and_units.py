@@ -92,12 +92,13 @@ def test_markups_in_metres_are_refused(tmp_path):
     (1e-3, r"\[mesh\] surface: it is 7.5e\+04 mm across .* the mesh 75 mm \(1e\+03x\): is it in another unit"),
     (1e3, r"\[mesh\] surface: it is 0.075 mm across .* \(0.001x\)"),
     ("slivers", r"\[mesh\] surface: its triangles cover .* degenerate triangles, or not the body's closed"),
-    (1.0, None)])
+    (1.0, None),
+    ("patch", None)])  # a piece of the top face, a fifth of the box across: the craniotomy's cortex alone
 def test_a_fine_surface_in_another_unit_than_the_mesh_is_refused(shared_tmp, scale, words):
     """The box's own surface written in mm under [mesh] unit = "m" came out 1000x too large,
     exit 0; in km (as metres under "mm") it lay at the mesh's corner, 1000x too small, and
     was written so, exit 0; so was a surface of degenerate triangles. In metres it follows
-    the mesh."""
+    the mesh, and so does a patch of it (the limits catch a unit's 1000x, not a part)."""
     x, y, z = BOX["mesh"]["size"]
     corners = np.array([[i * x, j * y, k * z] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
     quads = [[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]]
@@ -105,6 +106,10 @@ def test_a_fine_surface_in_another_unit_than_the_mesh_is_refused(shared_tmp, sca
     if scale == "slivers":  # one sliver across the box, the rest without area
         corners = np.vstack([corners, corners[7] + [1e-4, 0.0, 0.0]])
         triangles = np.array([[0, 7, 8]] + [[1, 1, 2]] * 11)
+    elif scale == "patch":
+        top = corners[[1, 3, 7, 5]]  # z = z max
+        corners = top.mean(axis=0) + 0.2 * (top - top.mean(axis=0))
+        triangles = np.array([[0, 1, 2], [0, 2, 3]])
     else:
         corners = corners / scale
     refused = words is not None

@@ -202,6 +202,23 @@ time.sleep(60)
         fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
 
 
+@pytest.mark.parametrize("message, is_write", [
+    ("Failed to write HDF5 local dataset into hyperslab.", True),  # DOLFINx 0.5's HDF5Interface
+    ("Failed to create HDF5 file.", True),
+    ("Could not write VTKFile. Does the directory exists and do you have read/write permissions?", True),
+    ("itk::ERROR: ImageFileWriter(0x55d1): Error writing out.nii.gz", True),
+    ("Cannot write sub-Functions to VTK file.", False),  # a program's error: a traceback
+    ("Write mesh before function!", False),
+    ("Newton solver did not converge because maximum number of iterations reached", False),
+])
+def test_only_a_writer_failing_is_called_a_file_not_written(message, is_write):
+    """The terminal's "a file could not be written" is for a full disk or a folder gone, not
+    for every error whose text mentions writing."""
+    from fenics_brainshift.errors import write_failed
+
+    assert write_failed(RuntimeError(message)) is is_write
+
+
 @pytest.mark.parametrize("raised", ["OSError", "RuntimeError"])
 def test_a_full_disk_mid_run_is_one_line_and_never_ok(tmp_path, monkeypatch, capsys, serial_only, raised):
     """No space left while writing the fields: a traceback before; now one line naming the file,

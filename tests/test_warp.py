@@ -236,6 +236,25 @@ def test_a_run_that_is_not_of_this_image_or_did_not_finish_is_refused(tmp_path, 
     nib.save(nib.Nifti1Image(air, affine), str(tmp_path / "air.nii.gz"))
     with pytest.raises(InputError, match=r"0% of the run's mesh lies on the object in 'air.nii.gz'"):
         Warp.compute(read_volume(tmp_path / "air.nii.gz"), body)
+    # the check must not refuse the object itself: a CT (air -1000 HU, brain 30, a bone slab
+    # brighter; the old |value| > 5 % of the 99th percentile called the air the object and the
+    # brain background) and a FreeSurfer label map (label 2 beside a parcel 2035)
+    inside = np.zeros(air.shape, bool)
+    lo = np.floor(body.points.min(axis=0) - affine[:3, 3]).astype(int)
+    hi = np.ceil(body.points.max(axis=0) - affine[:3, 3]).astype(int)
+    inside[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]] = True
+    ct = np.where(inside, 30.0, -1000.0).astype(np.float32)
+    ct[:3] = 1500.0
+    nib.save(nib.Nifti1Image(ct, affine), str(tmp_path / "ct.nii.gz"))
+    Warp.compute(read_volume(tmp_path / "ct.nii.gz"), body)
+    aseg = np.where(inside, 2, 0).astype(np.int16)
+    aseg[:5] = 2035
+    nib.save(nib.Nifti1Image(aseg, affine), str(tmp_path / "aseg.nii.gz"))
+    Warp.compute(read_volume(tmp_path / "aseg.nii.gz"), body, labels=True)
+    with pytest.raises(InputError, match=r"0% of the run's mesh lies on the object in 'labels.nii.gz' \(its voxels "
+                                         r"labelled"):
+        nib.save(nib.Nifti1Image(np.where(inside, 0, 3).astype(np.int16), affine), str(tmp_path / "labels.nii.gz"))
+        Warp.compute(read_volume(tmp_path / "labels.nii.gz"), body, labels=True)
     killed = tmp_path / "killed"
     shutil.copytree(out, killed)
     (killed / "summary.json").write_text('{"status": "running"}')

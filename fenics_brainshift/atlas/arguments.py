@@ -35,5 +35,8 @@ def add_update(sub) -> None:
                         help="frame of a CSV or an untagged surface target (default RAS)")
     update.add_argument("--noise", type=float, default=1.0, help="measurement noise (mm)")
     update.add_argument("--bootstrap", type=int, default=30, help="resamplings of the points for the uncertainty")
+    update.add_argument("--keep-all", action="store_true",
+                        help="fit every point: none set aside as an outlier (by default a point whose "
+                             "left-out error is far past the noise and the others' is set aside and reported)")
     update.add_argument("--image", help="a volume (.nii.gz, .nrrd) on whose grid to write OUT/uncertainty.nii.gz")
     update.add_argument("--out", default="out_update", help="output folder")

@@ -128,14 +128,18 @@ def update(atlas, target, noise: float, samples: int = 30, keep_inside: bool = T
     keep_inside: the skull's rows in the fit (False: the modes' own contact alone, to measure
     what the rows add); set_aside: points whose left-out error is far past the noise and the
     other points' (a pointer slip, a landmark on the wrong structure) are set aside and the
-    update made again without them (they are reported, with their error at the new fit)."""
+    update made again without them (they are reported, with their error at the new fit); a
+    point not among those left out (LEAVE_OUT_MAX) is judged by its error at the fit."""
     result = _update(atlas, target, noise, samples, keep_inside)
     if not set_aside:
         return result
     dims = 3 if target.pre is not None else 1
     loo = result.leave_one_out
     limit = max(OUTLIER * noise * np.sqrt(dims), OUTLIER_MEDIAN * float(np.nanmedian(loo)))
-    far = np.flatnonzero(loo > limit)
+    # a point not left out (a scan's thousands: a sample is) is judged by its error at the
+    # fit, which its own weight in the fit can only have made smaller than its left-out one
+    judged = np.where(np.isfinite(loo), loo, result.residual)
+    far = np.flatnonzero(judged > limit)
     need = MIN_POINT_PAIRS if target.pre is not None else MIN_SURFACE_POINTS
     if not len(far) or len(far) > OUTLIERS_MAX * len(loo) or len(loo) - len(far) < need:
         return result
@@ -149,10 +153,10 @@ def update(atlas, target, noise: float, samples: int = 30, keep_inside: bool = T
     residual[far] = _errors(atlas, target, again.displacement, again.surface_displacement)[far]
     left_out = residual.copy()
     left_out[keep] = again.leave_one_out
-    names = ", ".join(f"{target.labels[i]} ({loo[i] * 1e3:.3g} mm)" for i in far[:5])
+    names = ", ".join(f"{target.labels[i]} ({judged[i] * 1e3:.3g} mm)" for i in far[:5])
     note = (f"{len(far)} point(s) set aside as outliers, their error when left out far past the noise and "
-            f"the others' ({names}; limit {limit * 1e3:.3g} mm): a pointer slip, a landmark on another "
-            f"structure, or points mismatched between --pre and --target")
+            f"the others' ({names}; limit {limit * 1e3:.3g} mm; --keep-all fits them): a pointer slip, a landmark"
+            f" on another structure, or points mismatched between --pre and --target")
     seconds = {k: v + result.seconds.get(k, 0.0) for k, v in again.seconds.items()}
     return dataclasses.replace(again, prior_residual=result.prior_residual, residual=residual, leave_one_out=left_out,
                                warning="; ".join(w for w in (note, again.warning) if w), outliers=[int(i) for i in far],

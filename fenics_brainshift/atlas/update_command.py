@@ -34,7 +34,7 @@ def update_command(args, comm) -> list[str]:
         image = read_volume(args.image, "update: --image")
     atlas = store.read(args.atlas)  # every rank: the update is small, each computes it, rank 0 writes
     target = read_target(args.target, args.pre, args.frame)
-    result = update(atlas, target, args.noise * 1e-3, args.bootstrap)
+    result = update(atlas, target, args.noise * 1e-3, args.bootstrap, set_aside=not args.keep_all)
     # what can fail is done on every rank before a file is touched
     spread_image = _uncertainty_grid(atlas, result.spread, image) if image is not None else None
     if comm.rank == 0:
@@ -134,7 +134,7 @@ def _report(atlas, target, result, args, seconds: float) -> dict:
         "atlas": str(Path(args.atlas).resolve()), "mesh_id": atlas.mesh_id(), "target": str(args.target),
         "kind": target.kind, "points": len(target.measured), "noise_mm": args.noise,
         "alpha": result.alpha, "cross_validation": result.curve,
-        "prior_residual_rms_mm": float(np.sqrt(np.mean(result.prior_residual ** 2))) * mm,
+        "prior_residual_rms_mm": float(np.sqrt(np.mean(result.prior_residual[keep] ** 2))) * mm,
         "residual_rms_mm": float(np.sqrt(np.mean(result.residual[keep] ** 2))) * mm,
         "leave_one_out_rms_mm": float(np.sqrt(np.nanmean(result.leave_one_out[keep] ** 2))) * mm,
         "leave_one_out_points": int(np.count_nonzero(np.isfinite(result.leave_one_out[keep]))),
@@ -161,7 +161,7 @@ def _lines(atlas, target, result, out: Path, image: bool) -> list[str]:
     top = ", ".join(f"{s['weight']:.2f} x " + " ".join(f"{k}={v:g}" for k, v in s.items() if k != "weight")
                     for s in result.family_weights(atlas)[:3])
     lines = [f"update: {target.kind}, {len(target.measured)} points, {len(result.weights)} modes; residual RMS "
-             f"{rms(result.prior_residual):.2f} mm (scene) -> {rms(result.residual[keep]):.2f} mm (updated), "
+             f"{rms(result.prior_residual[keep]):.2f} mm (scene) -> {rms(result.residual[keep]):.2f} mm (updated), "
              f"left out {float(np.sqrt(np.nanmean(result.leave_one_out[keep] ** 2))) * 1e3:.2f} mm; fit "
              f"{result.seconds['fit_ms']:.0f} ms "
              f"(alpha {result.alpha:g} by cross-validation)",

@@ -94,10 +94,13 @@ def _read_csv(path: Path, frame: str | None) -> Target:
             if reader.fieldnames:
                 reader.fieldnames = [name.strip() for name in reader.fieldnames]
             rows = list(reader)
-    except (UnicodeDecodeError, csv.Error) as exc:
-        raise InputError(f"--target: '{path.name}' is not a text CSV file ({type(exc).__name__} at byte "
-                         f"{getattr(exc, 'start', '?')}): give a CSV of x, y, z in mm (a header line, then a row "
-                         f"per point), a Slicer .mrk.json or a surface") from None
+    except UnicodeDecodeError as exc:  # (a Latin-1 label, or not text at all)
+        raise InputError(f"--target: '{path.name}' is not UTF-8 text (byte 0x{exc.object[exc.start]:02x} at "
+                         f"{exc.start}): save it as UTF-8 (a spreadsheet's \"CSV UTF-8\"), x, y, z in mm under a "
+                         f"header line; or give a Slicer .mrk.json or a surface") from None
+    except csv.Error as exc:
+        raise InputError(f"--target: '{path.name}' is not a CSV file ({exc}): give x, y, z in mm (a header line, "
+                         f"then a row per point), a Slicer .mrk.json or a surface") from None
     if not rows:
         raise InputError(f"--target: '{path.name}' has no rows under a header line")
     columns = set(rows[0])

@@ -103,7 +103,7 @@ class Warp:
         X = volume.ras_to_index(body.points)  # reference positions, index coordinates
         Y = volume.ras_to_index(body.points + body.displacement)  # deformed
         _check_overlap(X, shape, volume)
-        _check_foreground(X[body.tets].mean(axis=1), volume)
+        _check_foreground(X[body.tets].mean(axis=1), volume, labels)
         part, parts = (comm.rank, comm.size) if comm is not None else (0, 1)
         voxel, tet, lam = rasterize(Y, body.tets, shape, part, parts)
         x = np.einsum("ni,nij->nj", lam, X[body.tets[tet]])  # the pre-operative point of each
@@ -182,22 +182,29 @@ def _check_overlap(X: np.ndarray, shape, volume: Volume) -> None:
                          f"(the image spans {extent[0]:.0f} x {extent[1]:.0f} x {extent[2]:.0f} mm)")
 
 
-FOREGROUND = 0.05  # of the image's 99th percentile: brighter is the object, darker the background
+FOREGROUND = 0.05  # of the image's range above its darkest (1st percentile): above is the object
 
 
-def _check_foreground(centroids: np.ndarray, volume: Volume) -> None:
+def _check_foreground(centroids: np.ndarray, volume: Volume, labels: bool = False) -> None:
     """The body must lie on the image's object, not only on its grid: the cube laid on a
     brain T1's empty corner warped air, exit 0. Half the mesh's cells (their centroids' voxels)
-    at least must be brighter than FOREGROUND of the image's 99th percentile."""
-    data = np.abs(np.asarray(volume.data, dtype=np.float64))
-    level = FOREGROUND * float(np.percentile(data.ravel()[::7], 99))
+    at least must be on the object: above the image's darkest by FOREGROUND of its range (an
+    MR's background is 0, a CT's air -1000 HU: measured from the 1st percentile, not from 0),
+    or, in a label map, any label but 0 (FreeSurfer's and Slicer's background)."""
+    data = np.asarray(volume.data, dtype=np.float64)
     index = np.clip(np.rint(centroids).astype(np.int64), 0, np.array(data.shape) - 1)
-    bright = float((data[tuple(index.T)] > level).mean())
+    at = data[tuple(index.T)]
+    if labels:
+        on, what = at != 0, "its voxels labelled, not 0"
+    else:
+        low, high = np.percentile(data.ravel()[::7], [1, 99])
+        on = at - low > FOREGROUND * (high - low)
+        what = f"its voxels above its darkest by {FOREGROUND:.0%} of its range"
+    bright = float(on.mean())
     if bright < OVERLAP:
-        raise InputError(f"warp: {bright:.0%} of the run's mesh lies on the object in '{volume.path.name}' (its "
-                         f"voxels brighter than {FOREGROUND:.0%} of the image's 99th percentile; {OVERLAP:.0%} at "
-                         f"least), the rest on its background: is it the run of this image's object, in its frame "
-                         f"(--mesh-frame) and unit?")
+        raise InputError(f"warp: {bright:.0%} of the run's mesh lies on the object in '{volume.path.name}' ({what}; "
+                         f"{OVERLAP:.0%} at least), the rest on its background: is it the run of this image's "
+                         f"object, in its frame (--mesh-frame) and unit?")
 
 
 def _blend_outside(v: np.ndarray, inside: np.ndarray, spacing: np.ndarray, blend_mm: float) -> None:

@@ -42,13 +42,14 @@ def read_polygons(path: Path) -> tuple[np.ndarray, np.ndarray]:
             from vtkmodules.vtkCommonCore import vtkLogger, vtkObject
 
             warnings = vtkObject.GetGlobalWarningDisplay()
+            verbosity = vtkLogger.GetCurrentVerbosityCutoff()  # (restored as the caller had it)
             vtkObject.GlobalWarningDisplayOff()  # a damaged file: our one line, not VTK's six
             vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_OFF)
             try:
                 data = pyvista.read(str(path))
             finally:
                 vtkObject.SetGlobalWarningDisplay(warnings)
-                vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_WARNING)
+                vtkLogger.SetStderrVerbosity(verbosity)
             if not isinstance(data, pyvista.PolyData):  # a .vtu: its boundary
                 data = data.extract_surface(algorithm="dataset_surface")
             surface = data.triangulate()

@@ -50,9 +50,9 @@ def check_grid(shape, voxel: float, bytes_per_voxel: float, size: float, scale: 
         hint = ("is the voxel size in the right unit? (a scene's [mesh] voxel is in metres; `brainshift mesh "
                 "--voxel` is in the input's unit, mm for medical images)")
     cells = float(np.prod(np.asarray(shape, dtype=float)))
-    extent = np.asarray(shape, dtype=float) * voxel
+    across = f"{size:.3g} m" if size >= 1.0 else f"{size * 1e3:.3g} mm"  # (as the hint says it)
     require(cells * bytes_per_voxel, f"a grid of {cells:.3g} voxels of {voxel * 1e3:g} mm over an object "
-            f"{extent.max() * 1e3:.4g} mm across", hint)
+            f"{across} across", hint)
 
 
 @dataclass

@@ -24,7 +24,8 @@ from .points import PointEvaluator
 # a fine surface with more of its vertices than this far outside the coarse mesh does not
 # follow it (a thin gyrus the voxels miss is a few vertices, a unit slip all of them)
 FAR_VERTICES = 0.01
-SIZE_RANGE = (0.5, 2.0)  # the surface's bounding-box diagonal against the mesh's: the same body
+SIZE_RANGE = (0.02, 5.0)  # the surface's bounding-box diagonal against the mesh's: a unit's 1000x or 100x
+# is outside; a patch of the cortex (the craniotomy's, 0.2x) is inside
 AREA_FRACTION = 0.1  # of the squared diagonal: a closed surface covers about 1x (a sphere pi/3)
 
 

@@ -357,8 +357,8 @@ class NewtonStatic:
             return ""
         where = "" if deepest is None else f"the deepest node {deepest:.3g} m past the skull where Newton stopped, "
         if deepest is not None and deepest <= self.contact.tolerance:  # not the tolerance: the skull's shape
-            advice = ("the deepest node is within it, a looser one will not help; where the skull has a sharp "
-                      "inner edge or corner, as a box does, a node pressed by two walls at once finds no single "
+            advice = ("the deepest node is within it, a looser one will not help; if the skull has a sharp "
+                      "inner edge or corner, as a box does, a node pressed by two walls at once may find no single "
                       "contact normal: round or smooth the skull there, docs/limits.md")
         else:
             advice = "if the body is held, a looser tolerance may settle"
