@@ -110,10 +110,8 @@ def test_an_operation_inside_the_span_is_recovered_to_the_noise_from_20_cortex_p
     assert result.seconds["fit_ms"] < 100
 
 
-def test_a_point_far_off_is_set_aside_and_the_update_is_made_without_it(atlas):
-    """One of 20 cortex points 8 mm off (a pointer slip): it pulled every node's answer and
-    passed silently. It is found by its left-out error, set aside, reported, and the update
-    is the one made from the other 19 (a fit made by hand without it)."""
+def _cortex_points_one_slipped(atlas, slipped: int):
+    """20 measured cortex points (0.5 mm noise) of the test's operation, one of them 8 mm off."""
     _, truth = _operation(atlas)
     rng = np.random.default_rng(0)
     points = atlas.points
@@ -121,7 +119,15 @@ def test_a_point_far_off_is_set_aside_and_the_update_is_made_without_it(atlas):
     picked = rng.choice(top, 20, replace=False)
     noise = 0.5e-3
     measured = points[picked] + truth[picked] + rng.normal(0.0, noise, (20, 3))
-    measured[7] += [0.0, 0.008, 0.0]
+    measured[slipped] += [0.0, 0.008, 0.0]
+    return truth, points, picked, noise, measured
+
+
+def test_a_point_far_off_is_set_aside_and_the_update_is_made_without_it(atlas):
+    """One of 20 cortex points 8 mm off (a pointer slip): it pulled every node's answer and
+    passed silently. It is found by its left-out error, set aside, reported, and the update
+    is the one made from the other 19 (a fit made by hand without it)."""
+    truth, points, picked, noise, measured = _cortex_points_one_slipped(atlas, 7)
     labels = [f"p{i}" for i in range(20)]
     slipped = update(atlas, Target(measured, points[picked], labels), noise)
     assert slipped.outliers == [7] and "p7" in slipped.warning and "set aside" in slipped.warning
@@ -142,14 +148,7 @@ def test_a_point_not_among_those_left_out_is_judged_by_its_error_at_the_fit(atla
     it (its left-out error NaN) must still be found, by its error at the fit."""
     import fenics_brainshift.atlas.update as module
 
-    _, truth = _operation(atlas)
-    rng = np.random.default_rng(0)
-    points = atlas.points
-    top = np.flatnonzero(points[:, 1] > np.percentile(points[:, 1], 85))
-    picked = rng.choice(top, 20, replace=False)
-    noise = 0.5e-3
-    measured = points[picked] + truth[picked] + rng.normal(0.0, noise, (20, 3))
-    measured[8] += [0.0, 0.008, 0.0]
+    _, points, picked, noise, measured = _cortex_points_one_slipped(atlas, 8)
     monkeypatch.setattr(module, "LEAVE_OUT_MAX", 10)
     labels = [f"p{i}" for i in range(20)]
     first = update(atlas, Target(measured, points[picked], labels), noise, set_aside=False)
