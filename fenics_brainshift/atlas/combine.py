@@ -22,9 +22,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
+from math import sqrt
 
 import numpy as np
-from scipy.linalg import cho_factor, cho_solve, solve_triangular
+from scipy.linalg import solve_triangular
+from scipy.linalg.lapack import dgesv as gesv
 from scipy.optimize import nnls
 
 from ..errors import SolverError
@@ -90,29 +92,30 @@ class Problem:
 
 
 class DataHessian:
-    """H = A'A / noise^2 + s G + ridge I, not formed: a refit's active-set iterations need a
-    small block of it and its products with c (forming it cost more than the iterations)."""
+    """H = A'A / noise^2 + s G + ridge I (G symmetric), not formed: a refit's active-set
+    iterations need H over the free weights and its columns there times the free weights
+    (forming H cost more than the iterations)."""
 
     def __init__(self, A: np.ndarray, noise: float, gram: np.ndarray, s: float):
         self.A, self.w, self.gram, self.s = A, 1.0 / noise ** 2, gram, s
         trace = self.w * float(np.einsum("ij,ij->", A, A)) + s * float(np.trace(gram))
         self.ridge = RIDGE * max(trace / len(gram), 1e-300)  # a numerically positive definite H
 
-    def block(self, i: np.ndarray, j: np.ndarray) -> np.ndarray:
-        out = self.w * (self.A[:, i].T @ self.A[:, j]) + self.s * self.gram[np.ix_(i, j)]
-        out[i[:, None] == j[None, :]] += self.ridge
-        return out
+    def restricted(self, free: np.ndarray):
+        """(H[free, free], x -> H[:, free] x): the columns of `free` taken once for both."""
+        A_free, G_free = self.A[:, free], self.gram[free]  # (G's rows: its columns, and contiguous)
+        block = self.w * (A_free.T @ A_free) + self.s * G_free[:, free]
+        block.flat[::len(free) + 1] += self.ridge
 
-    def __matmul__(self, c: np.ndarray) -> np.ndarray:
-        used = np.flatnonzero(c)  # (most weights are 0: the columns of the others only)
-        if len(used) > len(c) // 4:
-            return self.w * (self.A.T @ (self.A @ c)) + self.s * (self.gram @ c) + self.ridge * c
-        part = c[used]
-        return self.w * (self.A.T @ (self.A[:, used] @ part)) + self.s * (self.gram[:, used] @ part) + self.ridge * c
+        def times(x: np.ndarray) -> np.ndarray:
+            out = self.w * (self.A.T @ (A_free @ x)) + self.s * (x @ G_free)
+            out[free] += self.ridge * x
+            return out
+        return block, times
 
     def dense(self) -> np.ndarray:
         every = np.arange(len(self.gram))
-        return self.block(every, every)
+        return self.restricted(every)[0]
 
 
 class DenseHessian:
@@ -121,11 +124,9 @@ class DenseHessian:
     def __init__(self, H: np.ndarray):
         self.H = H
 
-    def block(self, i: np.ndarray, j: np.ndarray) -> np.ndarray:
-        return self.H[np.ix_(i, j)]
-
-    def __matmul__(self, c: np.ndarray) -> np.ndarray:
-        return self.H @ c
+    def restricted(self, free: np.ndarray):
+        columns = self.H[:, free]
+        return columns[free], lambda x: columns @ x
 
 
 def least_distance(H: np.ndarray, g: np.ndarray, C: np.ndarray, d: np.ndarray) -> np.ndarray:
@@ -187,7 +188,7 @@ def solve_on_active(H: np.ndarray, g: np.ndarray, C: np.ndarray, d: np.ndarray, 
         p = x - c
         if np.abs(p).max() > 1e-12 * (1.0 + np.abs(c).max()):
             Cp = slack.along(p)
-            blocking = np.flatnonzero(~working & (Cp < -1e-12 * np.abs(p).sum()))
+            blocking = (~working & (Cp < -1e-12 * np.abs(p).sum())).nonzero()[0]
             step, hit = 1.0, -1
             if len(blocking):
                 ratios = np.maximum(slack(c)[blocking], 0.0) / -Cp[blocking]
@@ -232,7 +233,7 @@ class _Slack:
 def _held(working: np.ndarray, partner: np.ndarray, rows: np.ndarray) -> np.ndarray:
     """The working rows held as equalities: of an equality pair both in the set, the first."""
     second = (partner >= 0) & (partner < rows) & working[np.maximum(partner, 0)]
-    return np.flatnonzero(working & ~second)
+    return (working & ~second).nonzero()[0]
 
 
 def bound_rows(C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -255,35 +256,40 @@ def _equality_solve(H, g, C, d, held, bound_of, sign):
     bounds, general, fixed_index = held[is_bound], held[~is_bound], of[is_bound]
     is_free = np.ones(n, dtype=bool)
     is_free[fixed_index] = False
-    free = np.flatnonzero(is_free)
+    free = is_free.nonzero()[0]  # (not flatnonzero: its overhead was a tenth of the solve)
     if len(free) != n - len(fixed_index):  # a weight bounded twice
         return None
     c = np.zeros(n)
     c[fixed_index] = d[bounds] * sign[bounds]
+    pinned = c.nonzero()[0]  # fixed weights not at 0 (most are: the family's lower bound)
+    H_pinned = H.restricted(pinned)[1](c[pinned]) if len(pinned) else np.zeros(n)  # H c of the fixed weights
     C_general = C[general]
     C_free = C_general[:, free]
     nf, k = len(free), len(general)
     kkt = np.zeros((nf + k, nf + k))
-    kkt[:nf, :nf] = H.block(free, free)
+    block, times_free = H.restricted(free)
+    kkt[:nf, :nf] = block
     kkt[:nf, nf:], kkt[nf:, :nf] = -C_free.T, C_free
-    rhs = np.concatenate([g[free] - (H @ c)[free], d[general] - C_general @ c])  # (c: the fixed weights so far)
+    rhs = np.concatenate([g[free] - H_pinned[free], d[general] - C_general @ c])
     if kkt.size == 0:  # every weight fixed by its bound
         solution = np.zeros(0)
-    else:
-        try:
-            solution = np.linalg.solve(kkt, rhs)
-        except np.linalg.LinAlgError:  # dependent rows: NNLS sorts them out
+    else:  # (LAPACK's gesv directly: numpy's solve costs 4x as much on these small systems)
+        _, _, solution, info = gesv(kkt, rhs)
+        if info != 0:  # dependent rows: NNLS sorts them out
             return None
     # nearly dependent rows solve to garbage without an error: keep only a solution that solves,
     # measured against the weights' part (dependent rows' multipliers grow without bound)
-    size = np.linalg.norm(rhs) + np.abs(kkt).sum(axis=0).max(initial=0.0) * np.linalg.norm(solution[:nf])
-    if not np.all(np.isfinite(solution)) or np.linalg.norm(kkt @ solution - rhs) > 1e-8 * max(size, 1e-300) \
-            or np.abs(solution[nf:]).max(initial=0.0) > 1e8 * max(size, 1e-300):
+    x = solution[:nf]
+    size = max(sqrt(rhs @ rhs) + np.abs(kkt).sum(axis=0).max(initial=0.0) * sqrt(x @ x), 1e-300)
+    residual = kkt @ solution - rhs
+    if not np.isfinite(size) or not sqrt(residual @ residual) <= 1e-8 * size \
+            or np.abs(solution[nf:]).max(initial=0.0) > 1e8 * size:
         return None
     c[free] = solution[:nf]
     lam_general = solution[nf:]
     # a bound's multiplier from the stationarity of its weight: (H c - g)_k = C[:, k]' lam
-    gradient = (H @ c)[fixed_index] - g[fixed_index] - C_general[:, fixed_index].T @ lam_general
+    Hc = H_pinned + times_free(c[free]) if nf else H_pinned
+    gradient = Hc[fixed_index] - g[fixed_index] - C_general[:, fixed_index].T @ lam_general
     multipliers = np.empty(len(held))
     multipliers[~is_bound] = lam_general
     multipliers[is_bound] = sign[bounds] * gradient
@@ -291,12 +297,15 @@ def _equality_solve(H, g, C, d, held, bound_of, sign):
 
 
 def partners(C: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """For each row of C c >= d, the row that is its negative (an equality written as two), or -1."""
-    def key(row, value):
-        return (np.round(np.append(row, value), 12) + 0.0).tobytes()  # + 0.0: -0.0 and 0.0 alike
-
-    index = {key(row, v): i for i, (row, v) in enumerate(zip(C, d))}
-    return np.array([index.get(key(-row, -v), -1) for row, v in zip(C, d)], dtype=np.int64)
+    """For each row of C c >= d, the row that is its negative (an equality written as two), or -1
+    (of rows alike, the last)."""
+    rows = np.round(np.column_stack([C, d]), 12) + 0.0  # + 0.0: -0.0 and 0.0 alike
+    _, kind = np.unique(np.vstack([rows, np.round(-rows, 12) + 0.0]), axis=0, return_inverse=True)
+    kind = kind.ravel()
+    n = len(rows)
+    last = np.full(2 * n, -1, dtype=np.int64)
+    np.maximum.at(last, kind[:n], np.arange(n))
+    return last[kind[n:]]
 
 
 def fold_of(groups: np.ndarray, folds: int, seed: int = 0) -> np.ndarray:
@@ -309,15 +318,17 @@ def fold_of(groups: np.ndarray, folds: int, seed: int = 0) -> np.ndarray:
 def choose_alpha(problem: Problem, alphas=ALPHAS, folds: int = FOLDS,
                  near: np.ndarray | None = None) -> tuple[float, list[dict]]:
     """The alpha of least mean error at points left out (K-fold), and the curve. `near`:
-    weights to start from (each alpha's fit then starts from the last alpha's)."""
+    weights to start from. Each fold's fit starts from the same fold's at the last alpha (the
+    same data: over the grid's flat part the same active set, one KKT solve), the first
+    alpha's from the fit to all the points."""
     fold = fold_of(problem.groups, min(folds, len(np.unique(problem.groups))))
     curve = []
-    whole = near
+    whole = problem.solve(alphas[0], near=near)
+    last = {}
     for alpha in alphas:
         errors = []
-        whole = problem.solve(alpha, near=whole)
         for k in np.unique(fold):
-            c = problem.solve(alpha, np.flatnonzero(fold != k), near=whole)
+            c = last[k] = problem.solve(alpha, np.flatnonzero(fold != k), near=last.get(k, whole))
             errors.append(problem.misfit(c, np.flatnonzero(fold == k)))
         e = np.concatenate(errors)
         curve.append({"alpha": float(alpha), "cv_rms_mm": float(np.sqrt(np.mean(e ** 2)) * 1e3)})
