@@ -1,0 +1,155 @@
+"""What an atlas with the skull costs, and why its swelling modes start from the prior state.
+
+1. `brainshift atlas` of the bundled brain at --voxel with a skull --gap out: --levels levels
+   at one pose (each from the last; the first from rest) and the whole-brain swelling mode;
+   the seconds a settled state, its Newton iterations, GMRES iterations and factorisations.
+2. The whole brain shrunk by 4 % at the scene's own level and pose, solved twice: from rest
+   (loads grown from zero) and from the prior state (as the atlas does); how far apart the two
+   contact states are, and how far each is past the skull. Where the skull's inner surface is
+   concave the equilibrium need not be unique (docs/update.md, "The skull").
+
+Writes benchmarks/results/skull_atlas.md. One process, one rank.
+
+    python benchmarks/skull_atlas.py [--voxel 0.005] [--gap 0.003] [--levels 6]
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from mpi4py import MPI
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from fenics_brainshift import load_scene, logs  # noqa: E402
+from fenics_brainshift.atlas.build import WHOLE_BODY, _from_prior, build  # noqa: E402
+from fenics_brainshift.atlas.scenarios import parse_vary  # noqa: E402
+from fenics_brainshift.atlas.vertices import GlobalVertices  # noqa: E402
+from fenics_brainshift.bench import machine_line  # noqa: E402
+from fenics_brainshift.fit import ForwardModel  # noqa: E402
+from fenics_brainshift.scene.body import Swelling  # noqa: E402
+from fenics_brainshift.stepping.solves import Solves  # noqa: E402
+
+SHRINK = -0.04
+
+
+class Counted:
+    """Solves' GMRES iterations and factorisations, counted over a block of work."""
+
+    def __enter__(self):
+        self.iterations, self.factors = 0, 0
+        self._call, self._reset = Solves.__call__, Solves.reset
+        counter = self
+
+        def call(solves, rhs, x, t):
+            its = counter._call(solves, rhs, x, t)
+            counter.iterations += its
+            return its
+
+        def reset(solves, A):
+            counter.factors += 1
+            counter._reset(solves, A)
+
+        Solves.__call__, Solves.reset = call, reset
+        return self
+
+    def __exit__(self, *exc):
+        Solves.__call__, Solves.reset = self._call, self._reset
+
+
+def atlas_cost(scene, levels: int) -> dict:
+    vary = parse_vary([f"fluid.level=0.015:0.04:{levels}", "gravity.angle_z=3"])
+    with Counted() as counted:
+        atlas, seconds = build(scene, vary, MPI.COMM_WORLD)
+    states = atlas.info["settled_states"]
+    return {"modes": len(atlas.scenarios), "states": states, "modes_s": seconds["modes_s"],
+            "per_state_s": seconds["modes_s"] / states, "gmres_per_state": counted.iterations / states,
+            "factors": counted.factors}
+
+
+def shrink_two_ways(scene) -> dict:
+    solved = dataclasses.replace(scene, swelling=(Swelling(volume_change=SHRINK, where=WHOLE_BODY),))
+    forward = ForwardModel(solved, MPI.COMM_WORLD)
+    regions = forward.model.growth.regions
+    vertices = GlobalVertices(forward.model.mesh)
+    level = {"fluid.level": float(scene.fluid.level(scene.time.end))}
+
+    def swelling(value):
+        regions[0] = (regions[0][0], lambda t, v=value: v)
+
+    swelling(0.0)
+    forward.solve(level)  # the prior, from rest
+    prior_u = forward.sim.u.x.array.copy()
+    prior_multipliers = forward.sim.contact.multipliers.copy()
+    swelling(SHRINK)
+    start = time.perf_counter()
+    _from_prior(forward, level, prior_u, prior_multipliers)
+    from_prior_s = time.perf_counter() - start
+    from_prior, past_prior = vertices.values(forward.sim.u), forward.sim.contact.penetration(forward.sim.u)
+    forward.from_rest = True
+    start = time.perf_counter()
+    forward.solve(level)
+    from_rest_s = time.perf_counter() - start
+    from_rest, past_rest = vertices.values(forward.sim.u), forward.sim.contact.penetration(forward.sim.u)
+    forward.destroy()
+    apart = np.linalg.norm(from_rest - from_prior, axis=1)
+    shift = np.linalg.norm(from_prior, axis=1)
+    return {"apart_max_mm": 1e3 * apart.max(), "apart_mean_mm": 1e3 * apart.mean(),
+            "nodes_1mm_apart": int((apart > 1e-3).sum()), "nodes": len(apart),
+            "shift_max_mm": 1e3 * shift.max(), "past_rest_mm": 1e3 * past_rest, "past_prior_mm": 1e3 * past_prior,
+            "from_rest_s": from_rest_s, "from_prior_s": from_prior_s}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--voxel", type=float, default=0.005)
+    parser.add_argument("--gap", type=float, default=0.003)
+    parser.add_argument("--levels", type=int, default=6)
+    parser.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "skull_atlas.md"))
+    args = parser.parse_args()
+    logs.configure("WARNING")
+    scene = load_scene("brain", [f"mesh.voxel={args.voxel}", f"skull.gap={args.gap}", "time.mode=quasi-static"])
+    cost = atlas_cost(scene, args.levels)
+    print(cost, flush=True)
+    shrink = shrink_two_ways(scene)
+    print(shrink, flush=True)
+    verdict = ("Both are settled and inside the skull (to its tolerance): two equilibria of one scene."
+               if shrink["apart_max_mm"] > 0.1 else "The two starts reach the same state.")
+    command = "python benchmarks/skull_atlas.py" + "".join(
+        f" --{k} {v}" for k, v in (("voxel", args.voxel), ("gap", args.gap), ("levels", args.levels)))
+    text = f"""# An atlas with the skull: its cost, and the swelling mode's start
+
+{machine_line()}; one rank; `{command}`; the bundled brain at {args.voxel * 1e3:g} mm, a skull {args.gap * 1e3:g} mm
+out, [skull] tolerance {scene.skull.tolerance * 1e3:g} mm.
+
+## The cost of a mode
+
+{args.levels} levels (15-40 mm) at one pose (turned 3 degrees about z) and the whole-brain
+swelling mode: {cost['modes']} modes, {cost['states']} settled states in {cost['modes_s']:.1f} s, **{cost['per_state_s']:.1f} s a
+settled state** (issue 28 asks for 1.5 s a mode); {cost['gmres_per_state']:.0f} GMRES iterations a state,
+{cost['factors']} factorisations in all.
+
+## The whole brain shrunk by {-SHRINK * 100:g} %, from rest and from the prior state
+
+| | |
+|---|---|
+| the two contact states apart, largest | {shrink['apart_max_mm']:.2f} mm |
+| ... on average over the {shrink['nodes']} nodes | {shrink['apart_mean_mm']:.3f} mm |
+| nodes more than 1 mm apart | {shrink['nodes_1mm_apart']} |
+| past the skull: from rest / from the prior | {shrink['past_rest_mm']:.4f} / {shrink['past_prior_mm']:.4f} mm |
+| seconds: from rest / from the prior | {shrink['from_rest_s']:.1f} / {shrink['from_prior_s']:.1f} |
+
+{verdict} The atlas takes the state reached from the prior: its swelling mode is the change the
+swelling makes there.
+"""
+    Path(args.out).write_text(text)
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
