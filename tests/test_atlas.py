@@ -358,8 +358,8 @@ def skull_atlas():
 
 def test_with_a_skull_a_mode_is_the_full_models_contact_state(skull_atlas, atlas):
     """Warm-started within a pose, mode 'level 40 mm, turned 8 degrees' equals the contact state
-    of a scene built with them and solved from rest, to the contact's tolerance; every mode is
-    inside the skull."""
+    of a scene built with them and solved from rest (the scene's 0.01 mm tolerance) to the
+    modes' own (0.05 mm); every mode is inside the skull to it."""
     from fenics_brainshift.atlas.update import _skull
 
     k = next(i for i, s in enumerate(skull_atlas.scenarios)
@@ -371,7 +371,9 @@ def test_with_a_skull_a_mode_is_the_full_models_contact_state(skull_atlas, atlas
     rows = _skull(skull_atlas, skull_atlas.vertex_modes.astype(float))
     family = np.flatnonzero(skull_atlas.family)
     room = [rows.room(np.eye(len(skull_atlas.scenarios))[i]).min() for i in family]
-    assert min(room) > -0.02e-3  # ([skull] tolerance 0.01 mm)
+    tolerance = skull_atlas.info["contact_tolerance_m"]  # the scene's 0.01 mm, loosened for the modes
+    assert tolerance == pytest.approx(0.05e-3)
+    assert min(room) > -tolerance
     assert atlas.scenarios[k] == skull_atlas.scenarios[k]
     assert np.abs(skull_atlas.vertex_modes[k] - atlas.vertex_modes[k]).max() > 1e-3  # contact-free: a mm off
 
