@@ -298,14 +298,12 @@ def _equality_solve(H, g, C, d, held, bound_of, sign):
 
 def partners(C: np.ndarray, d: np.ndarray) -> np.ndarray:
     """For each row of C c >= d, the row that is its negative (an equality written as two), or -1
-    (of rows alike, the last)."""
+    (of rows alike, the last). Rows are looked up by their bytes (sorting the rows themselves,
+    np.unique(axis=0), took 14 ms of an update's ~120 on the 351-mode atlas)."""
     rows = np.round(np.column_stack([C, d]), 12) + 0.0  # + 0.0: -0.0 and 0.0 alike
-    _, kind = np.unique(np.vstack([rows, np.round(-rows, 12) + 0.0]), axis=0, return_inverse=True)
-    kind = kind.ravel()
-    n = len(rows)
-    last = np.full(2 * n, -1, dtype=np.int64)
-    np.maximum.at(last, kind[:n], np.arange(n))
-    return last[kind[n:]]
+    negated = -rows + 0.0
+    last = {row.tobytes(): i for i, row in enumerate(rows)}  # (a later row alike overwrites)
+    return np.array([last.get(row.tobytes(), -1) for row in negated], dtype=np.int64)
 
 
 def fold_of(groups: np.ndarray, folds: int, seed: int = 0) -> np.ndarray:
