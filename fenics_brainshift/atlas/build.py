@@ -30,7 +30,7 @@ from .scenarios import clip_levels, family, parse_vary, stiffness, swelling_mode
 
 log = get_logger(__name__)
 WHOLE_BODY = "x > -1e6"  # the whole-brain region of a scene without [[swelling]]
-MODE_TOLERANCE = 0.5 * SKULL_SLACK  # m: the modes' contact tolerance, at most (_mode_tolerance)
+MODE_TOLERANCE = 0.5 * SKULL_SLACK  # m: the modes' contact tolerance (_mode_tolerance)
 
 
 def atlas_command(args, comm) -> list[str]:
@@ -111,7 +111,7 @@ def build(scene, vary: dict, comm, source: str = "", sets=()) -> tuple[store.Atl
         changes = list(priors)
         changes[k] = mode.mode
         set_swelling(changes)
-        _from_prior(forward, prior_values, prior_u, prior_multipliers)
+        solve_from_prior(forward, prior_values, prior_u, prior_multipliers)
         swollen.append(state())
         scenarios.append({"kind": "swelling", "region": mode.name, "index": mode.index, "prior": mode.prior,
                           "step": mode.mode - mode.prior, "lower": mode.lower, "upper": mode.upper})
@@ -154,23 +154,26 @@ def build(scene, vary: dict, comm, source: str = "", sets=()) -> tuple[store.Atl
 
 
 def _mode_tolerance(scene):
-    """The scene with the modes' contact settled to MODE_TOLERANCE where its own [skull]
-    tolerance is tighter: the update's skull rows allow SKULL_SLACK past the skull anyway, so a
-    mode settled tighter changes no update, and costs more (benchmarks/results/skull_atlas.md)."""
-    if scene.skull is None or scene.skull.tolerance >= MODE_TOLERANCE:
+    """The scene with its contact (the modes' and the prior's) settled to MODE_TOLERANCE: the
+    update's skull rows allow SKULL_SLACK past the skull, so a tighter state changes no update
+    and costs more (benchmarks/results/skull_atlas.md), and a looser one would let the modes
+    pass the skull by more than the rows allow."""
+    if scene.skull is None or scene.skull.tolerance == MODE_TOLERANCE:
         return scene
-    log.info("atlas: the modes' contact settled to %g mm (the scene's [skull] tolerance is %g mm; the update's "
+    log.info("atlas: the modes' contact settled to %g mm, not the scene's [skull] tolerance of %g mm (the update's "
              "skull rows allow %g mm)", MODE_TOLERANCE * 1e3, scene.skull.tolerance * 1e3, SKULL_SLACK * 1e3)
     return dataclasses.replace(scene, skull=dataclasses.replace(scene.skull, tolerance=MODE_TOLERANCE))
 
 
-def _from_prior(forward, values: dict, prior_u: np.ndarray, prior_multipliers) -> None:
+def solve_from_prior(forward, values: dict, prior_u: np.ndarray, prior_multipliers) -> None:
     """The settled state of a swelling mode, Newton from the prior state (its multipliers too):
     the mode is the change the swelling makes there. With the skull the equilibrium need not be
     unique where its inner surface is concave (the anterior fossa): on the 5 mm brain, 3 mm gap,
-    the whole brain shrunk 4 % from rest and from the prior differed by up to 6.4 mm (0.22 mm
-    on average), and from rest two linear solvers disagreed by 0.44 mm on average; from the prior
-    they agree to round-off (docs/update.md, "The skull"). From rest again only if Newton fails."""
+    the whole brain shrunk 4 % from rest and from the prior settle up to 6.55 mm apart (0.20 mm on
+    average; benchmarks/results/skull_atlas.md). A linear body with the skull whose Newton fails
+    from there is solved again from rest; otherwise the failure stands (from rest a neo-Hookean
+    body continues from its last state all the same, and without the skull the fixed point is the
+    same from any start)."""
     forward.sim.u.x.array[:] = prior_u
     contact = forward.sim.contact
     if prior_multipliers is not None:
@@ -179,8 +182,10 @@ def _from_prior(forward, values: dict, prior_u: np.ndarray, prior_multipliers) -
     try:
         forward.solve(values)
     except SolverError as exc:
-        log.info("atlas: a swelling mode from the prior state did not settle (%s); from rest", exc)
-        forward.from_rest = contact is not None
+        if contact is None or forward.continued:
+            raise
+        log.info("atlas: a swelling mode from the prior state did not settle (%s); solving it from rest", exc)
+        forward.from_rest = True
         forward.solve(values)
 
 

@@ -10,9 +10,10 @@ the prediction no farther than the data ask); with a skull, rows of C keep the b
 inside it (rows.py). Each problem is solved exactly by Lawson and Hanson's reduction
 to a least-distance problem solved by scipy's NNLS (Solving Least Squares Problems, 1974,
 ch. 23): a factor of the Hessian, one NNLS of the constraints' size. The many refits of
-cross-validation, leave-one-out and the bootstrap start from a nearby solution (the full
-fit's: the constraints are the same, the data rows change) by the primal active-set method,
-a few small KKT solves over the free weights; NNLS if it does not get there.
+cross-validation, leave-one-out and the bootstrap start from a nearby solution with the same
+constraints (the data rows change): the full fit's, and for a cross-validation fold its own
+fit at the previous alpha; by the primal active-set method, a few small KKT solves over the
+free weights; NNLS if it does not get there.
 
 alpha is chosen by K-fold cross-validation over the measured points (the error at points left
 out), from a grid; leave-one-out errors and a bootstrap over the points (the spread of the
