@@ -124,3 +124,22 @@ def test_rows_of_any_scale_and_every_weight_pinned():
     c = solve_on_active(np.eye(2), np.zeros(2), *problem.unit_rows, np.array([1.0, 0.25]), problem.partner,
                         bounds=problem.bounds)
     assert c is not None and np.allclose(c, [1.0, 0.25])
+
+
+def test_the_hessian_never_formed_is_the_one_written_out():
+    """DataHessian's block over some weights and its products with their columns against
+    H = A'A / noise^2 + s G + ridge I formed here by hand (a ridge made large enough to see)."""
+    from fenics_brainshift.atlas.combine import DataHessian
+
+    rng = np.random.default_rng(3)
+    A, M = rng.normal(size=(9, 7)), rng.normal(size=(7, 7))
+    G = M @ M.T
+    H = DataHessian(A, 0.5, G, 0.3)
+    H.ridge = 0.7
+    formed = A.T @ A / 0.25 + 0.3 * G + 0.7 * np.eye(7)
+    some, x = np.array([1, 4, 5]), rng.normal(size=3)
+    block, times = H.restricted(some)
+    assert np.allclose(block, formed[np.ix_(some, some)], rtol=1e-13, atol=0)
+    assert np.allclose(times(x), formed[:, some] @ x, rtol=1e-13, atol=1e-13)
+    assert np.allclose(H.times(some, x), formed[:, some] @ x, rtol=1e-13, atol=1e-13)
+    assert np.allclose(H.dense(), formed, rtol=1e-13, atol=0)

@@ -102,6 +102,12 @@ class DataHessian:
         trace = self.w * float(np.einsum("ij,ij->", A, A)) + s * float(np.trace(gram))
         self.ridge = RIDGE * max(trace / len(gram), 1e-300)  # a numerically positive definite H
 
+    def times(self, columns: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """H[:, columns] x."""
+        out = self.w * (self.A.T @ (self.A[:, columns] @ x)) + self.s * (x @ self.gram[columns])
+        out[columns] += self.ridge * x
+        return out
+
     def restricted(self, free: np.ndarray):
         """(H[free, free], x -> H[:, free] x): the columns of `free` taken once for both."""
         A_free, G_free = self.A[:, free], self.gram[free]  # (G's rows: its columns, and contiguous)
@@ -124,6 +130,9 @@ class DenseHessian:
 
     def __init__(self, H: np.ndarray):
         self.H = H
+
+    def times(self, columns: np.ndarray, x: np.ndarray) -> np.ndarray:
+        return self.H[:, columns] @ x
 
     def restricted(self, free: np.ndarray):
         columns = self.H[:, free]
@@ -263,7 +272,7 @@ def _equality_solve(H, g, C, d, held, bound_of, sign):
     c = np.zeros(n)
     c[fixed_index] = d[bounds] * sign[bounds]
     pinned = c.nonzero()[0]  # fixed weights not at 0 (most are: the family's lower bound)
-    H_pinned = H.restricted(pinned)[1](c[pinned]) if len(pinned) else np.zeros(n)  # H c of the fixed weights
+    Hc_pinned = H.times(pinned, c[pinned]) if len(pinned) else np.zeros(n)  # H c of the fixed weights
     C_general = C[general]
     C_free = C_general[:, free]
     nf, k = len(free), len(general)
@@ -271,7 +280,7 @@ def _equality_solve(H, g, C, d, held, bound_of, sign):
     block, times_free = H.restricted(free)
     kkt[:nf, :nf] = block
     kkt[:nf, nf:], kkt[nf:, :nf] = -C_free.T, C_free
-    rhs = np.concatenate([g[free] - H_pinned[free], d[general] - C_general @ c])
+    rhs = np.concatenate([g[free] - Hc_pinned[free], d[general] - C_general @ c])
     if kkt.size == 0:  # every weight fixed by its bound
         solution = np.zeros(0)
     else:  # (LAPACK's gesv directly: numpy's solve costs 4x as much on these small systems)
@@ -289,7 +298,7 @@ def _equality_solve(H, g, C, d, held, bound_of, sign):
     c[free] = solution[:nf]
     lam_general = solution[nf:]
     # a bound's multiplier from the stationarity of its weight: (H c - g)_k = C[:, k]' lam
-    Hc = H_pinned + times_free(c[free]) if nf else H_pinned
+    Hc = Hc_pinned + times_free(c[free]) if nf else Hc_pinned
     gradient = Hc[fixed_index] - g[fixed_index] - C_general[:, fixed_index].T @ lam_general
     multipliers = np.empty(len(held))
     multipliers[~is_bound] = lam_general
