@@ -143,21 +143,8 @@ def test_a_low_rank_update_solves_the_changed_matrix():
     """P0 (a distributed SPD matrix) factored once; P = P0 + E B E^T over dofs of both ranks'
     rows: the Woodbury solve equals CG on P itself (and again after the change moves on)."""
     n = 40
-    P0 = PETSc.Mat().createAIJ((n, n), nnz=3, comm=COMM)
+    P0, ksp = _tridiagonal(n)
     lo, hi = P0.getOwnershipRange()
-    for i in range(lo, hi):
-        P0.setValue(i, i, 4.0 + 0.1 * i)
-        for j in (i - 1, i + 1):
-            if 0 <= j < n:
-                P0.setValue(i, j, -1.0)
-    P0.assemble()
-    ksp = PETSc.KSP().create(COMM)
-    ksp.setOperators(P0)
-    ksp.setType("preonly")
-    ksp.getPC().setType("cholesky" if COMM.size == 1 else "lu")
-    if COMM.size > 1:
-        ksp.getPC().setFactorSolverType("mumps")
-    ksp.setUp()
     update = LowRankUpdate(lambda r, x: ksp.getPC().apply(r, x), P0.createVecRight())
     rng = np.random.default_rng(1)  # the same on every rank
     rhs = P0.createVecRight()
@@ -256,3 +243,110 @@ def test_a_cut_after_a_multiplier_update_steps_the_multipliers(shared_tmp, monke
     with pytest.raises(SolverError, match=r"the deepest node is within it, a looser one will not help; if the skull has a sharp inner edge"):
         sim.solve_to_settled(0.0)
     sim.destroy()
+
+
+def _tridiagonal(n: int) -> PETSc.Mat:
+    """A distributed SPD matrix, its factor's solver (Cholesky; MUMPS LU on N ranks)."""
+    P0 = PETSc.Mat().createAIJ((n, n), nnz=3, comm=COMM)
+    lo, hi = P0.getOwnershipRange()
+    for i in range(lo, hi):
+        P0.setValue(i, i, 4.0 + 0.1 * i)
+        for j in (i - 1, i + 1):
+            if 0 <= j < n:
+                P0.setValue(i, j, -1.0)
+    P0.assemble()
+    ksp = PETSc.KSP().create(COMM)
+    ksp.setOperators(P0)
+    ksp.setType("preonly")
+    ksp.getPC().setType("cholesky" if COMM.size == 1 else "lu")
+    if COMM.size > 1:
+        ksp.getPC().setFactorSolverType("mumps")
+    ksp.setUp()
+    return P0, ksp
+
+
+@pytest.mark.parametrize("at_once", [True, False])
+def test_the_compliance_solves_k_plus_the_blocks_of_any_pressed_dofs(at_once):
+    """K factored once; K + E B E^T for pressed sets that come, go and come back, over dofs of
+    both ranks' rows: the Woodbury solve equals CG on the assembled matrix, the kept
+    compliance equals the dense inverse of K (numpy) between the dofs seen, and each dof's
+    column is solved once, whether many at once (MatMatSolve) or one by one."""
+    from fenics_brainshift.linalg.compliance import Compliance
+
+    n = 40
+    P0, ksp = _tridiagonal(n)
+    lo, hi = P0.getOwnershipRange()
+    pc = ksp.getPC()
+    compliance = Compliance(lambda r, x: pc.apply(r, x), P0.createVecRight(),
+                            (lambda: pc.getFactorMatrix()) if at_once else None)
+    rng = np.random.default_rng(2)  # the same on every rank
+    rhs = P0.createVecRight()
+    rhs.setArray(rng.normal(size=n)[lo:hi])
+    seen = set()
+    for dofs in ([2, 3, 4, 31, 32, 33], [3, 4, 5, 36], [33, 2], [], [39, 0, 5, 20]):
+        M = rng.normal(size=(len(dofs), len(dofs)))
+        B = M @ M.T
+        compliance.set(np.array(dofs, dtype=np.int64), B)
+        seen |= set(dofs)
+        assert compliance.columns == len(seen)
+        P = P0.copy()
+        P.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, False)
+        for a, i in enumerate(dofs):
+            if lo <= i < hi:
+                P.setValues([i], dofs, B[a], addv=PETSc.InsertMode.ADD_VALUES)
+        P.assemble()
+        x = rhs.duplicate()
+        compliance.solve(rhs, x)
+        np.testing.assert_allclose(x.getArray(), _cg(P, rhs).getArray(), rtol=0, atol=1e-10)
+    dense = np.zeros((n, n))
+    for i in range(n):
+        dense[i, i] = 4.0 + 0.1 * i
+        if i + 1 < n:
+            dense[i, i + 1] = dense[i + 1, i] = -1.0
+    known = compliance.known
+    np.testing.assert_allclose(compliance.G, np.linalg.inv(dense)[np.ix_(known, known)], rtol=0, atol=1e-12)
+    compliance.destroy()
+    ksp.destroy()
+
+
+def test_newton_in_contact_keeps_ks_one_factor_and_settles_where_refactoring_does(shared_tmp, monkeypatch):
+    """A linear cantilever bent onto a floor (not touching at rest): Newton's solves are
+    preconditioned exactly for K and the pressed nodes' stiffness, on K's one factor; the
+    preconditioner is the inverse of that matrix assembled afresh (CG on it), and the settled
+    state equals the one by the factor rebuilt with the pressed nodes (the former path)."""
+    from test_contact import _box_surface, _cantilever
+
+    floor = _box_surface((-0.05, -0.05, -0.002), (0.2, 0.06, 0.05), shared_tmp / "exact_floor.stl")
+    sim = _cantilever(floor, 1e-8)
+    newton_static = sim.static.engaged
+    exact = newton_static._exact
+    assert exact is not None and exact.pressed > 0 and sim.solves.factors == 1  # K's factor only
+    assert np.mean(sim.solves.iterations[-5:]) <= 6  # GMRES has little left to do
+    P = newton_static._K.duplicate(copy=True)
+    P.setLGMap(*newton_static._K.getLGMap())
+    stiffness = sim.contact.stiffness(newton_static._contact_blocks)
+    sim.contact.add_tangent(P, None, blocks=stiffness)
+    P.zeroRowsColumnsLocal(newton_static._fixed, 1.0)
+    exact.prepare(newton_static._contact_blocks)
+    rhs = P.createVecRight()
+    rhs.setRandom()
+    rhs.scale(1e-3)
+    x = rhs.duplicate()
+    exact.compliance.solve(rhs, x)
+    expected = _cg(P, rhs)
+    assert np.abs(x.getArray() - expected.getArray()).max() <= 1e-8 * np.abs(expected.getArray()).max()
+
+    monkeypatch.setattr(newton.NewtonStatic, "_exact_possible", lambda self: False)
+    former = _cantilever(floor, 1e-8)
+    assert former.static.engaged._exact is None
+    np.testing.assert_allclose(_by_position(sim), _by_position(former), rtol=0, atol=1e-9)
+
+
+def _by_position(sim) -> np.ndarray:
+    """The displacement at every vertex, gathered and ordered by position (two builds may be
+    partitioned differently on N ranks)."""
+    owned = sim.model.V.dofmap.index_map.size_local
+    x = sim.model.V.tabulate_dof_coordinates()[:owned]
+    u = sim.state.u.x.array.reshape(-1, 3)[:owned]
+    x, u = np.concatenate(COMM.allgather(x)), np.concatenate(COMM.allgather(u))
+    return u[np.lexsort(np.round(x, 9).T)]

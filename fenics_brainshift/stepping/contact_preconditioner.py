@@ -133,28 +133,17 @@ class ContactPreconditioner:
         drifted = np.linalg.norm(now - was, axis=(1, 2)) > DRIFT * np.linalg.norm(was, axis=(1, 2))
         dofs = np.concatenate([new[0][added], old_dofs[removed], old_dofs[kept][drifted]])
         deltas = np.concatenate([new[1][added], -old_blocks[removed], (now - was)[drifted]])
-        comm = self.contact.comm
-        index_map = self.contact.V.dofmap.index_map
-        to_global = lambda local: index_map.local_to_global(np.asarray(local, dtype=np.int32))  # noqa: E731
         if self._fixed_global is None:
-            fixed = np.asarray(self.fixed)
-            held = 3 * to_global(fixed // 3) + fixed % 3 if len(fixed) else np.zeros(0, dtype=np.int64)
-            self._fixed_global = set(np.concatenate(comm.allgather(held)).tolist())
-        nodes = np.concatenate(comm.allgather(to_global(dofs)))
-        deltas = np.concatenate(comm.allgather(deltas))
-        unique, where = np.unique(nodes, return_inverse=True)
-        if len(unique) > MAX_UPDATED:
+            self._fixed_global = fixed_global(self.contact.V, self.fixed)
+        gathered = gathered_blocks(self.contact.V, dofs, deltas, self._fixed_global, MAX_UPDATED)
+        if gathered is None:
             return self.rebuild(blocks)
-        B = np.zeros((len(unique), 3, len(unique), 3))
-        np.add.at(B, (where, slice(None), where, slice(None)), deltas)  # the ranks' shares summed
-        scalar = (3 * unique[:, None] + np.arange(3)).ravel()
-        keep = np.array([d not in self._fixed_global for d in scalar.tolist()], dtype=bool)  # supports stay identity
-        B = B.reshape(len(scalar), len(scalar))[np.ix_(keep, keep)]
+        scalar, B = gathered
         if self._update is None:
             pc = self.solves.solver.ksp.getPC()
             factor = (lambda: pc.getFactorMatrix()) if self.solves.settings["kind"] in ("cholesky", "lu") else None
             self._update = LowRankUpdate(lambda rhs, x: pc.apply(rhs, x), self.contact.vector, factor)
-        self._update.set(scalar[keep], B)
+        self._update.set(scalar, B)
         self.stiffness = (np.concatenate([old_dofs[kept], new[0][added]]),
                           np.concatenate([np.where(drifted[:, None, None], now, was), new[1][added]]))
         self._pressed = np.sort(new[0])
@@ -186,3 +175,32 @@ class ContactPreconditioner:
 
     def destroy(self) -> None:
         self.forget()
+
+
+def fixed_global(V, fixed: np.ndarray) -> set[int]:
+    """The global scalar dofs the supports hold (the same set on every rank), from this rank's
+    local (unrolled) ones."""
+    index_map = V.dofmap.index_map
+    fixed = np.asarray(fixed)
+    held = (3 * index_map.local_to_global(np.asarray(fixed // 3, dtype=np.int32)) + fixed % 3 if len(fixed)
+            else np.zeros(0, dtype=np.int64))
+    return set(np.concatenate(V.mesh.comm.allgather(held)).tolist())
+
+
+def gathered_blocks(V, dofs: np.ndarray, blocks: np.ndarray, fixed: set[int], limit: int | None = None):
+    """Nodes' 3x3 blocks (this rank's block dofs (n,), blocks (n, 3, 3)) as one dense matrix
+    over global scalar dofs, the same on every rank: (scalar dofs (m,), B (m, m)), a node's
+    ranks' shares summed, the supports' dofs left out (they stay identity). None if more than
+    ``limit`` nodes."""
+    comm = V.mesh.comm
+    index_map = V.dofmap.index_map
+    nodes = np.concatenate(comm.allgather(index_map.local_to_global(np.asarray(dofs, dtype=np.int32))))
+    blocks = np.concatenate(comm.allgather(np.asarray(blocks).reshape(-1, 3, 3)))
+    unique, where = np.unique(nodes, return_inverse=True)
+    if limit is not None and len(unique) > limit:
+        return None
+    B = np.zeros((len(unique), 3, len(unique), 3))
+    np.add.at(B, (where, slice(None), where, slice(None)), blocks)  # the ranks' shares summed
+    scalar = (3 * unique[:, None] + np.arange(3)).ravel()
+    keep = np.array([d not in fixed for d in scalar.tolist()], dtype=bool)
+    return scalar[keep], B.reshape(len(scalar), len(scalar))[np.ix_(keep, keep)]

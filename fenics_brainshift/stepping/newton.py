@@ -25,6 +25,7 @@ from ..linalg import solve_preconditioned_by
 from ..logs import get_logger
 from ..physics.load_tangent import add_load_tangent
 from .contact_preconditioner import ContactPreconditioner
+from .exact_contact import FACTOR_KINDS, ExactContactSolve
 from .newton_iteration import newton_iterate, round_off_floor
 from .solves import Solves
 from .state import State
@@ -96,6 +97,8 @@ class NewtonStatic:
         self.load_tangent = load_tangent  # False: the follower load's tangent left out (a baseline)
         self.contact = contact  # a SkullContact (physics/contact.py) or None
         self._contact_pc = ContactPreconditioner(solves, contact, lambda: self._K, self._fixed) if contact else None
+        self._exact: ExactContactSolve | None = None  # K's factor and the pressed nodes exactly (linear body)
+        self._contact_blocks = None  # the tangent's contact blocks at the last assembly
         self.contact_rounds = 0  # multiplier updates over the run (as the time steppers count them)
         self.iterations = 0  # Newton iterations of the last solve
         self.history: list[float] = []  # residual norms of the last Newton solve
@@ -142,7 +145,8 @@ class NewtonStatic:
         if with_load and self.follower and self.load_tangent and fluid.level == fluid.level:  # a level is known
             add_load_tangent(A, fluid.hydro, fluid.level, self.state.u, -factor * self.model.load_scale)
         if self.contact is not None:
-            self.contact.add_tangent(A, self.state.u)
+            self._contact_blocks = self.contact.tangent_blocks(self.state.u)
+            self.contact.add_tangent(A, None, blocks=self._contact_blocks)
         self.model.constraints.matrix(A)
         return A
 
@@ -152,11 +156,25 @@ class NewtonStatic:
         can be singular)."""
         self._K = self.model.assemble(self.model.stiffness_form(), with_bcs=True)
         self._floor = round_off_floor(self._K, self.model.cell_size())
-        if self.contact is not None:
+        if self.contact is not None and not (self._exact_possible() and not self.contact.pressing(self.state.u)):
             self._contact_pc.rebuild(self.contact.tangent_blocks(self.state.u))
         else:
             self.solves.reset(self._K)
+            self._start_exact()
         self.solves.solver.ksp.setTolerances(max_it=MAX_KRYLOV)
+
+    def _exact_possible(self) -> bool:
+        """Can Newton's solves be preconditioned exactly for K and the contact (exact_contact.py)?
+        A linear body (K is its stiffness), factored (not AMG), in contact with the skull."""
+        return (self.contact is not None and not self.model.nonlinear
+                and self.solves.settings["kind"] in FACTOR_KINDS)
+
+    def _start_exact(self) -> None:
+        """The solver's factor is K's own: from now on every solve is preconditioned exactly."""
+        if self._exact_possible():
+            if self._exact is not None:
+                self._exact.destroy()
+            self._exact = ExactContactSolve(self.solves, self.contact, self._fixed, MAX_KRYLOV)
 
     def adopt_preconditioner(self, K: PETSc.Mat) -> None:
         """Take over K with supports, already factored (or AMG'd) by this solver's Solves for a
@@ -169,6 +187,7 @@ class NewtonStatic:
         ksp.setType(options["ksp_type"])
         ksp.setPCSide(PETSc.PC.Side.RIGHT if options["ksp_pc_side"] == "right" else PETSc.PC.Side.LEFT)
         ksp.setTolerances(max_it=MAX_KRYLOV)
+        self._start_exact()
 
     def _preconditioner_now(self, A: PETSc.Mat) -> None:
         """An LU factor of the current full tangent A (GMRES slowed down with the one it had)."""
@@ -202,6 +221,14 @@ class NewtonStatic:
         if self._K is None:
             self._preconditioner_at_rest()
         A = self._tangent_matrix(factor)
+        if self._exact is not None and self._exact.factored is not self.solves.solver:
+            self._start_exact()  # K was factored anew
+        if self._exact is not None:
+            du = compat.petsc_vec(self._du)
+            self._exact.prepare(self._contact_blocks)
+            self._exact(A, self._R, du, forcing, t)
+            du.scale(-1.0)
+            return
         if self._stale:
             self._refreshed_preconditioner(A)
         du = compat.petsc_vec(self._du)
@@ -370,4 +397,6 @@ class NewtonStatic:
                 matrix.destroy()
         if self._contact_pc is not None:
             self._contact_pc.destroy()
+        if self._exact is not None:
+            self._exact.destroy()
         self.solves.destroy()

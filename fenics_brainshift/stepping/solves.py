@@ -46,15 +46,20 @@ class Solves:
     def __call__(self, rhs: PETSc.Vec, x: PETSc.Vec, t: float) -> int:
         t0 = time.perf_counter()
         its = self.solver.solve(rhs, x)
+        self.record(its, time.perf_counter() - t0, x, t)
+        return its
+
+    def record(self, its: int, seconds: float, x: PETSc.Vec, t: float) -> None:
+        """Count a solve made (by this solver or by another Krylov method on its factor):
+        x projected onto the constraints, checked for NaN/Inf."""
         if self.project is not None:
             self.project(x)
-        self.last_seconds = time.perf_counter() - t0
-        self.seconds += self.last_seconds
+        self.last_seconds = seconds
+        self.seconds += seconds
         self.count += 1
         self.iterations.append(its)
         if not np.isfinite(x.norm()):
             raise SolverError(f"the solution is no longer finite at t = {t:g} s (NaN or Inf): {self.hint}")
-        return its
 
     def by_factor(self, rhs: PETSc.Vec, x: PETSc.Vec, t: float) -> int:
         """x = P^-1 rhs by the solver's factor alone, no Krylov method around it: the answer

@@ -1,0 +1,85 @@
+"""Newton's solves for a linear body against the skull, preconditioned exactly for K and the
+contact stiffness of the nodes pressed now, with K's one factor.
+
+The preconditioner of contact_preconditioner.py is a factor of K plus the contact stiffness of
+the nodes pressed when it was built: as the pressed set moves, GMRES needs more iterations
+until a new factor is made (1.2 s each on the 5 mm brain; an atlas's settled states took
+about 150 GMRES iterations and half a factorisation each). Here every Newton iteration gets
+the exact inverse of K + C (C the symmetric, positive part of the contact's tangent blocks,
+as there) by the Woodbury formula on K's factor (linalg/compliance.py): two triangular solves
+an application, and the compliance between the pressed nodes' dofs, solved once for each
+node over the factor's life (an atlas's modes press the same few hundred nodes again and
+again). GMRES is left only the follower load's tangent and the contact blocks' unsymmetric
+part. Used where K's own factor is at hand: a linear material, a factor (not AMG), and no
+node touching the skull at rest (K alone may be singular there).
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from petsc4py import PETSc
+
+from ..errors import SolverError
+from ..linalg.compliance import Compliance
+from .contact_preconditioner import fixed_global, gathered_blocks
+
+FACTOR_KINDS = ("cholesky", "lu")
+
+
+class ExactContactSolve:
+    """solves: the Solves whose solver holds K's factor (kept, never reset here); contact: the
+    SkullContact; fixed: the local dofs the supports hold."""
+
+    def __init__(self, solves, contact, fixed: np.ndarray, max_it: int):
+        self.solves, self.contact = solves, contact
+        self.factored = solves.solver  # the LinearSolver whose factor this uses
+        pc_K = solves.solver.ksp.getPC()
+        self._pc_K = pc_K
+        self.compliance = Compliance(lambda rhs, x: pc_K.apply(rhs, x), contact.vector,
+                                     lambda: pc_K.getFactorMatrix())
+        self._fixed = fixed_global(contact.V, fixed)
+        self.ksp = PETSc.KSP().create(contact.comm)
+        self.ksp.setType("gmres")
+        self.ksp.setPCSide(PETSc.PC.Side.RIGHT)  # GMRES then measures the true residual
+        pc = self.ksp.getPC()
+        pc.setType("python")
+        pc.setPythonContext(_Apply(self.compliance))
+        self.ksp.setTolerances(atol=1e-300, max_it=max_it)
+        self.pressed = 0  # nodes in the preconditioner now
+
+    def prepare(self, blocks) -> None:
+        """The preconditioner for the tangent's contact blocks (dofs, blocks) (collective)."""
+        dofs, stiffness = self.contact.stiffness(blocks)
+        scalar, B = gathered_blocks(self.contact.V, dofs, stiffness, self._fixed)
+        self.compliance.set(scalar, B)
+        self.pressed = len(scalar) // 3
+
+    def __call__(self, A: PETSc.Mat, rhs: PETSc.Vec, x: PETSc.Vec, rtol: float, t: float) -> int:
+        """x = A^-1 rhs to the relative tolerance rtol by GMRES (x starts from zero); counted
+        in the Solves like any solve. A solve that does not converge is a SolverError."""
+        start = time.perf_counter()
+        self.ksp.setOperators(A)
+        self.ksp.setTolerances(rtol=rtol)
+        x.set(0.0)
+        self.ksp.solve(rhs, x)
+        reason, its = self.ksp.getConvergedReason(), self.ksp.getIterationNumber()
+        self.solves.record(its, time.perf_counter() - start, x, t)
+        if reason < 0:
+            raise SolverError(f"Newton's solve with skull contact did not converge in {its} GMRES iterations "
+                              f"(reason {reason})")
+        return its
+
+    def destroy(self) -> None:
+        self.ksp.destroy()
+        self.compliance.destroy()
+
+
+class _Apply:
+    """The python PC's context: y = (K + C)^-1 x."""
+
+    def __init__(self, compliance: Compliance):
+        self.compliance = compliance
+
+    def apply(self, _pc, x: PETSc.Vec, y: PETSc.Vec) -> None:
+        self.compliance.solve(x, y)
