@@ -12,7 +12,11 @@ tissue below it), and over every node. `brainshift fit` fits fluid.level, materi
 gravity.angle_z to the same points (its forward model: the same scene). Writes
 benchmarks/results/update.{csv,md}.
 
-    python benchmarks/update.py [--voxel 0.005]
+--skull GAP (m): the scene, and so the atlas, every operation and the fit, with a rigid skull
+GAP out: every mode a contact state, the update's skull rows in every fit (its cost with them),
+into benchmarks/results/update_skull.{csv,md}.
+
+    python benchmarks/update.py [--voxel 0.005] [--skull 0.003]
 """
 from __future__ import annotations
 
@@ -82,10 +86,14 @@ def truth_state(base: list[str], overrides: list[str], values: dict, extra: str,
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--voxel", type=float, default=0.005)
-    parser.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "update"))
+    parser.add_argument("--skull", type=float, default=None, help="a rigid skull this far out (m)")
+    parser.add_argument("--out", default=None)
     args = parser.parse_args()
     logs.configure("WARNING")
     base = [f"mesh.voxel={args.voxel}", "time.mode=quasi-static"]
+    if args.skull is not None:
+        base.append(f"skull.gap={args.skull}")
+    args.out = args.out or str(ROOT / "benchmarks" / "results" / ("update" if args.skull is None else "update_skull"))
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     folder = Path(tempfile.mkdtemp(prefix="brainshift-update-bench-"))  # (the swelling scene's file)
 
@@ -139,6 +147,7 @@ def main() -> None:
             "update_total_scratch_ms": float(np.median([r.seconds["total_ms"] for r in scratch])),
             "warm_against_scratch": same,
             "fit_s": fit_s, "fit_solves": fitted.solves, "truth_solve_s": truth_s,
+            "skull_rows": int(result.skull.get("nodes_with_rows", 0)),
         })
         print(rows[-1], flush=True)
     forward.destroy()
@@ -151,8 +160,11 @@ def main() -> None:
     lines = [
         "# The update against the scene's prediction and `brainshift fit`",
         "",
-        f"{machine_line()}; one rank; `python benchmarks/update.py --voxel {args.voxel:g}`; the "
-        f"{args.voxel * 1e3:g} mm brain ({len(points)} nodes). Atlas: {len(atlas.scenarios)} modes "
+        f"{machine_line()}; one rank; `python benchmarks/update.py --voxel {args.voxel:g}"
+        f"{'' if args.skull is None else f' --skull {args.skull:g}'}`; the "
+        f"{args.voxel * 1e3:g} mm brain ({len(points)} nodes)"
+        f"{'' if args.skull is None else f', a rigid skull {args.skull * 1e3:g} mm out in the atlas, every operation and the fit'}"
+        f". Atlas: {len(atlas.scenarios)} modes "
         f"({int(atlas.family.sum())} drain/pose states + {len(atlas.scenarios) - int(atlas.family.sum())} swelling) "
         f"in {atlas_s:.1f} s ({seconds['setup_s']:.1f} s setup, {seconds['modes_s']:.1f} s modes, "
         f"{atlas.info['settled_states']} settled states). {POINTS} points on the exposed cortex, "
@@ -173,7 +185,10 @@ def main() -> None:
               "30-sample bootstrap (median of 5); total from scratch: the same with every refit solved by NNLS "
               "from scratch (atlas/combine.py WARM_START = False; median of 3), the baseline of the warm-started "
               f"refits (the same weights and spread to {max(r['warm_against_scratch'] for r in rows):.1e}). "
-              "fit s: `brainshift fit`'s calibration (3 parameters) on the same points, in the same run."]
+              "fit s: `brainshift fit`'s calibration (3 parameters) on the same points, in the same run."
+              + ("" if args.skull is None else " Skull rows: the boundary nodes near the skull whose room the "
+                 f"update keeps as a constraint, {min(r['skull_rows'] for r in rows)}-"
+                 f"{max(r['skull_rows'] for r in rows)} in these operations.")]
     out.with_suffix(".md").write_text("\n".join(lines) + "\n")
     print(f"wrote {out}.md and .csv")
 

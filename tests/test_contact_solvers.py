@@ -341,6 +341,22 @@ def test_newton_in_contact_keeps_ks_one_factor_and_settles_where_refactoring_doe
     assert former.static.engaged._exact is None
     np.testing.assert_allclose(_by_position(sim), _by_position(former), rtol=0, atol=1e-9)
 
+    monkeypatch.undo()
+    monkeypatch.setattr(newton, "MAX_KRYLOV", 1)  # GMRES gives up after one iteration: an LU of the tangent
+    by_lu = _cantilever(floor, 1e-8)
+    engaged = by_lu.static.engaged
+    assert engaged._exact.lu_solves > 0 and by_lu.solves.factors == 1
+    A = engaged._tangent_matrix(1.0)
+    rhs = A.createVecRight()
+    rhs.setRandom()
+    x, residual = rhs.duplicate(), rhs.duplicate()
+    engaged._exact.prepare(engaged._contact_blocks)
+    engaged._exact(A, rhs, x, 1e-12, 0.0)  # one GMRES iteration cannot, the LU does
+    A.mult(x, residual)
+    residual.axpy(-1.0, rhs)
+    assert residual.norm() <= 1e-10 * rhs.norm()
+    np.testing.assert_allclose(_by_position(by_lu), _by_position(sim), rtol=0, atol=1e-9)
+
 
 def _by_position(sim) -> np.ndarray:
     """The displacement at every vertex, gathered and ordered by position (two builds may be

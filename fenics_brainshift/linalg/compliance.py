@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.linalg
+import scipy.sparse
 from mpi4py import MPI
 from petsc4py import PETSc
 
@@ -39,7 +40,7 @@ class Compliance:
         self.columns = 0  # columns solved (over the life of the factor)
         self.dofs = np.zeros(0, dtype=np.int64)  # the pressed dofs now
         self._core = None  # LU of I + B G over them
-        self._B = np.zeros((0, 0))
+        self._B = scipy.sparse.csr_matrix((0, 0))
         self._w, self._correction = template.duplicate(), template.duplicate()
 
     # -- the compliance between the dofs ever pressed ---------------------------------------------
@@ -111,7 +112,7 @@ class Compliance:
         """The pressed dofs (global scalar, the same on every rank) and the dense B over them."""
         dofs = np.asarray(dofs, dtype=np.int64)
         self.learn(dofs)
-        self.dofs, self._B = dofs, np.asarray(B, dtype=float)
+        self.dofs, self._B = dofs, scipy.sparse.csr_matrix(np.asarray(B, dtype=float))  # nodes' blocks: sparse
         if not len(dofs):
             self._core = None
             return

@@ -22,6 +22,7 @@ from petsc4py import PETSc
 
 from ..errors import SolverError
 from ..linalg.compliance import Compliance
+from ..linalg.solver import has_package
 from .contact_preconditioner import fixed_global, gathered_blocks
 
 FACTOR_KINDS = ("cholesky", "lu")
@@ -47,6 +48,7 @@ class ExactContactSolve:
         pc.setPythonContext(_Apply(self.compliance))
         self.ksp.setTolerances(atol=1e-300, max_it=max_it)
         self.pressed = 0  # nodes in the preconditioner now
+        self.lu_solves = 0  # solves GMRES could not make, by an LU of the tangent
 
     def prepare(self, blocks) -> None:
         """The preconditioner for the tangent's contact blocks (dofs, blocks) (collective)."""
@@ -64,11 +66,31 @@ class ExactContactSolve:
         x.set(0.0)
         self.ksp.solve(rhs, x)
         reason, its = self.ksp.getConvergedReason(), self.ksp.getIterationNumber()
+        if reason < 0:  # (a concave corner can make the tangent far from K + C): its own LU, once
+            its += self._by_lu(A, rhs, x)
         self.solves.record(its, time.perf_counter() - start, x, t)
-        if reason < 0:
-            raise SolverError(f"Newton's solve with skull contact did not converge in {its} GMRES iterations "
-                              f"(reason {reason})")
         return its
+
+    def _by_lu(self, A: PETSc.Mat, rhs: PETSc.Vec, x: PETSc.Vec) -> int:
+        """x = A^-1 rhs by an LU factor of A made for this solve alone (K's factor is kept)."""
+        self.lu_solves += 1
+        scalar = A.convert("aij", PETSc.Mat())  # (out=None would convert A in place)
+        ksp = PETSc.KSP().create(self.contact.comm)
+        try:
+            ksp.setOperators(scalar)
+            ksp.setType("preonly")
+            pc = ksp.getPC()
+            pc.setType("lu")
+            if has_package("mumps"):  # (as the former path's LU: linalg/solver.py)
+                pc.setFactorSolverType("mumps")
+            ksp.solve(rhs, x)
+            if ksp.getConvergedReason() < 0 or not np.isfinite(x.norm()):
+                raise SolverError("Newton's solve with skull contact failed: GMRES did not converge, and an LU "
+                                  "factor of the tangent gave no answer")
+            return 1
+        finally:
+            ksp.destroy()
+            scalar.destroy()
 
     def destroy(self) -> None:
         self.ksp.destroy()
