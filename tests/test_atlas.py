@@ -16,7 +16,7 @@ from mpi4py import MPI
 from conftest import mpirun, subprocess_env
 from fenics_brainshift import load_scene
 from fenics_brainshift.atlas import store
-from fenics_brainshift.atlas.build import build, solve_from_prior
+from fenics_brainshift.atlas.build import build, solve_family_mode, solve_from_prior
 from fenics_brainshift.atlas.scenarios import parse_vary
 from fenics_brainshift.atlas.update import update
 from fenics_brainshift.atlas.vertices import GlobalVertices
@@ -428,6 +428,47 @@ def test_a_swelling_mode_starts_from_the_prior_state_and_its_multipliers():
         with pytest.raises(SolverError):
             solve_from_prior(forward, {}, prior_u, None if forward.sim.contact is None else prior_multipliers)
         assert len(forward.calls) == 1
+
+
+def test_a_mode_that_does_not_settle_from_the_last_is_solved_from_rest():
+    """With the skull, a family mode whose Newton fails from the last mode is solved again
+    from rest; without the skull, or already from rest, the failure stands."""
+    forward = _Forward(fail_first=True)
+    forward.from_rest = False
+    solve_family_mode(forward, {})
+    assert [call[2] for call in forward.calls] == [False, True]
+    for forward in (_Forward(skull=False, fail_first=True), _Forward(fail_first=True)):
+        forward.from_rest = forward.sim.contact is not None  # no skull: from the last; skull: already from rest
+        with pytest.raises(SolverError):
+            solve_family_mode(forward, {})
+        assert len(forward.calls) == 1
+
+
+def test_a_mode_settled_neither_way_is_left_out_and_named(monkeypatch):
+    """One scenario that settles neither from the last mode nor from rest: the atlas holds the
+    others, atlas.json names it, and the next mode starts from rest; more than MAX_SKIPPED of
+    the family failing ends the build with the solver's message."""
+    from fenics_brainshift.atlas import build as building
+
+    real, starts = building.solve_family_mode, []
+
+    def failing(forward, values):
+        starts.append((values["fluid.level"], forward.from_rest))
+        if values["fluid.level"] == 0.03:
+            raise SolverError("Newton did not converge (a stand-in)")
+        real(forward, values)
+
+    monkeypatch.setattr(building, "solve_family_mode", failing)
+    monkeypatch.setattr(building, "MAX_SKIPPED", 0.4)  # (of three modes: one may be left out)
+    built, _ = build(load_scene("brain", COARSE + SKULL), parse_vary(["fluid.level=0.02,0.03,0.04"]), MPI.COMM_WORLD)
+    if MPI.COMM_WORLD.rank == 0:
+        assert [s["values"]["fluid.level"] for s in built.scenarios if s["kind"] == "family"] == [0.02, 0.04]
+        assert [o["values"]["fluid.level"] for o in built.info["left_out"]] == [0.03]
+        assert "a stand-in" in built.info["left_out"][0]["why"]
+    assert starts == [(0.02, True), (0.03, False), (0.04, True)]
+    monkeypatch.setattr(building, "MAX_SKIPPED", 0.3)  # one of three is more than that
+    with pytest.raises(SolverError, match="a stand-in"):
+        build(load_scene("brain", COARSE + SKULL), parse_vary(["fluid.level=0.02,0.03,0.04"]), MPI.COMM_WORLD)
 
 
 def test_the_update_keeps_the_brain_inside_the_skull(skull_atlas):
