@@ -14,7 +14,7 @@ from fenics_brainshift.physics.contact import SkullContact
 from fenics_brainshift.runner import Simulation
 from fenics_brainshift.scene import scene_from_dict
 from fenics_brainshift.stepping.contact_preconditioner import ContactPreconditioner
-from fenics_brainshift.stepping import contact_preconditioner, newton, newton_dynamic
+from fenics_brainshift.stepping import contact_preconditioner, exact_contact, newton, newton_dynamic
 from fenics_brainshift.stepping.newton_dynamic import NewtonDynamicStepper
 from test_contact import RHO, RHO_OIL, LEVEL, L, H, _block, _box_surface
 
@@ -133,6 +133,21 @@ def _cg(A, b):
     ksp.setType("cg")
     ksp.getPC().setType("jacobi")
     ksp.setTolerances(rtol=1e-14, atol=1e-300, max_it=100000)
+    x = b.duplicate()
+    ksp.solve(b, x)
+    ksp.destroy()
+    return x
+
+
+def _lu(A, b):
+    """An independent solve of a matrix that need not be symmetric: PETSc's LU (MUMPS's on N
+    ranks)."""
+    ksp = PETSc.KSP().create(A.getComm())
+    ksp.setOperators(A)
+    ksp.setType("preonly")
+    ksp.getPC().setType("lu")
+    if A.getComm().getSize() > 1:
+        ksp.getPC().setFactorSolverType("mumps")
     x = b.duplicate()
     ksp.solve(b, x)
     ksp.destroy()
@@ -285,8 +300,8 @@ def test_the_compliance_solves_k_plus_the_blocks_of_any_pressed_dofs(at_once):
     seen = set()
     for dofs in ([2, 3, 4, 31, 32, 33], [3, 4, 5, 36], [33, 2], [], [39, 0, 5, 20]):
         M = rng.normal(size=(len(dofs), len(dofs)))
-        B = M @ M.T
-        compliance.set(np.array(dofs, dtype=np.int64), B)
+        B = M @ M.T + M  # (need not be symmetric)
+        assert compliance.set(np.array(dofs, dtype=np.int64), B)
         seen |= set(dofs)
         assert compliance.columns == len(seen)
         P = P0.copy()
@@ -297,7 +312,12 @@ def test_the_compliance_solves_k_plus_the_blocks_of_any_pressed_dofs(at_once):
         P.assemble()
         x = rhs.duplicate()
         compliance.solve(rhs, x)
-        np.testing.assert_allclose(x.getArray(), _cg(P, rhs).getArray(), rtol=0, atol=1e-10)
+        np.testing.assert_allclose(x.getArray(), _lu(P, rhs).getArray(), rtol=0, atol=1e-10)
+        singular = -np.linalg.inv(compliance.G[np.ix_(*[[compliance._position[d] for d in dofs]] * 2)]) if dofs else None
+        if singular is not None:  # K + E B E^T singular: refused, the last change kept
+            assert not compliance.set(np.array(dofs, dtype=np.int64), singular)
+            compliance.solve(rhs, x)
+            np.testing.assert_allclose(x.getArray(), _lu(P, rhs).getArray(), rtol=0, atol=1e-10)
     dense = np.zeros((n, n))
     for i in range(n):
         dense[i, i] = 4.0 + 0.1 * i
@@ -311,8 +331,8 @@ def test_the_compliance_solves_k_plus_the_blocks_of_any_pressed_dofs(at_once):
 
 def test_newton_in_contact_keeps_ks_one_factor_and_settles_where_refactoring_does(shared_tmp, monkeypatch):
     """A linear cantilever bent onto a floor (not touching at rest): Newton's solves are
-    preconditioned exactly for K and the pressed nodes' stiffness, on K's one factor; the
-    preconditioner is the inverse of that matrix assembled afresh (CG on it), and the settled
+    preconditioned exactly for K and the pressed nodes' contact blocks, on K's one factor; the
+    preconditioner is the inverse of that matrix assembled afresh (an LU of it), and the settled
     state equals the one by the factor rebuilt with the pressed nodes (the former path)."""
     from test_contact import _box_surface, _cantilever
 
@@ -324,8 +344,7 @@ def test_newton_in_contact_keeps_ks_one_factor_and_settles_where_refactoring_doe
     assert np.mean(sim.solves.iterations[-5:]) <= 6  # GMRES has little left to do
     P = newton_static._K.duplicate(copy=True)
     P.setLGMap(*newton_static._K.getLGMap())
-    stiffness = sim.contact.stiffness(newton_static._contact_blocks)
-    sim.contact.add_tangent(P, None, blocks=stiffness)
+    sim.contact.add_tangent(P, None, blocks=newton_static._contact_blocks)
     P.zeroRowsColumnsLocal(newton_static._fixed, 1.0)
     exact.prepare(newton_static._contact_blocks)
     rhs = P.createVecRight()
@@ -333,7 +352,7 @@ def test_newton_in_contact_keeps_ks_one_factor_and_settles_where_refactoring_doe
     rhs.scale(1e-3)
     x = rhs.duplicate()
     exact.compliance.solve(rhs, x)
-    expected = _cg(P, rhs)
+    expected = _lu(P, rhs)
     assert np.abs(x.getArray() - expected.getArray()).max() <= 1e-8 * np.abs(expected.getArray()).max()
 
     monkeypatch.setattr(newton.NewtonStatic, "_exact_possible", lambda self: False)
@@ -343,6 +362,7 @@ def test_newton_in_contact_keeps_ks_one_factor_and_settles_where_refactoring_doe
 
     monkeypatch.undo()
     monkeypatch.setattr(newton, "MAX_KRYLOV", 1)  # GMRES gives up after one iteration: an LU of the tangent
+    monkeypatch.setattr(exact_contact.ExactContactSolve, "prepare", lambda self, blocks: None)  # (K alone)
     by_lu = _cantilever(floor, 1e-8)
     engaged = by_lu.static.engaged
     assert engaged._exact.lu_solves > 0 and by_lu.solves.factors == 1

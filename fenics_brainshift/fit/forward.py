@@ -29,7 +29,8 @@ FOLLOWER_TOL = 1e-7
 
 
 class ForwardModel:
-    def __init__(self, scene, comm=MPI.COMM_WORLD):
+    def __init__(self, scene, comm=MPI.COMM_WORLD, newton_rtol: float | None = None):
+        """newton_rtol: Newton's relative residual for settled states (None: a run's)."""
         from ..runner import Simulation
 
         if scene.fluid is not None and scene.fluid.follower_tol > FOLLOWER_TOL:
@@ -37,6 +38,8 @@ class ForwardModel:
             scene = dataclasses.replace(scene, fluid=dataclasses.replace(scene.fluid, follower_tol=FOLLOWER_TOL))
         self.scene = scene
         self.sim = Simulation(scene, comm)
+        if newton_rtol is not None:
+            self.sim.newton_rtol = newton_rtol
         self.sim.setup()
         self.model = self.sim.model
         self.t = scene.time.end

@@ -17,6 +17,8 @@ Works on N ranks: dofs are global scalar dofs, the same on every rank, and so is
 """
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import scipy.linalg
 import scipy.sparse
@@ -108,17 +110,25 @@ class Compliance:
             Z.destroy()
 
     # -- the preconditioner for the nodes pressed now ----------------------------------------------
-    def set(self, dofs: np.ndarray, B: np.ndarray) -> None:
-        """The pressed dofs (global scalar, the same on every rank) and the dense B over them."""
+    def set(self, dofs: np.ndarray, B: np.ndarray) -> bool:
+        """The pressed dofs (global scalar, the same on every rank) and the dense B over them
+        (any square matrix). False, and the former change kept, if K + E B E^T is singular
+        (to round-off)."""
         dofs = np.asarray(dofs, dtype=np.int64)
         self.learn(dofs)
-        self.dofs, self._B = dofs, scipy.sparse.csr_matrix(np.asarray(B, dtype=float))  # nodes' blocks: sparse
+        B = scipy.sparse.csr_matrix(np.asarray(B, dtype=float))  # nodes' blocks: sparse
         if not len(dofs):
-            self._core = None
-            return
+            self.dofs, self._B, self._core = dofs, B, None
+            return True
         where = np.array([self._position[int(d)] for d in dofs])
-        core = np.eye(len(dofs)) + self._B @ self.G[np.ix_(where, where)]
-        self._core = scipy.linalg.lu_factor(core, check_finite=False)
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", scipy.linalg.LinAlgWarning)  # (singular: told below)
+            core = scipy.linalg.lu_factor(np.eye(len(dofs)) + B @ self.G[np.ix_(where, where)], check_finite=False)
+        pivots = np.abs(np.diag(core[0]))
+        if not (np.isfinite(core[0]).all() and pivots.min() > 1e-12 * max(pivots.max(), 1.0)):
+            return False  # det(K + E B E^T) = det K det(I + B G): singular with the core
+        self.dofs, self._B, self._core = dofs, B, core
+        return True
 
     def solve(self, rhs: PETSc.Vec, x: PETSc.Vec) -> None:
         """x = (K + E B E^T)^-1 rhs."""

@@ -61,6 +61,7 @@ class Simulation:
             self.solves.project = self.model.constraints.project_owned
         self.dynamic: DynamicStepper | None = None
         self.static: StaticSolver | None = None
+        self.newton_rtol = 1e-9  # settled states by Newton: |R| <= this x the loads (set before setup)
 
     # -- driving it -------------------------------------------------------------------------
     @property
@@ -99,11 +100,13 @@ class Simulation:
     def _static(self) -> StaticSolver | NewtonStatic:
         if self.static is None:
             if self.model.nonlinear:  # Newton: a material that needs it
-                self.static = NewtonStatic(self.model, self.state, self.solves, contact=self.contact)
+                self.static = NewtonStatic(self.model, self.state, self.solves, rtol=self.newton_rtol,
+                                           contact=self.contact)
             elif self.contact is not None:  # the fixed point while nothing reaches the skull
                 self.static = ContactWhenReached(
                     StaticSolver(self.model, self.state, self.solves, build.follower_tolerance(self.scene)),
-                    lambda: NewtonStatic(self.model, self.state, self.solves, contact=self.contact),
+                    lambda: NewtonStatic(self.model, self.state, self.solves, rtol=self.newton_rtol,
+                                         contact=self.contact),
                     self.contact, self.state)
             else:
                 self.static = StaticSolver(self.model, self.state, self.solves, build.follower_tolerance(self.scene))
