@@ -8,10 +8,10 @@ between the dofs of the nodes ever pressed, is kept and grows as nodes join: a n
 columns K^-1 e are solved once (with the others that join with it, in one multi-right-hand-side
 solve), their rows at the dofs known then kept, and the rest of G follows from its symmetry.
 Over an atlas's hundreds of settled states the same few hundred nodes press again and again:
-the contact's preconditioner is then exact for every Newton iteration (the contact
-stiffness's symmetric part; GMRES makes up the follower load and the rest) without another
-factorisation (stepping/contact_preconditioner.py rebuilds one each time the pressed set has
-moved; docs/performance.md, "Skull contact").
+the contact's preconditioner is then exact for every Newton iteration without another
+factorisation (stepping/exact_contact.py; contact_preconditioner.py rebuilds one each time the
+pressed set has moved; docs/performance.md, "Skull contact"). G is dense: 1000 nodes ever
+pressed keep 72 MB.
 
 Works on N ranks: dofs are global scalar dofs, the same on every rank, and so is G.
 """

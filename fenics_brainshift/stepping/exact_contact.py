@@ -1,17 +1,18 @@
 """Newton's solves for a linear body against the skull, preconditioned exactly for K and the
-contact stiffness of the nodes pressed now, with K's one factor.
+contact blocks of the nodes pressed now, with K's one factor.
 
 The preconditioner of contact_preconditioner.py is a factor of K plus the contact stiffness of
 the nodes pressed when it was built: as the pressed set moves, GMRES needs more iterations
 until a new factor is made (1.2 s each on the 5 mm brain; an atlas's settled states took
 about 150 GMRES iterations and half a factorisation each). Here every Newton iteration gets
-the exact inverse of K + C (C the symmetric, positive part of the contact's tangent blocks,
-as there) by the Woodbury formula on K's factor (linalg/compliance.py): two triangular solves
-an application, and the compliance between the pressed nodes' dofs, solved once for each
-node over the factor's life (an atlas's modes press the same few hundred nodes again and
-again). GMRES is left only the follower load's tangent and the contact blocks' unsymmetric
-part. Used where K's own factor is at hand: a linear material, a factor (not AMG), and no
-node touching the skull at rest (K alone may be singular there).
+the exact inverse of K + C, C the pressed nodes' tangent blocks as they are (unsymmetric where
+a node's normal turns; their symmetric, positive part where K + C is singular), by the
+Woodbury formula on K's factor (linalg/compliance.py): two triangular solves an application,
+and the compliance between the pressed nodes' dofs, solved once for each node over the
+factor's life (an atlas's modes press the same few hundred nodes again and again). Flexible
+GMRES is left only the follower load's tangent. Used where K's own factor is at hand: a
+linear material, a factor (not AMG), and no node touching the skull at rest (K alone may be
+singular there).
 """
 from __future__ import annotations
 
@@ -36,7 +37,6 @@ class ExactContactSolve:
         self.solves, self.contact = solves, contact
         self.factored = solves.solver  # the LinearSolver whose factor this uses
         pc_K = solves.solver.ksp.getPC()
-        self._pc_K = pc_K
         self.compliance = Compliance(lambda rhs, x: pc_K.apply(rhs, x), contact.vector,
                                      lambda: pc_K.getFactorMatrix())
         self._fixed = fixed_global(contact.V, fixed)
@@ -66,8 +66,8 @@ class ExactContactSolve:
         self.pressed = len(scalar) // 3
 
     def __call__(self, A: PETSc.Mat, rhs: PETSc.Vec, x: PETSc.Vec, rtol: float, t: float) -> int:
-        """x = A^-1 rhs to the relative tolerance rtol by GMRES (x starts from zero); counted
-        in the Solves like any solve. A solve that does not converge is a SolverError."""
+        """x = A^-1 rhs to the relative tolerance rtol by flexible GMRES (x starts from zero),
+        or, where it does not converge, by an LU of A; counted in the Solves like any solve."""
         start = time.perf_counter()
         self.ksp.setOperators(A)
         self.ksp.setTolerances(rtol=rtol)
