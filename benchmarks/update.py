@@ -16,7 +16,10 @@ benchmarks/results/update.{csv,md}.
 GAP out: every mode a contact state, the update's skull rows in every fit (its cost with them),
 into benchmarks/results/update_skull.{csv,md}.
 
-    python benchmarks/update.py [--voxel 0.005] [--skull 0.003]
+--atlas FOLDER: an atlas `brainshift atlas` wrote for the same scene (--voxel, --skull), read
+instead of built (its build's time is the one reported, from its atlas.json).
+
+    python benchmarks/update.py [--voxel 0.005] [--skull 0.003] [--atlas FOLDER]
 """
 from __future__ import annotations
 
@@ -34,7 +37,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from fenics_brainshift import load_scene, logs  # noqa: E402
-from fenics_brainshift.atlas import combine  # noqa: E402
+from fenics_brainshift.atlas import combine, store  # noqa: E402
 from fenics_brainshift.atlas.build import build  # noqa: E402
 from fenics_brainshift.atlas.update import update  # noqa: E402
 from fenics_brainshift.atlas.vertices import GlobalVertices  # noqa: E402
@@ -87,6 +90,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--voxel", type=float, default=0.005)
     parser.add_argument("--skull", type=float, default=None, help="a rigid skull this far out (m)")
+    parser.add_argument("--atlas", default=None, help="read this atlas folder instead of building one")
     parser.add_argument("--out", default=None)
     args = parser.parse_args()
     logs.configure("WARNING")
@@ -98,8 +102,13 @@ def main() -> None:
     folder = Path(tempfile.mkdtemp(prefix="brainshift-update-bench-"))  # (the swelling scene's file)
 
     start = time.perf_counter()
-    atlas, seconds = build(load_scene("brain", base), {}, MPI.COMM_WORLD)
-    atlas_s = time.perf_counter() - start
+    if args.atlas is None:
+        atlas, seconds = build(load_scene("brain", base), {}, MPI.COMM_WORLD)
+        atlas_s = time.perf_counter() - start
+    else:  # (built by `brainshift atlas brain --set mesh.voxel=... [--set skull.gap=...]`)
+        atlas = store.read(args.atlas)
+        seconds = {k: atlas.info[k] for k in ("setup_s", "modes_s")}
+        atlas_s = seconds["setup_s"] + seconds["modes_s"]
     points = atlas.points
     boundary = np.zeros(len(points), dtype=bool)
     boundary[atlas.surface_vertices] = True
@@ -161,7 +170,9 @@ def main() -> None:
         "# The update against the scene's prediction and `brainshift fit`",
         "",
         f"{machine_line()}; one rank; `python benchmarks/update.py --voxel {args.voxel:g}"
-        f"{'' if args.skull is None else f' --skull {args.skull:g}'}`; the "
+        f"{'' if args.skull is None else f' --skull {args.skull:g}'}"
+        f"{'' if args.atlas is None else ' --atlas ATLAS'}`"
+        f"{'' if args.atlas is None else ' (ATLAS: `brainshift atlas brain` with the same --set, its build timed by itself)'}; the "
         f"{args.voxel * 1e3:g} mm brain ({len(points)} nodes)"
         f"{'' if args.skull is None else f', a rigid skull {args.skull * 1e3:g} mm out in the atlas, every operation and the fit'}"
         f". Atlas: {len(atlas.scenarios)} modes "

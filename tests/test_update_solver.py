@@ -143,3 +143,71 @@ def test_the_hessian_never_formed_is_the_one_written_out():
     assert np.allclose(times(x), formed[:, some] @ x, rtol=1e-13, atol=1e-13)
     assert np.allclose(H.times(some, x), formed[:, some] @ x, rtol=1e-13, atol=1e-13)
     assert np.allclose(H.dense(), formed, rtol=1e-13, atol=0)
+
+
+def _with_skull_rows(problem: Problem, alpha: float, count: int = 300, seed: int = 7) -> Problem:
+    """The problem with `count` skull-like rows r.c >= e (neighbouring rows alike, as the
+    rows of neighbouring boundary nodes are), one in twenty cutting the fit without them."""
+    rng = np.random.default_rng(seed)
+    m = problem.C.shape[1]
+    free = problem.solve(alpha)
+    R = rng.normal(size=(count, m)).cumsum(axis=0) * 1e-3
+    e = R @ free + rng.uniform(-0.15, 2.85, count) * 1e-3 * np.linalg.norm(R, axis=1)
+    return problem.with_constraints(R, e)
+
+
+@pytest.mark.parametrize("alpha", [1e-3, 1e-1])
+def test_with_hundreds_of_skull_rows_the_refits_start_from_an_exact_vertex(alpha, monkeypatch):
+    """A fit with 300 skull-like rows, some of them active: NNLS's answer is polished by the
+    active-set method into one that keeps every row to round-off and is no worse than SLSQP's,
+    and every leave-one-out refit starts from it and gets there (none falls back to NNLS, as
+    all did on the 5 mm skull atlas when the start had to be feasible to 1e-9 and NNLS's was
+    past 169 rows by up to 2.4e-7)."""
+    from fenics_brainshift.atlas import combine
+
+    problem = _with_skull_rows(_problem((1.0, 1.0), seed=11), alpha)
+    C, d = problem.unit_rows
+
+    def as_inexact_as_on_the_atlas(*args):  # NNLS's answer 3e-7 past its active rows, as seen on the atlas
+        exact = least_distance(*args)
+        active = np.abs(C @ exact - d) < 1e-9
+        away = C[active].sum(axis=0)
+        return exact - 3e-7 * away / np.linalg.norm(away)
+
+    monkeypatch.setattr(combine, "least_distance", as_inexact_as_on_the_atlas)
+    c = problem.solve(alpha)
+    monkeypatch.undo()
+    assert (C @ c - d).min() >= -1e-12
+    assert np.count_nonzero(np.abs(C[-300:] @ c - d[-300:]) < 1e-9) >= 3  # skull rows hold it
+    H, g = _hessian(problem, alpha, np.arange(len(problem.b)))
+    objective = lambda x: x @ H @ x - 2 * g @ x  # noqa: E731
+    other = minimize(objective, c + 1e-3, jac=lambda x: 2 * (H @ x - g), method="SLSQP",
+                     constraints=[{"type": "ineq", "fun": lambda x: problem.C @ x - problem.d,
+                                   "jac": lambda x: problem.C}], options={"ftol": 1e-15, "maxiter": 1000})
+    assert objective(c) <= objective(other.x) + 1e-9 * abs(objective(c))
+    calls = []
+    monkeypatch.setattr(combine, "least_distance", lambda *a: calls.append(1) or least_distance(*a))
+    for point in range(20):
+        rows = np.flatnonzero(problem.groups != point)
+        warm = problem.solve(alpha, rows, near=c)
+        assert (C @ warm - d).min() >= -1e-12
+    assert not calls
+
+
+def test_a_start_a_little_past_its_rows_reaches_the_minimiser():
+    """A start past some rows by up to `infeasible` (relative) takes them into its first working
+    set and ends at the minimiser (NNLS's, polished); past them by more, it is refused."""
+    problem = _with_skull_rows(_problem((1.0, 1.0), seed=13), 1e-2)
+    H, g = _hessian(problem, 1e-2, np.arange(len(problem.b)))
+    exact = problem.solve(1e-2)
+    C, d = problem.unit_rows
+    rng = np.random.default_rng(4)
+    start = exact + rng.normal(size=len(exact)) * 1e-4
+    start[:40] = np.maximum(start[:40], 0.0)
+    start[:40] /= start[:40].sum()  # (the family's weights kept a convex combination)
+    past = -(C @ start - d).min()
+    assert past > 1e-9  # the start is past some rows
+    c = solve_on_active(H, g, C, d, start, problem.partner, iterations=400, bounds=problem.bounds,
+                        infeasible=2 * past)
+    assert c is not None and np.abs(c - exact).max() <= 1e-8 * max(np.abs(exact).max(), 1.0)
+    assert solve_on_active(H, g, C, d, start, problem.partner, bounds=problem.bounds, infeasible=0.5 * past) is None

@@ -38,6 +38,14 @@ RIDGE = 1e-9  # of the Hessian's mean diagonal: a numerically positive definite 
 MM2 = 1e-6  # R in mm^2
 WARM_START = True  # False: every refit from scratch by NNLS (the baseline benchmarks/update.py times)
 ACTIVE = 1e-9  # a constraint within this (relative) of equality is active; a multiplier this far below 0 is not
+# a start may be this far past its constraints (relative): they join the working set, which its first step holds.
+# NNLS's answers are past the skull's rows by up to 2.4e-7 of them, and a refit that needs a feasible start then
+# fell back to NNLS every time (11-16 s an update on the 5 mm skull atlas); re-linearised skull rows start 2 % past
+INFEASIBLE = 0.1
+NNLS_ACCURACY = 1e-6  # (relative) NNLS's answer: its rows this near equality start as active when it is polished
+POLISH_ITERATIONS = 400  # of the polish (each one KKT solve; its set then serves every refit)
+# a refit's active-set steps before NNLS takes over: 200 (not 60) as a refit may change 80-95 constraints
+# (tests/test_update_solver.py), and a step costs about 0.1 ms against NNLS's hundreds with the skull's rows
 
 
 @dataclass
@@ -80,10 +88,16 @@ class Problem:
         H = DataHessian(A, self.noise, self.gram, alpha / MM2)
         g = A.T @ b / self.noise ** 2 + (alpha / MM2) * self.cross
         if near is not None and WARM_START:
-            c = solve_on_active(H, g, *self.unit_rows, near, self.partner, bounds=self.bounds)
+            c = solve_on_active(H, g, *self.unit_rows, near, self.partner, bounds=self.bounds, infeasible=INFEASIBLE)
             if c is not None:
                 return c
-        return least_distance(H.dense(), g, self.C, self.d)
+        c = least_distance(H.dense(), g, self.C, self.d)
+        if WARM_START:  # NNLS's answer polished into an exact vertex, that refits can start from
+            polished = solve_on_active(H, g, *self.unit_rows, c, self.partner, iterations=POLISH_ITERATIONS,
+                                       bounds=self.bounds, infeasible=INFEASIBLE, active=NNLS_ACCURACY)
+            if polished is not None:
+                return polished
+        return c
 
     def misfit(self, c: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
         """Each point's error (m): the norm of its rows' residuals."""
@@ -160,7 +174,8 @@ def least_distance(H: np.ndarray, g: np.ndarray, C: np.ndarray, d: np.ndarray) -
 
 
 def solve_on_active(H: np.ndarray, g: np.ndarray, C: np.ndarray, d: np.ndarray, start: np.ndarray,
-                    partner: np.ndarray, iterations: int = 60, bounds: tuple | None = None):
+                    partner: np.ndarray, iterations: int = 200, bounds: tuple | None = None, infeasible: float = 0.0,
+                    active: float = ACTIVE):
     """argmin c.H.c - 2 g.c subject to C c >= d by the primal active-set method (Nocedal and
     Wright, Numerical Optimization, 2006, algorithm 16.3) from a feasible `start` (a nearby
     problem's answer: the refits keep the constraints and change the data), its active
@@ -173,15 +188,20 @@ def solve_on_active(H: np.ndarray, g: np.ndarray, C: np.ndarray, d: np.ndarray, 
     other's negative (`partner`: a bound with lower = upper, the family's sum fixed) is one
     equality, its multiplier of either sign. A held bound fixes its weight and leaves the
     problem (most of the family's weights sit at 0): each solve is a small KKT system over
-    the free weights."""
+    the free weights. A start past some constraints by at most `infeasible` (relative) has them
+    in its first working set: the first step holds them, and they stay in the set until a full
+    step, which satisfies them; the other constraints are kept by the steps as usual. `active`:
+    how near equality (relative) a start's row must be to join the first working set (an
+    inexact start's: NNLS's)."""
     H = H if isinstance(H, (DataHessian, DenseHessian)) else DenseHessian(H)
     tolerance = ACTIVE * (1.0 + np.abs(d))
     bound_of, sign = bounds if bounds is not None else bound_rows(C)
     slack = _Slack(C, d, bound_of, sign)
     c = np.array(start, dtype=float)
-    if np.any(slack(c) < -tolerance):
+    s = slack(c)  # kept along the steps (C c - d: the product with the skull's rows is the cost)
+    if np.any(s < -np.maximum(tolerance, infeasible * (1.0 + np.abs(d)))):
         return None
-    working = slack(c) <= tolerance
+    working = s <= np.maximum(tolerance, active * (1.0 + np.abs(d)))  # (and the rows the start is past)
     rows = np.arange(len(d))
     first = True
     for _ in range(iterations):
@@ -201,16 +221,18 @@ def solve_on_active(H: np.ndarray, g: np.ndarray, C: np.ndarray, d: np.ndarray, 
             blocking = (~working & (Cp < -1e-12 * np.abs(p).sum())).nonzero()[0]
             step, hit = 1.0, -1
             if len(blocking):
-                ratios = np.maximum(slack(c)[blocking], 0.0) / -Cp[blocking]
+                ratios = np.maximum(s[blocking], 0.0) / -Cp[blocking]
                 k = int(np.argmin(ratios))
                 if ratios[k] < 1.0:
                     step, hit = float(ratios[k]), int(blocking[k])
             if hit >= 0:
                 c = c + step * p
+                s = s + step * Cp
                 working[hit] = True
                 continue
             # a full step: c is now the working set's minimiser x, whose multipliers are known
             # (solving the same system again to learn them was half the steps)
+            s = s + Cp
         c = x
         inequality = partner[held] < 0
         scale = max(float(np.abs(multipliers).max(initial=0.0)), 1e-300)

@@ -77,11 +77,15 @@ class SkullRows:
     """Inequality rows keeping the boundary nodes inside the skull (a RigidSkull)."""
 
     def __init__(self, skull, points: np.ndarray, modes: np.ndarray):
-        self.skull, self.points, self.modes = skull, points, modes  # the boundary nodes and their modes
+        self.skull, self.points = skull, points  # the boundary nodes and their modes (M, B, 3)
+        # float64 and contiguous once: a combination is then one product (tensordot of the
+        # atlas's float32 slice copied and converted it every call: a third of an update)
+        self.flat = np.ascontiguousarray(modes.reshape(len(modes), -1), dtype=float)
+        self.modes = self.flat.reshape(modes.shape)
 
     def room(self, c: np.ndarray) -> np.ndarray:
         """phi (B,) of the nodes at weights c: the room left before the skull (< 0: past it)."""
-        return self.skull.phi(self.points + np.tensordot(c, self.modes, axes=1))[0]
+        return self.skull.phi(self.points + (c @ self.flat).reshape(-1, 3))[0]
 
     def near(self, c: np.ndarray, margin: float = SKULL_MARGIN) -> np.ndarray:
         """The nodes with less room than `margin` at c."""

@@ -291,13 +291,16 @@ def _check_near(atlas, prior_residual: np.ndarray, point_to_point: bool) -> None
 
 
 def _skull(atlas, modes: np.ndarray) -> SkullRows | None:
-    """The skull's rows over the mesh's boundary nodes, or None for an atlas without a skull."""
+    """The skull's rows over the mesh's boundary nodes, or None for an atlas without a skull
+    (made once per atlas: its distance tree and the nodes' modes)."""
     if atlas.skull_triangles is None:
         return None
-    tri = atlas.skull_triangles
-    skull = RigidSkull(tri.reshape(-1, 3), np.arange(3 * len(tri)).reshape(-1, 3), gap=atlas.skull_gap)
-    nodes = atlas.surface_vertices
-    return SkullRows(skull, atlas.points[nodes], modes[:, nodes, :])
+    if "skull_rows" not in atlas.once:
+        tri = atlas.skull_triangles
+        skull = RigidSkull(tri.reshape(-1, 3), np.arange(3 * len(tri)).reshape(-1, 3), gap=atlas.skull_gap)
+        nodes = atlas.surface_vertices
+        atlas.once["skull_rows"] = SkullRows(skull, atlas.points[nodes], modes[:, nodes, :])
+    return atlas.once["skull_rows"]
 
 
 def _warning(residual: np.ndarray, noise: float, deepest: float, keep_inside: bool) -> str | None:
