@@ -193,3 +193,27 @@ def test_a_point_far_outside_is_outside(far):
     _, side, _ = skull.distance(y)
     assert np.all(side == 1.0)
     assert np.all(winding_number(points, triangles, y) < 0.5)
+
+
+def test_a_point_the_box_tree_leaves_without_candidates_keeps_its_own_distance(monkeypatch):
+    """Far out the box tree's rounding can leave a point no candidate triangle (seen on two
+    ranks: 642 distances for 643 points, a crash): it then takes its first triangle's
+    distance, and every other point keeps its own (against brute force)."""
+    from fenics_brainshift.physics import skull as skull_module
+
+    points, triangles = strip_floor_box()
+    skull = RigidSkull(points, triangles)
+    y = np.random.default_rng(3).uniform(-0.05, 0.2, size=(40, 3))
+    within = skull_module._BoxTree.within
+    dropped = 17
+
+    def losing_one(tree, y_, bound):
+        point, leaf = within(tree, y_, bound)
+        return point[point != dropped], leaf[point != dropped]
+
+    monkeypatch.setattr(skull_module._BoxTree, "within", losing_one)
+    distance, side, _ = skull.distance(y)
+    assert distance.shape == (40,) and np.isfinite(distance).all()
+    others = np.arange(40) != dropped
+    np.testing.assert_allclose(distance[others], brute_force(points, triangles, y)[others], rtol=0, atol=1e-15)
+    assert distance[dropped] >= brute_force(points, triangles, y[[dropped]])[0] - 1e-15
