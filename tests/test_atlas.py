@@ -469,6 +469,9 @@ def test_a_mode_settled_neither_way_is_left_out_and_named(monkeypatch):
     monkeypatch.setattr(building, "MAX_SKIPPED", 0.3)  # one of three is more than that
     with pytest.raises(SolverError, match="a stand-in"):
         build(load_scene("brain", COARSE + SKULL), parse_vary(["fluid.level=0.02,0.03,0.04"]), MPI.COMM_WORLD)
+    monkeypatch.setattr(building, "MAX_SKIPPED", 0.4)
+    with pytest.raises(SolverError, match="a stand-in"):  # without the skull no other start: never left out
+        build(load_scene("brain", COARSE), parse_vary(["fluid.level=0.02,0.03,0.04"]), MPI.COMM_WORLD)
 
 
 def test_the_update_keeps_the_brain_inside_the_skull(skull_atlas):

@@ -208,7 +208,7 @@ def test_a_point_the_box_tree_leaves_without_candidates_keeps_its_own_distance(m
     dropped = 17
 
     def losing_one(tree, y_, bound):
-        point, leaf = within(tree, y_, bound)
+        point, leaf = within(tree, y_, bound)  # (`dropped` read when called)
         return point[point != dropped], leaf[point != dropped]
 
     monkeypatch.setattr(skull_module._BoxTree, "within", losing_one)
@@ -217,3 +217,6 @@ def test_a_point_the_box_tree_leaves_without_candidates_keeps_its_own_distance(m
     others = np.arange(40) != dropped
     np.testing.assert_allclose(distance[others], brute_force(points, triangles, y)[others], rtol=0, atol=1e-15)
     assert distance[dropped] >= brute_force(points, triangles, y[[dropped]])[0] - 1e-15
+    dropped = 0  # a single point left without candidates (no candidate pair at all)
+    alone, _, _ = skull.distance(y[:1])
+    assert alone.shape == (1,) and alone[0] >= brute_force(points, triangles, y[:1])[0] - 1e-15

@@ -105,8 +105,8 @@ def build(scene, vary: dict, comm, source: str = "", sets=()) -> tuple[store.Atl
         try:
             solve_family_mode(forward, values)
         except SolverError as exc:
-            if forward.continued or len(skipped) + 1 > MAX_SKIPPED * len(grid):
-                raise
+            if not contact or forward.continued or len(skipped) + 1 > MAX_SKIPPED * len(grid):
+                raise  # (without the skull there is no other start to try: the failure stands)
             log.warning("atlas: mode %d of %d %s left out: it did not settle from the last mode nor from rest (%s)",
                         i + 1, len(grid), values, exc)
             skipped.append((i, values, str(exc)))

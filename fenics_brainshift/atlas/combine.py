@@ -40,7 +40,8 @@ WARM_START = True  # False: every refit from scratch by NNLS (the baseline bench
 ACTIVE = 1e-9  # a constraint within this (relative) of equality is active; a multiplier this far below 0 is not
 # a start may be this far past its constraints (relative): they join the working set, which its first step holds.
 # NNLS's answers are past the skull's rows by up to 2.4e-7 of them, and a refit that needs a feasible start then
-# fell back to NNLS every time (11-16 s an update on the 5 mm skull atlas); re-linearised skull rows start 2 % past
+# fell back to NNLS every time (1.0-16.2 s an update on the 5 mm skull atlas: benchmarks/results/update_skull.md at
+# commit ac99200); re-linearised skull rows start 2 % past
 INFEASIBLE = 0.1
 NNLS_ACCURACY = 1e-6  # (relative) NNLS's answer: its rows this near equality start as active when it is polished
 POLISH_ITERATIONS = 400  # of the polish (each one KKT solve; its set then serves every refit)
@@ -238,7 +239,9 @@ def solve_on_active(H: np.ndarray, g: np.ndarray, C: np.ndarray, d: np.ndarray, 
         scale = max(float(np.abs(multipliers).max(initial=0.0)), 1e-300)
         worst = int(np.argmin(np.where(inequality, multipliers, np.inf))) if inequality.any() else -1
         if worst < 0 or multipliers[worst] >= -ACTIVE * scale:
-            return c
+            # (a start past dependent rows, which left the first working set, can end short of
+            # them, below the minimum: then NNLS; a stranger's review found it)
+            return c if np.all(slack(c) >= -tolerance) else None
         working[held[worst]] = False
     return None
 

@@ -149,7 +149,7 @@ class RigidSkull:
         point, triangle = np.repeat(point, LEAF)[full.ravel()], slots[full]
         keep = (self._disk_distance(y[point], triangle) <= bound[point]) | (triangle == first[point])
         point, triangle = point[keep], triangle[keep]  # still sorted by point; each has its first
-        if np.count_nonzero(np.r_[True, point[1:] != point[:-1]]) != len(y):  # (see _with_first)
+        if len(point) == 0 or np.count_nonzero(np.r_[True, point[1:] != point[:-1]]) != len(y):  # (_with_first)
             point, triangle = _with_first(point, triangle, first)
         tri = self.triangles[triangle]
         q = closest_points_on_triangles(y[point], tri[:, 0], tri[:, 1], tri[:, 2])
