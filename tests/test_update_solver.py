@@ -10,7 +10,6 @@ import pytest
 from scipy.optimize import minimize
 
 from fenics_brainshift.atlas.combine import Problem, least_distance, solve_on_active, weight_constraints
-from fenics_brainshift.errors import SolverError
 
 pytestmark = pytest.mark.usefixtures("serial_only")
 
@@ -231,13 +230,10 @@ def _random_qp(seed: int, duplicated: bool):
     if duplicated:
         C, d = np.vstack([C, C[:3]]), np.r_[d, d[:3]]
     C, d = np.vstack([C, np.eye(n)]), np.r_[d, -2.0 * np.ones(n)]
-    try:
-        return rng, H, g, C, d, least_distance(H, g, C, d)
-    except SolverError:  # rows that exclude each other
-        pytest.skip("no feasible point")
+    return rng, H, g, C, d, least_distance(H, g, C, d)
 
 
-@pytest.mark.parametrize("seed", [1036] + list(range(0, 120, 3)))
+@pytest.mark.parametrize("seed", [1036] + [k for k in range(0, 120, 3) if k not in (63, 90, 111)])  # (feasible ones)
 def test_a_start_past_dependent_rows_never_ends_past_them(seed):
     """A start past rows some of which are written twice (the first working set is then
     singular, and its general rows leave it): the answer is the minimiser or None, never a
@@ -246,8 +242,7 @@ def test_a_start_past_dependent_rows_never_ends_past_them(seed):
     from fenics_brainshift.atlas.combine import partners
 
     rng, H, g, C, d, exact = _random_qp(seed, duplicated=True)
-    if (C @ exact - d).min() < -1e-8:
-        pytest.skip("NNLS found no feasible point")
+    assert (C @ exact - d).min() >= -1e-8
     start = exact + rng.normal(size=len(exact)) * rng.choice([1e-3, 1e-2, 5e-2])
     c = solve_on_active(H, g, C, d, start, partners(C, d), iterations=400, infeasible=0.1)
     if c is not None:
