@@ -168,12 +168,7 @@ def test_a_low_rank_update_solves_the_changed_matrix():
         M = rng.normal(size=(len(dofs), len(dofs)))
         B = M @ M.T
         update.set(np.array(dofs), B)
-        P = P0.copy()
-        P.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, False)
-        for a, i in enumerate(dofs):
-            if lo <= i < hi:
-                P.setValues([i], dofs, B[a], addv=PETSc.InsertMode.ADD_VALUES)
-        P.assemble()
+        P = _changed(P0, dofs, B)
         x = rhs.duplicate()
         update.solve(rhs, x)
         np.testing.assert_allclose(x.getArray(), _cg(P, rhs).getArray(), rtol=0, atol=1e-10)
@@ -260,6 +255,18 @@ def test_a_cut_after_a_multiplier_update_steps_the_multipliers(shared_tmp, monke
     sim.destroy()
 
 
+def _changed(P0: PETSc.Mat, dofs: list[int], B: np.ndarray) -> PETSc.Mat:
+    """P0 + E B E^T assembled (each rank adds its own rows)."""
+    lo, hi = P0.getOwnershipRange()
+    P = P0.copy()
+    P.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, False)
+    for a, i in enumerate(dofs):
+        if lo <= i < hi:
+            P.setValues([i], dofs, B[a], addv=PETSc.InsertMode.ADD_VALUES)
+    P.assemble()
+    return P
+
+
 def _tridiagonal(n: int) -> PETSc.Mat:
     """A distributed SPD matrix, its factor's solver (Cholesky; MUMPS LU on N ranks)."""
     P0 = PETSc.Mat().createAIJ((n, n), nnz=3, comm=COMM)
@@ -304,12 +311,7 @@ def test_the_compliance_solves_k_plus_the_blocks_of_any_pressed_dofs(at_once):
         assert compliance.set(np.array(dofs, dtype=np.int64), B)
         seen |= set(dofs)
         assert compliance.columns == len(seen)
-        P = P0.copy()
-        P.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, False)
-        for a, i in enumerate(dofs):
-            if lo <= i < hi:
-                P.setValues([i], dofs, B[a], addv=PETSc.InsertMode.ADD_VALUES)
-        P.assemble()
+        P = _changed(P0, dofs, B)
         x = rhs.duplicate()
         compliance.solve(rhs, x)
         np.testing.assert_allclose(x.getArray(), _lu(P, rhs).getArray(), rtol=0, atol=1e-10)
@@ -354,6 +356,13 @@ def test_newton_in_contact_keeps_ks_one_factor_and_settles_where_refactoring_doe
     exact.compliance.solve(rhs, x)
     expected = _lu(P, rhs)
     assert np.abs(x.getArray() - expected.getArray()).max() <= 1e-8 * np.abs(expected.getArray()).max()
+    given, real_set = [], exact.compliance.set  # where K plus the blocks is singular: their positive part
+    exact.compliance.set = lambda dofs, B: given.append(B) or (len(given) > 1 and real_set(dofs, B))
+    exact.prepare(newton_static._contact_blocks)
+    exact.compliance.set = real_set
+    raw = contact_preconditioner.gathered_blocks(sim.model.V, *newton_static._contact_blocks, exact._fixed)[1]
+    assert len(given) == 2 and np.array_equal(given[0], raw)  # the blocks as they are, then
+    assert np.allclose(given[1], given[1].T) and np.linalg.eigvalsh(given[1]).min() >= -1e-9 * np.abs(given[1]).max()
 
     monkeypatch.setattr(newton.NewtonStatic, "_exact_possible", lambda self: False)
     former = _cantilever(floor, 1e-8)

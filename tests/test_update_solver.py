@@ -1,4 +1,4 @@
-"""atlas/combine.py's solvers on small random problems of the update's shape (a convex family
+"""atlas/active_set.py's solvers, and atlas/combine.py's problems, on small random problems of the update's shape (a convex family
 of correlated states, bounded swelling amplitudes, the family's sum fixed or within a range,
 data rows from 20 points): the constrained least squares against brute force, and the
 warm-started refits of cross-validation, leave-one-out and the bootstrap against a solve from
@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize
 
-from fenics_brainshift.atlas.combine import Problem, least_distance, solve_on_active, weight_constraints
+from fenics_brainshift.atlas.active_set import least_distance, solve_on_active
+from fenics_brainshift.atlas.combine import Problem, weight_constraints
 
 pytestmark = pytest.mark.usefixtures("serial_only")
 
@@ -129,7 +130,7 @@ def test_rows_of_any_scale_and_every_weight_pinned():
 def test_the_hessian_never_formed_is_the_one_written_out():
     """DataHessian's block over some weights and its products with their columns against
     H = A'A / noise^2 + s G + ridge I formed here by hand (a ridge made large enough to see)."""
-    from fenics_brainshift.atlas.combine import DataHessian
+    from fenics_brainshift.atlas.active_set import DataHessian
 
     rng = np.random.default_rng(3)
     A, M = rng.normal(size=(9, 7)), rng.normal(size=(7, 7))
@@ -239,7 +240,7 @@ def test_a_start_past_dependent_rows_never_ends_past_them(seed):
     singular, and its general rows leave it): the answer is the minimiser or None, never a
     point past those rows below the minimum (a stranger's review: seed 1036 ended 0.025 past
     two rows, its objective under the true minimum)."""
-    from fenics_brainshift.atlas.combine import partners
+    from fenics_brainshift.atlas.active_set import partners
 
     rng, H, g, C, d, exact = _random_qp(seed, duplicated=True)
     assert (C @ exact - d).min() >= -1e-8

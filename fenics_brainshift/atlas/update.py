@@ -113,7 +113,7 @@ def locator(atlas) -> MeshLocator:
 
 
 def _prior_weights(atlas) -> np.ndarray:
-    from .combine import least_distance
+    from .active_set import least_distance
 
     lower, upper = bounds(atlas)
     C, d = weight_constraints(atlas.family, lower, upper, (1.0, 1.0))  # at the scene's own G

@@ -59,10 +59,10 @@ class ExactContactSolve:
         left the follower load's tangent alone; where K plus them is singular (a node's normal
         turning at a concave corner can make its block indefinite), K and their symmetric,
         positive part (as the former factor held)."""
-        for part in (blocks, self.contact.stiffness(blocks)):
-            scalar, B = gathered_blocks(self.contact.V, part[0], part[1], self._fixed)
-            if self.compliance.set(scalar, B):
-                break
+        scalar, B = gathered_blocks(self.contact.V, *blocks, self._fixed)
+        if not self.compliance.set(scalar, B):  # (the positive part only then: eigh of every block)
+            scalar, B = gathered_blocks(self.contact.V, *self.contact.stiffness(blocks), self._fixed)
+            self.compliance.set(scalar, B)
         self.pressed = len(scalar) // 3
 
     def __call__(self, A: PETSc.Mat, rhs: PETSc.Vec, x: PETSc.Vec, rtol: float, t: float) -> int:

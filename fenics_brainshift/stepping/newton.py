@@ -15,7 +15,7 @@ import dolfinx.la
 import numpy as np
 import ufl
 from dolfinx import fem
-from dolfinx.fem.petsc import assemble_matrix, assemble_vector, create_matrix
+from dolfinx.fem.petsc import assemble_vector
 from mpi4py import MPI
 from petsc4py import PETSc
 
@@ -29,46 +29,17 @@ from .exact_contact import FACTOR_KINDS, ExactContactSolve
 from .newton_iteration import newton_iterate, round_off_floor
 from .solves import Solves
 from .state import State
+from .tangent import reassemble, tangent_settings, tangent_type
 
 log = get_logger("newton")
 MIN_FRACTION = 1.0 / 1024.0
 
 
-# The tangent is stored in 3x3 blocks (PETSc BAIJ): on the 5 mm brain its assembly is 2.7x
-# (neo-Hookean) to 3.5x (linear) faster than into scalar AIJ, a product about 2x
-# (benchmarks/results/tangent_storage.md)
-TANGENT_TYPE = "baij"
 MAX_KRYLOV = 100  # GMRES iterations before the preconditioner is rebuilt on the current tangent
 STALE_KRYLOV = 30  # more than this in a solve: the next one rebuilds it first
 STALL_WITH_CONTACT = 1e3  # no descent within 1e-6 of the load counts as converged with contact
 MAX_CONTACT_ROUNDS = 30  # augmented-Lagrangian multiplier updates per settled state
 WATCHDOG = 10  # with contact: iterations a step taken without descent has to bring |R| below where it was
-
-
-def tangent_settings(settings: dict) -> dict:
-    """The tangent is not symmetric with a follower load: the Krylov method is GMRES,
-    preconditioned by the scene's kind (a Cholesky factor, AMG, ...) built once on the linear
-    stiffness K at rest; only if GMRES stalls is it rebuilt, as an LU factor of the current
-    tangent (a compressive prestress can make the tangent indefinite)."""
-    # right preconditioning: GMRES then measures the true residual, which the forcing term
-    # must bound (a preconditioned one can be small while the true one is not)
-    return {**settings, "options": {"ksp_type": "gmres", "ksp_pc_side": "right", **settings.get("options", {})}}
-
-
-def tangent_type(model) -> str:
-    """3x3 blocks, but scalar AIJ where septa project it (PETSc's PtAP takes no BAIJ)."""
-    return "aij" if model.constraints.has_septa else TANGENT_TYPE
-
-
-def reassemble(matrix: PETSc.Mat | None, compiled_form, kind: str = TANGENT_TYPE) -> PETSc.Mat:
-    """The form's matrix, assembled into ``matrix`` (made on the first call, of type ``kind``:
-    the sparsity pattern is built once, not every Newton iteration)."""
-    if matrix is None:
-        matrix = create_matrix(compiled_form, kind)
-    matrix.zeroEntries()
-    assemble_matrix(matrix, compiled_form)
-    matrix.assemble()
-    return matrix
 
 
 class NewtonStatic:

@@ -31,7 +31,8 @@ from ..physics.surface import surface_facets
 from .contact_preconditioner import ContactPreconditioner
 from .dynamic import DynamicStepper
 from .lagged_contact import LaggedContact
-from .newton import MAX_CONTACT_ROUNDS, STALL_WITH_CONTACT, reassemble, tangent_settings, tangent_type
+from .newton import MAX_CONTACT_ROUNDS, STALL_WITH_CONTACT
+from .tangent import reassemble, tangent_settings, tangent_type
 from .newton_iteration import newton_iterate, round_off_floor
 
 log = get_logger("newton")
