@@ -358,6 +358,35 @@ def skull_atlas():
     return built
 
 
+def test_skull_rows_screened_by_the_distance_bound_are_those_of_every_node(skull_atlas):
+    """The update asks which boundary nodes have less room than a margin, and how deep the
+    deepest is past the skull, measuring the distance only where the Lipschitz bound from the
+    first weights leaves doubt: the same nodes and depth as the distance at every node, at
+    weights near and far from the first, inside the skull and well past it."""
+    from fenics_brainshift.atlas.rows import SKULL_MARGIN, SkullRows
+    from fenics_brainshift.atlas.update import _skull
+
+    cached = _skull(skull_atlas, skull_atlas.vertex_modes)
+    rows = SkullRows(cached.skull, cached.points, cached.modes)  # (a reference of its own)
+    m = len(skull_atlas.scenarios)
+    family = np.flatnonzero(skull_atlas.family)
+    rng = np.random.default_rng(3)
+    tries = [np.where(skull_atlas.family, 1.0 / len(family), 0.0)]  # the first: the reference
+    for scale in (1.0, 1.0, 2.5, 4.0):  # convex combinations, and beyond them (past the skull)
+        c = np.zeros(m)
+        c[rng.choice(family, 3, replace=False)] = scale * rng.dirichlet(np.ones(3))
+        tries.append(c)
+    tries.append(np.eye(m)[family[-1]] * 3.0)
+    deepest_seen = 0.0
+    for c in tries:
+        room = rows.room(c)
+        for margin in (SKULL_MARGIN, 0.0, 5e-3):
+            assert np.array_equal(rows.near(c, margin), np.flatnonzero(room < margin))
+        assert rows.deepest(c) == pytest.approx(max(0.0, -room.min()), abs=1e-15)
+        deepest_seen = max(deepest_seen, rows.deepest(c))
+    assert deepest_seen > 1e-3  # (some tries are past the skull: the check is not vacuous)
+
+
 def test_with_a_skull_a_mode_is_the_full_models_contact_state(skull_atlas, atlas):
     """Warm-started within a pose, mode 'level 40 mm, turned 8 degrees' equals the contact state
     of a scene built with them and solved from rest (the scene's 0.01 mm tolerance) to the

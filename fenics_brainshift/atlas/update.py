@@ -212,7 +212,7 @@ def _update(atlas, target, noise: float, samples: int, keep_inside: bool) -> Upd
             cv_s = time.perf_counter() - t
         c_new = problem.solve(alpha, near=c)
         change, c = float(np.abs(c_new - c).max()), c_new
-        deepest = float(max(0.0, -skull.room(c).min())) if skull is not None else 0.0
+        deepest = skull.deepest(c) if skull is not None else 0.0
         if (point_to_point or change < 1e-6) and deepest <= PAST_SKULL:
             break
     fit_s = time.perf_counter() - start - setup_s - cv_s
@@ -233,9 +233,8 @@ def _update(atlas, target, noise: float, samples: int, keep_inside: bool) -> Upd
     surface_u = None if atlas.surface_modes is None else combination(c, atlas.surface_modes)
     skull_report = {}
     if atlas.skull_triangles is not None:
-        past = _skull(atlas, modes).room(c)
         skull_report = {"kept_inside": keep_inside, "nodes_with_rows": int(len(nodes)), "rounds": round_ + 1,
-                        "deepest_past_mm": float(max(0.0, -past.min())) * 1e3}
+                        "deepest_past_mm": _skull(atlas, modes).deepest(c) * 1e3}
     warning = _warning(residual, noise, skull_report.get("deepest_past_mm", 0.0) * 1e-3, keep_inside)
     seconds = {"setup_ms": setup_s * 1e3, "fit_ms": fit_s * 1e3, "cross_validation_ms": cv_s * 1e3,
                "leave_one_out_and_bootstrap_ms": spread_s * 1e3, "total_ms": (time.perf_counter() - start) * 1e3}
