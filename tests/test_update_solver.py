@@ -251,3 +251,46 @@ def test_a_start_past_dependent_rows_never_ends_past_them(seed):
         objective = lambda x: x @ H @ x - 2 * g @ x  # noqa: E731
         assert objective(c) <= objective(exact) + 1e-8 * (1 + abs(objective(exact)))
         assert objective(c) >= objective(exact) - 1e-8 * (1 + abs(objective(exact)))
+
+
+def test_the_point_nearest_a_start_inside_the_rows_on_the_way_from_an_anchor():
+    """combine.towards by hand: the triangle x >= 0, y >= 0, x + y <= 1; from (0.25, 0.25) to
+    (1, 1) the way leaves it at (0.5, 0.5), to (-1, 3) (past two rows) at (0, 0.8); a start inside is itself; an anchor outside, None."""
+    from fenics_brainshift.atlas.combine import towards
+
+    C, d = np.array([[1.0, 0.0], [0.0, 1.0], [-1.0, -1.0]]), np.array([0.0, 0.0, -1.0])
+    assert towards(np.array([0.25, 0.25]), np.array([1.0, 1.0]), C, d) == pytest.approx([0.5, 0.5], abs=1e-15)
+    assert towards(np.array([0.25, 0.25]), np.array([0.5, 0.1]), C, d) == pytest.approx([0.5, 0.1], abs=1e-15)
+    assert towards(np.array([0.25, 0.25]), np.array([-1.0, 0.25]), C, d) == pytest.approx([0.0, 0.25], abs=1e-15)
+    assert towards(np.array([0.25, 0.25]), np.array([-1.0, 3.0]), C, d) == pytest.approx([0.0, 0.8], abs=1e-15)
+    assert towards(np.array([2.0, 0.0]), np.array([0.1, 0.1]), C, d) is None
+
+
+@pytest.mark.parametrize("vertex", [0, 7, 23])
+def test_a_start_past_rows_it_cannot_hold_goes_in_from_the_anchor(vertex, monkeypatch):
+    """The skull's rows re-linearised at the last fit can leave the start past more rows than
+    it has free weights to hold them with (the 5 mm skull atlas: past 8, 7 free): the
+    active-set method from there fails, and NNLS from scratch took 310 ms. From the point
+    nearest the start inside the rows, on the way from an anchor inside (the prior's
+    weights in the update), it reaches NNLS's minimiser without NNLS."""
+    from fenics_brainshift.atlas import combine
+
+    problem = _with_skull_rows(_problem((1.0, 1.0), seed=11), 1e-2)
+    alpha = 1e-2
+    H, g = _hessian(problem, alpha, np.arange(len(problem.b)))
+    exact = least_distance(H, g, problem.C, problem.d)  # NNLS, before it is taken away
+    anchor = problem.solve(1e2)  # the answer of another alpha: inside the same rows
+    start = np.eye(len(exact))[vertex]  # one state of the family alone: past many skull rows
+    C, d = problem.unit_rows
+    assert (C @ start - d).min() < -0.2  # (past them: farther than the warm start takes in)
+    assert solve_on_active(H, g, C, d, start, problem.partner, bounds=problem.bounds, infeasible=combine.INFEASIBLE) \
+        is None
+
+    def no_nnls(*_):
+        raise AssertionError("NNLS was called")
+    monkeypatch.setattr(combine, "least_distance", no_nnls)
+    anchored = Problem(problem.A, problem.b, problem.groups, problem.noise, problem.gram, problem.cross,
+                       problem.C, problem.d, anchor=anchor)
+    c = anchored.solve(alpha, near=start)
+    assert np.abs(c - exact).max() <= 1e-6 * max(np.abs(exact).max(), 1.0)
+    assert (C @ c - d).min() >= -1e-12

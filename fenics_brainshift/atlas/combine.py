@@ -26,7 +26,7 @@ from functools import cached_property
 
 import numpy as np
 
-from .active_set import DataHessian, bound_rows, least_distance, partners, solve_on_active
+from .active_set import ACTIVE, DataHessian, bound_rows, least_distance, partners, solve_on_active
 
 
 ALPHAS = tuple(10.0 ** np.arange(-4, 3.5, 1.0))  # the cross-validation grid of alpha (per mm^2)
@@ -54,6 +54,7 @@ class Problem:
     cross: np.ndarray
     C: np.ndarray
     d: np.ndarray
+    anchor: np.ndarray | None = None  # weights inside every constraint, if known (a start's fallback)
 
     @cached_property
     def unit_rows(self) -> tuple[np.ndarray, np.ndarray]:
@@ -73,7 +74,7 @@ class Problem:
 
     def with_constraints(self, C: np.ndarray, d: np.ndarray) -> "Problem":
         return Problem(self.A, self.b, self.groups, self.noise, self.gram, self.cross,
-                       np.vstack([self.C, C]), np.concatenate([self.d, d]))
+                       np.vstack([self.C, C]), np.concatenate([self.d, d]), self.anchor)
 
     def solve(self, alpha: float, rows: np.ndarray | None = None, near: np.ndarray | None = None) -> np.ndarray:
         """The constrained minimiser with the data rows `rows` (default: all); `near`: weights
@@ -83,6 +84,10 @@ class Problem:
         g = A.T @ b / self.noise ** 2 + (alpha / MM2) * self.cross
         if near is not None and WARM_START:
             c = solve_on_active(H, g, *self.unit_rows, near, self.partner, bounds=self.bounds, infeasible=INFEASIBLE)
+            if c is None and self.anchor is not None:  # from the point nearest `near` inside the rows
+                inside = towards(self.anchor, near, *self.unit_rows)
+                if inside is not None:
+                    c = solve_on_active(H, g, *self.unit_rows, inside, self.partner, bounds=self.bounds)
             if c is not None:
                 return c
         c = least_distance(H.dense(), g, self.C, self.d)
@@ -98,6 +103,23 @@ class Problem:
         rows = np.arange(len(self.b)) if rows is None else rows
         r = self.A[rows] @ c - self.b[rows]
         return np.sqrt(np.bincount(np.searchsorted(np.unique(self.groups[rows]), self.groups[rows]), weights=r * r))
+
+
+def towards(anchor: np.ndarray, start: np.ndarray, C: np.ndarray, d: np.ndarray) -> np.ndarray | None:
+    """The point nearest `start` on the segment from `anchor` to it that keeps C c >= d (a
+    convex set: all of it from the anchor up to the first row `start` is past), or None if
+    the anchor itself is not inside. A start past rows that outnumber its free weights (the
+    skull's rows re-linearised at the last fit, several of them past) leaves the primal
+    active-set method a dependent working set; from a point inside, it never does."""
+    tolerance = ACTIVE * (1.0 + np.abs(d))
+    at_anchor, at_start = C @ anchor - d, C @ start - d
+    if np.any(at_anchor < -tolerance):
+        return None
+    past = at_start < -tolerance
+    if not past.any():
+        return np.array(start, dtype=float)
+    t = float(np.min(at_anchor[past] / (at_anchor[past] - at_start[past])))
+    return anchor + t * (start - anchor)
 
 
 def fold_of(groups: np.ndarray, folds: int, seed: int = 0) -> np.ndarray:

@@ -202,7 +202,7 @@ def _update(atlas, target, noise: float, samples: int, keep_inside: bool) -> Upd
     nodes = np.zeros(0, dtype=np.int64)
     setup_s = time.perf_counter() - start
     for round_ in range(ROUNDS):
-        problem = Problem(*data_rows(c), noise, atlas.gram, atlas.cross, C0, d0)
+        problem = Problem(*data_rows(c), noise, atlas.gram, atlas.cross, C0, d0, anchor=prior_weights(atlas))
         if skull is not None:  # the nodes near the skull at these weights join those before
             nodes = np.union1d(nodes, skull.near(c))
             problem = problem.with_constraints(*skull.rows(c, nodes))
