@@ -311,3 +311,46 @@ def test_archimedes_on_sliver_facets(thickness):
                 # the scale of the cancelling face forces: rho g (depth range) (face area)
                 scale = RHO * G * 0.04 * 0.03 * 0.02
                 assert np.abs(load.force - expected).max() <= 1e-13 * scale + 1e-9 * RHO * G * vol
+
+
+@pytest.mark.mpi
+def test_the_follower_loads_tangent_is_the_derivative_of_the_assembled_load():
+    """Newton's follower tangent (load_tangent.py: a closed form for the facets under water,
+    the facet kernel's differences at the water line) times a direction equals the central
+    difference of the fluid load assembled on the moved surface (hydrostatic.py, the load a run
+    applies), at a state whose water line cuts the side facets; on 1 or 2 ranks."""
+    from fenics_brainshift.physics.load_tangent import add_load_tangent
+    from fenics_brainshift.runner import Simulation
+    from fenics_brainshift.scene import scene_from_dict
+
+    scene = scene_from_dict({
+        "mesh": {"shape": "box", "size": [0.05, 0.05, 0.025], "cells": [5, 5, 3]},
+        "material": {"E": 729.0, "nu": 0.45, "density": 1048.0}, "fixed": [{"where": "z < 1e-9"}],
+        "fluid": {"density": 975.0, "level": 0.017, "follower": True}, "time": {"mode": "quasi-static"}})
+    sim = Simulation(scene, COMM)
+    model = sim.model
+    x = model.V.tabulate_dof_coordinates().reshape(-1, 3)  # (block dofs: one row a node)
+    shape = np.column_stack([np.sin(80 * x[:, 1]), np.cos(60 * x[:, 0]), x[:, 0] * x[:, 2] * 400])
+    u = sim.u
+    u.x.array[:] = (1.5e-3 * shape).ravel()  # the body moved by up to 1.5 mm, its facets turned
+    direction = u.copy()
+    direction.x.array[:] = (np.column_stack([np.cos(50 * x[:, 2]), x[:, 1] * 30, np.sin(70 * x[:, 0])])).ravel()
+
+    def load(step: float) -> np.ndarray:
+        moved = u.copy()
+        moved.x.array[:] = u.x.array + step * direction.x.array
+        out = compat.petsc_vec(moved).duplicate()
+        model.load_into(0.0, out, moved)
+        return out.array_r.copy()
+
+    eps = 1e-7
+    expected = (load(eps) - load(-eps)) / (2 * eps)
+    A = model.assemble(model.stiffness_form(), with_bcs=False)
+    A.zeroEntries()
+    add_load_tangent(A, model.fluid.hydro, model.fluid.level, u)
+    product = A.createVecLeft()
+    A.mult(compat.petsc_vec(direction), product)
+    size = COMM.allreduce(float(np.abs(expected).max()), op=MPI.MAX)
+    assert size > 1e-3  # (the load turns and deepens with the surface: the check is not vacuous)
+    error = COMM.allreduce(float(np.abs(product.array_r - expected).max()), op=MPI.MAX)
+    assert error <= 1e-5 * size
