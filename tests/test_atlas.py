@@ -491,10 +491,10 @@ def test_a_mode_settled_neither_way_is_left_out_and_named(monkeypatch):
     monkeypatch.setattr(building, "MAX_SKIPPED", 0.4)  # (of three modes: one may be left out)
     built, _ = build(load_scene("brain", COARSE + SKULL), parse_vary(["fluid.level=0.02,0.03,0.04"]), MPI.COMM_WORLD)
     if MPI.COMM_WORLD.rank == 0:
-        assert [s["values"]["fluid.level"] for s in built.scenarios if s["kind"] == "family"] == [0.02, 0.04]
+        assert [s["values"]["fluid.level"] for s in built.scenarios if s["kind"] == "family"] == [0.04, 0.02]
         assert [o["values"]["fluid.level"] for o in built.info["left_out"]] == [0.03]
         assert "a stand-in" in built.info["left_out"][0]["why"]
-    assert starts == [(0.02, True), (0.03, False), (0.04, True)]
+    assert starts == [(0.04, True), (0.03, False), (0.02, True)]  # (levels as the fluid drains)
     monkeypatch.setattr(building, "MAX_SKIPPED", 0.3)  # one of three is more than that
     with pytest.raises(SolverError, match="a stand-in"):
         build(load_scene("brain", COARSE + SKULL), parse_vary(["fluid.level=0.02,0.03,0.04"]), MPI.COMM_WORLD)
@@ -589,3 +589,27 @@ def test_a_bad_tag_file_is_one_line(tmp_path, text, words):
     (tmp_path / "bad.tag").write_text(text)
     with pytest.raises(InputError, match=words):
         read_target(tmp_path / "bad.tag")
+
+
+def test_a_poses_next_level_starts_from_its_last_two_extrapolated():
+    """build.predict_start by hand: levels 40 and 35 mm settled, the next at 30 mm starts from
+    twice the last less the one before (its multipliers too, none below zero); a jump back up
+    or far ahead, or a scenario without a level, keeps the last state."""
+    from types import SimpleNamespace
+
+    from fenics_brainshift.atlas.build import predict_start
+
+    def forward():
+        return SimpleNamespace(sim=SimpleNamespace(u=SimpleNamespace(x=SimpleNamespace(array=np.array([5.0, 5.0]))),
+                                                   contact=SimpleNamespace(multipliers=np.array([9.0, 9.0]))))
+    last = [(0.040, np.array([1.0, 2.0]), np.array([0.0, 4.0])), (0.035, np.array([2.0, 2.5]), np.array([1.0, 1.0]))]
+    f = forward()
+    predict_start(f, last, {"fluid.level": 0.030, "gravity.angle_z": 6.0})
+    assert f.sim.u.x.array == pytest.approx([3.0, 3.0]) and f.sim.contact.multipliers == pytest.approx([2.0, 0.0])
+    f = forward()
+    predict_start(f, last, {"fluid.level": 0.0325})  # half a step ahead
+    assert f.sim.u.x.array == pytest.approx([2.5, 2.75])
+    for values in ({"fluid.level": 0.045}, {"fluid.level": 0.020}, {"gravity.angle_z": 6.0}):
+        f = forward()
+        predict_start(f, last, values)
+        assert f.sim.u.x.array.tolist() == [5.0, 5.0] and f.sim.contact.multipliers.tolist() == [9.0, 9.0]
