@@ -1,11 +1,14 @@
 """What an atlas with the skull costs, and why its swelling modes start from the prior state.
 
 1. `brainshift atlas` of the bundled brain at --voxel with a skull --gap out: --levels levels
-   at one pose (each from the last; the first from rest) and the whole-brain swelling mode;
-   the seconds a settled state, its GMRES iterations and factorisations; the atlas's Newton
-   (solves preconditioned exactly on K's one factor, stepping/exact_contact.py; relative
-   residual build.MODE_RTOL) against the former one (a factor of K and the pressed nodes
-   rebuilt as they move; a run's 1e-9), the baseline, in the same run.
+   at one pose and the whole-brain swelling mode; the seconds, Newton and GMRES iterations a
+   settled state, and factorisations, built five ways in the same run: the atlas's (levels as
+   the fluid drains, each start extrapolated from the pose's last two states, Newton's relative
+   residual build.MODE_RTOL, the exact contact preconditioner on K's one factor:
+   stepping/exact_contact.py); the same with each level from the last state alone and residual
+   1e-6; session 24's atlas (levels ascending, refilled); the former preconditioner (a factor
+   of K and the pressed nodes rebuilt as they move, residual 1e-9); the atlas's with the scene's
+   tighter contact tolerance. How far their modes are apart.
 2. The whole brain shrunk by 4 % at the scene's own level and pose, solved twice: from rest
    (loads grown from zero) and from the prior state (as the atlas does); how far apart the two
    contact states are, and how far each is past the skull. Where the skull's inner surface is
@@ -13,7 +16,7 @@
 
 Writes benchmarks/results/skull_atlas.md. One process, one rank.
 
-    python benchmarks/skull_atlas.py [--voxel 0.005] [--gap 0.003] [--levels 6]
+    python benchmarks/skull_atlas.py [--voxel 0.005] [--gap 0.003] [--levels 13]
 """
 from __future__ import annotations
 
@@ -38,19 +41,28 @@ from fenics_brainshift.atlas.vertices import GlobalVertices  # noqa: E402
 from fenics_brainshift.bench import machine_line  # noqa: E402
 from fenics_brainshift.fit import ForwardModel  # noqa: E402
 from fenics_brainshift.scene.body import Swelling  # noqa: E402
+from fenics_brainshift.stepping import newton as newton_module  # noqa: E402
 from fenics_brainshift.stepping.newton import NewtonStatic  # noqa: E402
 from fenics_brainshift.stepping.solves import Solves  # noqa: E402
 
 SHRINK = -0.04
+LOWEST, HIGHEST, ANGLE = -0.015, 0.045, -12.0  # the levels' range (m; the default atlas's at the brain's 30 mm) and the pose
 
 
 class Counted:
     """Solves' GMRES iterations and factorisations, counted over a block of work."""
 
     def __enter__(self):
-        self.iterations, self.factors = 0, 0
+        self.iterations, self.factors, self.newton = 0, 0, 0
         self._record, self._reset = Solves.record, Solves.reset
+        self._iterate = newton_module.newton_iterate
         counter = self
+
+        def iterate(*args, **kwargs):
+            converged, history = counter._iterate(*args, **kwargs)
+            counter.newton += len(history) - 1
+            return converged, history
+        newton_module.newton_iterate = iterate
 
         def record(solves, its, seconds, x, t):  # every solve, whichever Krylov method made it
             counter.iterations += its
@@ -65,28 +77,52 @@ class Counted:
 
     def __exit__(self, *exc):
         Solves.record, Solves.reset = self._record, self._reset
+        newton_module.newton_iterate = self._iterate
 
 
-def atlas_cost(scene, levels: int, mode_tolerance: float | None = None, exact: bool = True) -> dict:
+def atlas_cost(scene, levels: int, mode_tolerance: float | None = None, exact: bool = True, rtol: float | None = None,
+               predict: bool = True, draining: bool = True) -> dict:
     """The atlas's cost; mode_tolerance: the modes' contact tolerance (None: the atlas's own,
     build.MODE_TOLERANCE; the scene's [skull] tolerance for the baseline); exact: False for
-    the former preconditioner (a factor of K and the pressed nodes, rebuilt)."""
-    vary = parse_vary([f"fluid.level=0.015:0.04:{levels}", "gravity.angle_z=3"])
-    default, possible, rtol = building.MODE_TOLERANCE, NewtonStatic._exact_possible, building.MODE_RTOL
-    building.MODE_TOLERANCE = default if mode_tolerance is None else mode_tolerance
+    the former preconditioner (a factor of K and the pressed nodes, rebuilt); rtol: Newton's
+    relative residual (None: build.MODE_RTOL); predict: False to start each level from the last
+    state alone; draining: False for the levels in ascending order (the first from rest at the
+    lowest, then refilled: session 24's atlas)."""
+    vary = parse_vary([f"fluid.level={LOWEST}:{HIGHEST}:{levels}", f"gravity.angle_z={ANGLE}"])
+    saved = (building.MODE_TOLERANCE, NewtonStatic._exact_possible, building.MODE_RTOL, building.predict_start,
+             building.family)
+    building.MODE_TOLERANCE = saved[0] if mode_tolerance is None else mode_tolerance
+    building.MODE_RTOL = saved[2] if rtol is None else rtol
     if not exact:
         NewtonStatic._exact_possible = lambda self: False
-        building.MODE_RTOL = 1e-9
+    if not predict:
+        building.predict_start = lambda *args: None
+    if not draining:
+        building.family = lambda *args: sorted(saved[4](*args), key=lambda s: (building._pose(s), s["fluid.level"]))
     try:
         with Counted() as counted:
             atlas, seconds = build(scene, vary, MPI.COMM_WORLD)
     finally:
-        building.MODE_TOLERANCE, NewtonStatic._exact_possible, building.MODE_RTOL = default, possible, rtol
+        (building.MODE_TOLERANCE, NewtonStatic._exact_possible, building.MODE_RTOL, building.predict_start,
+         building.family) = saved
     states = atlas.info["settled_states"]
+    modes = {_key(s): u for s, u in zip(atlas.scenarios, atlas.vertex_modes)}
     return {"count": len(atlas.scenarios), "states": states, "modes_s": seconds["modes_s"],
             "per_state_s": seconds["modes_s"] / states, "gmres_per_state": counted.iterations / states,
-            "factors": counted.factors, "tolerance_mm": 1e3 * atlas.info["contact_tolerance_m"],
-            "modes": atlas.vertex_modes}
+            "newton_per_state": counted.newton / states,
+            "factors": counted.factors, "tolerance_mm": 1e3 * atlas.info["contact_tolerance_m"], "modes": modes}
+
+
+def _key(scenario: dict) -> tuple:
+    return ("swelling", scenario["region"]) if scenario["kind"] == "swelling" else tuple(sorted(scenario["values"].items()))
+
+
+def modes_apart(a: dict, b: dict) -> dict:
+    """How far two atlases' modes of the same scenarios are apart (mm): the largest, the mean
+    over nodes and modes, and the nodes more than 1 mm apart in any mode."""
+    distance = np.array([np.linalg.norm(a[k] - b[k], axis=1) for k in a])  # (modes, nodes)
+    return {"max_mm": 1e3 * distance.max(), "mean_mm": 1e3 * distance.mean(),
+            "nodes_1mm": int((distance.max(axis=0) > 1e-3).sum())}
 
 
 def shrink_two_ways(scene) -> dict:
@@ -126,17 +162,24 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--voxel", type=float, default=0.005)
     parser.add_argument("--gap", type=float, default=0.003)
-    parser.add_argument("--levels", type=int, default=6)
+    parser.add_argument("--levels", type=int, default=13)
     parser.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "skull_atlas.md"))
     args = parser.parse_args()
     logs.configure("WARNING")
     scene = load_scene("brain", [f"mesh.voxel={args.voxel}", f"skull.gap={args.gap}", "time.mode=quasi-static"])
     cost = atlas_cost(scene, args.levels)
-    former = atlas_cost(scene, args.levels, exact=False)
+    unpredicted = atlas_cost(scene, args.levels, predict=False)  # each level from the last state alone
+    plain = atlas_cost(scene, args.levels, rtol=1e-6, predict=False)  # the same path, Newton as in session 24
+    refilled = atlas_cost(scene, args.levels, rtol=1e-6, predict=False, draining=False)  # session 24's atlas
+    former = atlas_cost(scene, args.levels, exact=False, rtol=1e-9, predict=False, draining=False)
     tight = atlas_cost(scene, args.levels, mode_tolerance=scene.skull.tolerance)
-    same = 1e3 * np.linalg.norm(cost["modes"] - former.pop("modes"), axis=2).max()
-    apart = 1e3 * np.linalg.norm(cost.pop("modes") - tight.pop("modes"), axis=2).max()
-    print(cost, former, tight, flush=True)
+    predicted_apart = modes_apart(cost["modes"], unpredicted["modes"])
+    residual_apart = modes_apart(unpredicted["modes"], plain["modes"])
+    path_apart = modes_apart(plain["modes"], refilled["modes"])
+    preconditioner_apart = modes_apart(refilled["modes"], former["modes"])
+    tolerance_apart = modes_apart(cost["modes"], tight["modes"])
+    for run in (cost, unpredicted, plain, refilled, former, tight):
+        print({k: v for k, v in run.items() if k != "modes"}, flush=True)
     shrink = shrink_two_ways(scene)
     print(shrink, flush=True)
     inside = max(shrink["past_rest_mm"], shrink["past_prior_mm"]) <= 1e3 * scene.skull.tolerance
@@ -152,21 +195,40 @@ out, the scene's [skull] tolerance {scene.skull.tolerance * 1e3:g} mm (the shrun
 
 ## The cost of a mode
 
-{args.levels} levels (15-40 mm) at one pose (turned 3 degrees about z) and the whole-brain
-swelling mode, {cost['count']} modes, {cost['states']} settled states; issue 28 asks for 1.5 s a mode:
+{args.levels} levels ({LOWEST * 1e3:g} to {HIGHEST * 1e3:g} mm) at one pose (turned {ANGLE:g} degrees about z) and the
+whole-brain swelling mode, {cost['count']} modes, {cost['states']} settled states (the scene's own prior included);
+issue 28 asks for 1.5 s a mode. Each row is one `build` of the same scenarios in this run:
 
-| modes' contact tolerance | Newton's preconditioner | s a settled state | GMRES iterations a state | factorisations |
-|---|---|---|---|---|
-| {cost['tolerance_mm']:g} mm (the atlas's) | exact, K's one factor; residual {building.MODE_RTOL:g} | **{cost['per_state_s']:.2f}** | {cost['gmres_per_state']:.0f} | {cost['factors']} |
-| {former['tolerance_mm']:g} mm (the atlas's) | refactored (the former); residual 1e-9 | {former['per_state_s']:.2f} | {former['gmres_per_state']:.0f} | {former['factors']} |
-| {tight['tolerance_mm']:g} mm (the scene's) | exact, K's one factor; residual {building.MODE_RTOL:g} | {tight['per_state_s']:.2f} | {tight['gmres_per_state']:.0f} | {tight['factors']} |
+| levels in order | a level's start | Newton's residual | preconditioner | contact tolerance | s a settled state | Newton iterations a state | GMRES iterations a state | factorisations |
+|---|---|---|---|---|---|---|---|---|
+| draining (the atlas's) | the last two extrapolated | {building.MODE_RTOL:g} | exact, K's one factor | {cost['tolerance_mm']:g} mm | **{cost['per_state_s']:.2f}** | {cost['newton_per_state']:.1f} | {cost['gmres_per_state']:.0f} | {cost['factors']} |
+| draining | the last | {building.MODE_RTOL:g} | exact | {unpredicted['tolerance_mm']:g} mm | {unpredicted['per_state_s']:.2f} | {unpredicted['newton_per_state']:.1f} | {unpredicted['gmres_per_state']:.0f} | {unpredicted['factors']} |
+| draining | the last | 1e-6 | exact | {plain['tolerance_mm']:g} mm | {plain['per_state_s']:.2f} | {plain['newton_per_state']:.1f} | {plain['gmres_per_state']:.0f} | {plain['factors']} |
+| refilling (session 24's atlas) | the last | 1e-6 | exact | {refilled['tolerance_mm']:g} mm | {refilled['per_state_s']:.2f} | {refilled['newton_per_state']:.1f} | {refilled['gmres_per_state']:.0f} | {refilled['factors']} |
+| refilling | the last | 1e-9 | refactored (the former) | {former['tolerance_mm']:g} mm | {former['per_state_s']:.2f} | {former['newton_per_state']:.1f} | {former['gmres_per_state']:.0f} | {former['factors']} |
+| draining | the last two extrapolated | {building.MODE_RTOL:g} | exact | {tight['tolerance_mm']:g} mm (the scene's) | {tight['per_state_s']:.2f} | {tight['newton_per_state']:.1f} | {tight['gmres_per_state']:.0f} | {tight['factors']} |
 
-The atlas's modes and the former's differ by {same:.1e} mm at most (Newton's relative
-residual {building.MODE_RTOL:g} against 1e-9; the same settled states). Exact: the
-preconditioner is K plus the pressed nodes' contact blocks, each application two triangular
-solves with K's factor, and each node's compliance is solved once (with the others that join
-with it); GMRES is left the follower load's tangent. The two tolerances' modes differ by {apart:.3f} mm at most (the update's skull rows allow
-{SKULL_SLACK * 1e3:g} mm past the skull).
+Draining: each pose's first state, solved from rest, is at its highest level, where the fluid
+bears the brain and it presses the skull least; the next ones follow the drain. Refilling (the
+order before): the first at the lowest level, where from rest most nodes press, each Newton
+step held back to the first node's contact. Every settled state is an equilibrium inside the
+skull to its contact tolerance; how far the rows' modes are apart (mm):
+
+| | largest | mean over nodes and modes | nodes more than 1 mm apart |
+|---|---|---|---|
+| extrapolated starts / the last state (residual {building.MODE_RTOL:g}) | {predicted_apart['max_mm']:.3f} | {predicted_apart['mean_mm']:.4f} | {predicted_apart['nodes_1mm']} |
+| residual {building.MODE_RTOL:g} / 1e-6 (each from the last state) | {residual_apart['max_mm']:.1e} | {residual_apart['mean_mm']:.1e} | {residual_apart['nodes_1mm']} |
+| draining / refilling (the path) | {path_apart['max_mm']:.3f} | {path_apart['mean_mm']:.4f} | {path_apart['nodes_1mm']} |
+| refilling exact / refactored (residual 1e-6 / 1e-9) | {preconditioner_apart['max_mm']:.1e} | {preconditioner_apart['mean_mm']:.1e} | {preconditioner_apart['nodes_1mm']} |
+| contact tolerance {cost['tolerance_mm']:g} / {tight['tolerance_mm']:g} mm | {tolerance_apart['max_mm']:.3f} | {tolerance_apart['mean_mm']:.4f} | {tolerance_apart['nodes_1mm']} |
+
+A start changes which equilibrium a contact state settles in where the skull's inner surface is
+concave, and two states each within the contact tolerance of the skull may be that far apart
+(the update's skull rows allow {SKULL_SLACK * 1e3:g} mm past it). The path changes it more:
+the draining order follows the operation (the level falls at a fixed pose), as a run of the
+scene does. Exact: the preconditioner is K plus the pressed nodes' contact blocks by the
+Woodbury formula, two triangular solves with K's one factor an application, each node's
+compliance solved once; GMRES is left the follower load's tangent.
 
 ## The whole brain shrunk by {-SHRINK * 100:g} %, from rest and from the prior state
 
