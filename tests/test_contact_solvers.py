@@ -361,7 +361,8 @@ def test_newton_in_contact_keeps_ks_one_factor_and_settles_where_refactoring_doe
     exact.prepare(newton_static._contact_blocks)
     exact.compliance.set = real_set
     raw = contact_preconditioner.gathered_blocks(sim.model.V, *newton_static._contact_blocks, exact._fixed)[1]
-    assert len(given) == 2 and np.array_equal(given[0], raw)  # the blocks as they are, then
+    given = [b.toarray() for b in given]
+    assert len(given) == 2 and np.array_equal(given[0], raw.toarray())  # the blocks as they are, then
     assert np.allclose(given[1], given[1].T) and np.linalg.eigvalsh(given[1]).min() >= -1e-9 * np.abs(given[1]).max()
 
     monkeypatch.setattr(newton.NewtonStatic, "_exact_possible", lambda self: False)
@@ -395,3 +396,21 @@ def _by_position(sim) -> np.ndarray:
     u = sim.state.u.x.array.reshape(-1, 3)[:owned]
     x, u = np.concatenate(COMM.allgather(x)), np.concatenate(COMM.allgather(u))
     return u[np.lexsort(np.round(x, 9).T)]
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("looser", [newton.FIRST_LOOSER, 1e6])
+def test_a_settled_state_in_contact_meets_newtons_tight_target(shared_tmp, monkeypatch, looser):
+    """With the skull Newton first settles to a looser residual (NewtonStatic: a multiplier
+    update may follow); where none is needed (a tolerance the first state meets), the state is
+    still settled to the tight target: its residual at most rtol times the loads (the first
+    solve as loose as a relative 1e-3 too, which leaves it short of that)."""
+    from test_contact import _box_surface, _cantilever
+
+    monkeypatch.setattr(newton, "FIRST_LOOSER", looser)
+    floor = _box_surface((-0.05, -0.05, -0.002), (0.2, 0.06, 0.05), shared_tmp / "tight_floor.stl")
+    sim = _cantilever(floor, 1e-3)  # (a millimetre: no multiplier update)
+    newton_static = sim.static.engaged
+    assert newton_static.contact_rounds == 0 and sim.contact.pressing(sim.state.u)
+    norm = newton_static._residual(0.0, 1.0)
+    assert norm <= newton_static.rtol * newton_static._load_norm

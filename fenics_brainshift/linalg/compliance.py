@@ -111,12 +111,12 @@ class Compliance:
 
     # -- the preconditioner for the nodes pressed now ----------------------------------------------
     def set(self, dofs: np.ndarray, B: np.ndarray) -> bool:
-        """The pressed dofs (global scalar, the same on every rank) and the dense B over them
-        (any square matrix). False, and the former change kept, if K + E B E^T is singular
+        """The pressed dofs (global scalar, the same on every rank) and B over them (any square
+        matrix, dense or sparse: nodes' blocks). False, and the former change kept, if K + E B E^T is singular
         (to round-off)."""
         dofs = np.asarray(dofs, dtype=np.int64)
         self.learn(dofs)
-        B = scipy.sparse.csr_matrix(np.asarray(B, dtype=float))  # nodes' blocks: sparse
+        B = scipy.sparse.csr_matrix(B if scipy.sparse.issparse(B) else np.asarray(B, dtype=float), dtype=float)
         if not len(dofs):
             self.dofs, self._B, self._core = dofs, B, None
             return True

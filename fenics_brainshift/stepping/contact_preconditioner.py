@@ -28,6 +28,7 @@ from __future__ import annotations
 from typing import Callable
 
 import numpy as np
+import scipy.sparse
 from mpi4py import MPI
 from petsc4py import PETSc
 
@@ -143,7 +144,7 @@ class ContactPreconditioner:
             pc = self.solves.solver.ksp.getPC()
             factor = (lambda: pc.getFactorMatrix()) if self.solves.settings["kind"] in ("cholesky", "lu") else None
             self._update = LowRankUpdate(lambda rhs, x: pc.apply(rhs, x), self.contact.vector, factor)
-        self._update.set(scalar, B)
+        self._update.set(scalar, B.toarray())
         self.stiffness = (np.concatenate([old_dofs[kept], new[0][added]]),
                           np.concatenate([np.where(drifted[:, None, None], now, was), new[1][added]]))
         self._pressed = np.sort(new[0])
@@ -188,10 +189,11 @@ def fixed_global(V, fixed: np.ndarray) -> set[int]:
 
 
 def gathered_blocks(V, dofs: np.ndarray, blocks: np.ndarray, fixed: set[int], limit: int | None = None):
-    """Nodes' 3x3 blocks (this rank's block dofs (n,), blocks (n, 3, 3)) as one dense matrix
-    over global scalar dofs, the same on every rank: (scalar dofs (m,), B (m, m)), a node's
-    ranks' shares summed, the supports' dofs left out (they stay identity). None if more than
-    ``limit`` nodes."""
+    """Nodes' 3x3 blocks (this rank's block dofs (n,), blocks (n, 3, 3)) as one sparse (CSR)
+    matrix over global scalar dofs, the same on every rank: (scalar dofs (m,), B (m, m)), a
+    node's ranks' shares summed, the supports' dofs left out (they stay identity). None if more
+    than ``limit`` nodes. (Sparse: the dense m x m, made and converted every Newton iteration,
+    was a twentieth of an atlas mode's time.)"""
     comm = V.mesh.comm
     index_map = V.dofmap.index_map
     nodes = np.concatenate(comm.allgather(index_map.local_to_global(np.asarray(dofs, dtype=np.int32))))
@@ -199,8 +201,12 @@ def gathered_blocks(V, dofs: np.ndarray, blocks: np.ndarray, fixed: set[int], li
     unique, where = np.unique(nodes, return_inverse=True)
     if limit is not None and len(unique) > limit:
         return None
-    B = np.zeros((len(unique), 3, len(unique), 3))
-    np.add.at(B, (where, slice(None), where, slice(None)), blocks)  # the ranks' shares summed
+    first = 3 * where[:, None, None]
+    rows, columns = first + np.arange(3)[None, :, None], first + np.arange(3)[None, None, :]
+    size = 3 * len(unique)
+    B = scipy.sparse.csr_matrix((blocks.ravel(), (np.broadcast_to(rows, blocks.shape).ravel(),
+                                                  np.broadcast_to(columns, blocks.shape).ravel())),
+                                shape=(size, size))  # (duplicates, the ranks' shares, summed)
     scalar = (3 * unique[:, None] + np.arange(3)).ravel()
-    keep = np.array([d not in fixed for d in scalar.tolist()], dtype=bool)
-    return scalar[keep], B.reshape(len(scalar), len(scalar))[np.ix_(keep, keep)]
+    keep = np.flatnonzero([d not in fixed for d in scalar.tolist()])
+    return scalar[keep], B[keep][:, keep]
