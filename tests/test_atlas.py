@@ -405,6 +405,10 @@ def test_with_a_skull_a_mode_is_the_full_models_contact_state(skull_atlas, atlas
     tolerance = skull_atlas.info["contact_tolerance_m"]  # the scene's 0.01 mm, loosened for the modes
     assert tolerance == pytest.approx(0.05e-3)
     assert min(room) > -tolerance
+    kept = skull_atlas.info["contact_compliance"]  # three columns a node ever pressed, G dense over them
+    assert kept["columns"] > 0 and kept["columns"] % 3 == 0
+    assert kept["megabytes"] == pytest.approx(8e-6 * kept["columns"] ** 2, abs=0.1)
+    assert atlas.info["contact_compliance"] is None
     assert atlas.scenarios[k] == skull_atlas.scenarios[k]
     assert np.abs(skull_atlas.vertex_modes[k] - atlas.vertex_modes[k]).max() > 1e-3  # contact-free: a mm off
 

@@ -148,6 +148,7 @@ def build(scene, vary: dict, comm, source: str = "", sets=()) -> tuple[store.Atl
     modes_s = time.perf_counter() - start
     solves = forward.solves
     skull = forward.sim.contact.skull if contact else None
+    compliance = _compliance(forward)
     fine_points = None if fine is None else (fine.points, fine.triangles)
     forward.destroy()
     seconds = {"setup_s": setup_s, "modes_s": modes_s}
@@ -175,8 +176,20 @@ def build(scene, vary: dict, comm, source: str = "", sets=()) -> tuple[store.Atl
                   "settled_states": solves,
                   "left_out": [{"values": values, "why": why} for _, values, why in skipped],
                   "contact_tolerance_m": scene.skull.tolerance if scene.skull is not None else None,
+                  "contact_compliance": compliance,
                   **{k: round(v, 3) for k, v in seconds.items()}}
     return atlas, seconds
+
+
+def _compliance(forward) -> dict | None:
+    """What the exact contact preconditioner kept (linalg/compliance.py): the columns of K^-1
+    solved (three a node ever pressed) and the dense compliance G between them, in MB on every
+    rank; None without it."""
+    exact = getattr(getattr(forward.sim.static, "engaged", None), "_exact", None)
+    if exact is None:
+        return None
+    G = exact.compliance.G
+    return {"columns": int(exact.compliance.columns), "megabytes": round(G.nbytes / 1e6, 1)}
 
 
 def _mode_tolerance(scene):
