@@ -33,8 +33,8 @@ log = get_logger(__name__)
 WHOLE_BODY = "x > -1e6"  # the whole-brain region of a scene without [[swelling]]
 MODE_TOLERANCE = 0.5 * SKULL_SLACK  # m: the modes' contact tolerance (_mode_tolerance)
 # Newton's relative residual for the modes (a run's is 1e-9): on the 5 mm brain with a 3 mm gap the
-# modes of 13 levels at one pose move by less than a micrometre against 1e-6, against the update's
-# noise of tenths of a millimetre and the contact's 0.05 mm, for a quarter fewer Newton iterations
+# modes of 13 levels at one pose move by 0.006 mm at most against 1e-6 (a hundredth of the update's
+# noise, a tenth of the contact's tolerance), for 6.2 Newton iterations a state against 8.9
 # (benchmarks/results/skull_atlas.md)
 MODE_RTOL = 1e-4
 MAX_SKIPPED = 0.1  # of the family's modes that may be left out (settled neither way) before the atlas fails
@@ -232,8 +232,8 @@ def predict_start(forward, last: list, values: dict) -> None:
     """Newton's start for the next level of a pose with the skull: the last two settled states
     (and their contact multipliers) extrapolated linearly in the level, not the last state
     alone. The level's change then needs no halved first steps: on the 5 mm brain, 3 mm gap,
-    13 levels at one pose, 6.3 Newton iterations a state, with MODE_RTOL, against 8.9 from the
-    last state with a residual of 1e-6 (benchmarks/results/skull_atlas.md). Where the
+    13 levels at one pose, 5.5 Newton iterations a state against 6.2 from the last state
+    (benchmarks/results/skull_atlas.md). Where the
     equilibrium is not unique (the skull's concave parts) the state reached may differ from
     the last state's by as much as the contact's tolerance (MODE_TOLERANCE): both are settled
     and inside the skull to it (benchmarks/results/skull_atlas.md)."""

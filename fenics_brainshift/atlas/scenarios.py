@@ -101,8 +101,8 @@ def family(scene, vary: dict[str, list[float]], heights: tuple[float, float]) ->
     the fluid drains (each settled state starts from the last; with the skull a pose's first
     is solved from rest, and at the highest level, the brain borne by the fluid, it presses
     the skull least: on the 5 mm brain, 3 mm gap, turned -12 degrees, 6 Newton iterations
-    against 31 from rest at the lowest; 8.9 a state over the pose against 13.2 ascending,
-    benchmarks/results/skull_atlas.md). heights: the body's lowest and highest surface point
+    against 31 from rest at the lowest in a scratch run; 8.9 a state over the pose against 13.2
+    ascending, benchmarks/results/skull_atlas.md). heights: the body's lowest and highest surface point
     along up (m), the levels' range."""
     given = {k: v for k, v in vary.items() if k in FAMILY_KEYS}
     axes = dict(given) if given else _default_family(scene)
