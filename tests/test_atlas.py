@@ -385,6 +385,11 @@ def test_skull_rows_screened_by_the_distance_bound_are_those_of_every_node(skull
         assert rows.deepest(c) == pytest.approx(max(0.0, -room.min()), abs=1e-15)
         deepest_seen = max(deepest_seen, rows.deepest(c))
     assert deepest_seen > 1e-3  # (some tries are past the skull: the check is not vacuous)
+    fresh = SkullRows(cached.skull, cached.points, cached.modes)  # a first question that is not finite
+    nan = np.full(m, np.nan)
+    fresh.near(nan)
+    c = tries[-1]
+    assert np.array_equal(fresh.near(c), np.flatnonzero(rows.room(c) < SKULL_MARGIN))  # (no bound kept from it)
 
 
 def test_with_a_skull_a_mode_is_the_full_models_contact_state(skull_atlas, atlas):

@@ -314,11 +314,14 @@ def test_archimedes_on_sliver_facets(thickness):
 
 
 @pytest.mark.mpi
-def test_the_follower_loads_tangent_is_the_derivative_of_the_assembled_load():
+@pytest.mark.parametrize("rule, tolerance", [("consistent", 1e-5), ("paper", 5e-3)])
+def test_the_follower_loads_tangent_is_the_derivative_of_the_assembled_load(rule, tolerance):
     """Newton's follower tangent (load_tangent.py: a closed form for the facets under water,
     the facet kernel's differences at the water line) times a direction equals the central
     difference of the fluid load assembled on the moved surface (hydrostatic.py, the load a run
-    applies), at a state whose water line cuts the side facets; on 1 or 2 ranks."""
+    applies), at a state whose water line cuts the side facets; on 1 or 2 ranks. The paper's
+    rule, whose shares jump where two vertices are level, to a looser tolerance (its forward
+    differences were 886 times off: a stranger's review)."""
     from fenics_brainshift.physics.load_tangent import add_load_tangent
     from fenics_brainshift.runner import Simulation
     from fenics_brainshift.scene import scene_from_dict
@@ -326,7 +329,7 @@ def test_the_follower_loads_tangent_is_the_derivative_of_the_assembled_load():
     scene = scene_from_dict({
         "mesh": {"shape": "box", "size": [0.05, 0.05, 0.025], "cells": [5, 5, 3]},
         "material": {"E": 729.0, "nu": 0.45, "density": 1048.0}, "fixed": [{"where": "z < 1e-9"}],
-        "fluid": {"density": 975.0, "level": 0.017, "follower": True}, "time": {"mode": "quasi-static"}})
+        "fluid": {"density": 975.0, "level": 0.017, "follower": True, "rule": rule}, "time": {"mode": "quasi-static"}})
     sim = Simulation(scene, COMM)
     model = sim.model
     x = model.V.tabulate_dof_coordinates().reshape(-1, 3)  # (block dofs: one row a node)
@@ -353,4 +356,4 @@ def test_the_follower_loads_tangent_is_the_derivative_of_the_assembled_load():
     size = COMM.allreduce(float(np.abs(expected).max()), op=MPI.MAX)
     assert size > 1e-3  # (the load turns and deepens with the surface: the check is not vacuous)
     error = COMM.allreduce(float(np.abs(product.array_r - expected).max()), op=MPI.MAX)
-    assert error <= 1e-5 * size
+    assert error <= tolerance * size

@@ -33,9 +33,10 @@ log = get_logger(__name__)
 WHOLE_BODY = "x > -1e6"  # the whole-brain region of a scene without [[swelling]]
 MODE_TOLERANCE = 0.5 * SKULL_SLACK  # m: the modes' contact tolerance (_mode_tolerance)
 # Newton's relative residual for the modes (a run's is 1e-9): on the 5 mm brain with a 3 mm gap the
-# modes of 13 levels at one pose move by 0.006 mm at most against 1e-6 (a hundredth of the update's
-# noise, a tenth of the contact's tolerance), for 6.2 Newton iterations a state against 8.9
-# (benchmarks/results/skull_atlas.md)
+# modes of 13 levels at one pose move by 0.006 mm at most against 1e-6 (benchmarks/results/
+# skull_atlas.md; 0.011 mm on the 10 mm test atlas, a stranger's review): hundredths of a millimetre,
+# against the update's noise of tenths and the contact's tolerance of 0.05 mm, for 6.2 Newton
+# iterations a state against 8.9
 MODE_RTOL = 1e-4
 MAX_SKIPPED = 0.1  # of the family's modes that may be left out (settled neither way) before the atlas fails
 

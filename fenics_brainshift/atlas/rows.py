@@ -102,7 +102,10 @@ class SkullRows:
     def _in_doubt(self, c: np.ndarray, below: float) -> tuple[np.ndarray, np.ndarray]:
         """(nodes whose room at c may be below `below`, their room at c): the rest have more."""
         if self._reference is None:
-            self._reference = (np.array(c, dtype=float), self.displacement(c), self.room(c))
+            room = self.room(c)
+            if not (np.isfinite(c).all() and np.isfinite(room).all()):  # (no bound from it: every node)
+                return np.arange(len(room)), room
+            self._reference = (np.array(c, dtype=float), self.displacement(c), room)
         c_ref, u_ref, room_ref = self._reference
         change = c - c_ref
         used = change.nonzero()[0]
