@@ -267,8 +267,9 @@ class NewtonStatic:
     def solve(self, t: float) -> int:
         """The settled state for the loads at time t, from the last one (or from rest: the loads
         then grow from zero). With skull contact, the multipliers are updated after each
-        solve until the deepest node is within the tolerance. Returns the Newton iterations
-        of the last load step."""
+        solve until the deepest node is within the tolerance; the first solve stops at
+        FIRST_LOOSER times the target, and is taken on to the target if no update follows.
+        Returns the Newton iterations of the last load step."""
         tight = self.rtol
         if self.contact is not None:  # first to a looser residual: a multiplier update may follow
             self.rtol = tight * FIRST_LOOSER
