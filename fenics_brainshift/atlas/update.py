@@ -234,7 +234,7 @@ def _update(atlas, target, noise: float, samples: int, keep_inside: bool) -> Upd
     skull_report = {}
     if atlas.skull_triangles is not None:
         skull_report = {"kept_inside": keep_inside, "nodes_with_rows": int(len(nodes)), "rounds": round_ + 1,
-                        "deepest_past_mm": _skull(atlas, modes).deepest(c) * 1e3}
+                        "deepest_past_mm": (deepest if skull is not None else _skull(atlas, modes).deepest(c)) * 1e3}
     warning = _warning(residual, noise, skull_report.get("deepest_past_mm", 0.0) * 1e-3, keep_inside)
     seconds = {"setup_ms": setup_s * 1e3, "fit_ms": fit_s * 1e3, "cross_validation_ms": cv_s * 1e3,
                "leave_one_out_and_bootstrap_ms": spread_s * 1e3, "total_ms": (time.perf_counter() - start) * 1e3}
