@@ -367,7 +367,12 @@ def test_skull_rows_screened_by_the_distance_bound_are_those_of_every_node(skull
     from fenics_brainshift.atlas.update import _skull
 
     cached = _skull(skull_atlas, skull_atlas.vertex_modes)
-    rows = SkullRows(cached.skull, cached.points, cached.modes)  # (a reference of its own)
+    modes = skull_atlas.vertex_modes[:, skull_atlas.surface_vertices].astype(float)
+    rows = SkullRows(cached.skull, cached.points, modes)  # (a reference of its own)
+
+    def room_at_every_node(c):  # (by the skull itself, not through the rows' caches)
+        return cached.skull.phi(cached.points + np.tensordot(c, modes, axes=1))[0]
+
     m = len(skull_atlas.scenarios)
     family = np.flatnonzero(skull_atlas.family)
     rng = np.random.default_rng(3)
@@ -379,17 +384,53 @@ def test_skull_rows_screened_by_the_distance_bound_are_those_of_every_node(skull
     tries.append(np.eye(m)[family[-1]] * 3.0)
     deepest_seen = 0.0
     for c in tries:
-        room = rows.room(c)
+        room = room_at_every_node(c)
         for margin in (SKULL_MARGIN, 0.0, 5e-3):
             assert np.array_equal(rows.near(c, margin), np.flatnonzero(room < margin))
         assert rows.deepest(c) == pytest.approx(max(0.0, -room.min()), abs=1e-15)
         deepest_seen = max(deepest_seen, rows.deepest(c))
     assert deepest_seen > 1e-3  # (some tries are past the skull: the check is not vacuous)
-    fresh = SkullRows(cached.skull, cached.points, cached.modes)  # a first question that is not finite
+    fresh = SkullRows(cached.skull, cached.points, modes)  # a first question that is not finite
     nan = np.full(m, np.nan)
     fresh.near(nan)
     c = tries[-1]
-    assert np.array_equal(fresh.near(c), np.flatnonzero(rows.room(c) < SKULL_MARGIN))  # (no bound kept from it)
+    assert np.array_equal(fresh.near(c), np.flatnonzero(room_at_every_node(c) < SKULL_MARGIN))  # (no bound kept)
+
+
+def test_skull_rows_are_the_room_linearised_at_the_weights(skull_atlas):
+    """A skull row is phi(X + u(c)) >= -SKULL_SLACK linearised at c: at c itself C c - d is the
+    room plus the slack, and at weights moved a little it follows the room measured by the
+    skull to second order (the error falls 4x when the move halves); asked again at other
+    weights (the rows keep the last weights' distances), the rows are those of the new weights."""
+    from fenics_brainshift.atlas.rows import SKULL_SLACK, SkullRows
+    from fenics_brainshift.atlas.update import _skull
+
+    cached = _skull(skull_atlas, skull_atlas.vertex_modes)
+    modes = skull_atlas.vertex_modes[:, skull_atlas.surface_vertices].astype(float)
+    rows = SkullRows(cached.skull, cached.points, modes)
+    family = np.flatnonzero(skull_atlas.family)
+    rng = np.random.default_rng(5)
+
+    def room(c, nodes):
+        return cached.skull.phi(cached.points[nodes] + np.tensordot(c, modes[:, nodes], axes=1))[0]
+
+    for _ in range(2):  # (the second: new weights after the first's distances were kept)
+        c = np.zeros(len(modes))
+        c[rng.choice(family, 3, replace=False)] = rng.dirichlet(np.ones(3))
+        rows.near(c)
+        nodes = np.sort(rng.choice(len(cached.points), 300, replace=False))
+        C, d = rows.rows(c, nodes)
+        assert np.allclose(C @ c - d, room(c, nodes) + SKULL_SLACK, rtol=0, atol=1e-12)
+        move = np.zeros(len(modes))
+        move[rng.choice(family, 3, replace=False)] = rng.normal(0.0, 1.0, 3)
+        errors = []
+        for h in (0.02, 0.01):
+            exact = room(c + h * move, nodes) + SKULL_SLACK
+            errors.append(np.abs(C @ (c + h * move) - d - exact))
+        smooth = errors[1] > 1e-12  # (on a flat facet the room is linear: no error)
+        assert smooth.sum() > 30
+        ratio = np.median(errors[0][smooth] / errors[1][smooth])
+        assert 3.0 < ratio < 5.0, ratio
 
 
 def test_with_a_skull_a_mode_is_the_full_models_contact_state(skull_atlas, atlas):

@@ -294,3 +294,25 @@ def test_a_start_past_rows_it_cannot_hold_goes_in_from_the_anchor(vertex, monkey
     c = anchored.solve(alpha, near=start)
     assert np.abs(c - exact).max() <= 1e-6 * max(np.abs(exact).max(), 1.0)
     assert (C @ c - d).min() >= -1e-12
+
+
+def test_each_row_s_partner_is_the_last_row_that_is_its_negative():
+    """active_set.partners against every pair of rows compared: rows written twice, equality
+    pairs (a weight's lower and upper bound alike, the family's sum), a -0.0 against a 0.0,
+    rows whose keys nearly tie but differ, and rows with no partner."""
+    from fenics_brainshift.atlas.active_set import partners
+
+    rng = np.random.default_rng(4)
+    C, d = rng.normal(size=(40, 6)), rng.normal(size=40)
+    C[5], d[5] = -C[3], -d[3]  # a pair
+    C[9], d[9] = C[3], d[3]  # the pair's first row written twice: its partner is still row 5, 5's is 9
+    C[12], d[12] = -C[7], -d[7]
+    C[13], d[13] = -C[7], -d[7]  # two negatives of row 7: the last, 13
+    C[20], d[20] = 0.0, 0.0
+    C[21], d[21] = -0.0, -0.0  # zero rows are each other's negative
+    C[30], d[30] = -C[31] * (1 + 1e-10), -d[31]  # nearly, not: no partner
+    rows = np.round(np.column_stack([C, d]), 12) + 0.0
+    expected = [max([j for j in range(len(rows)) if np.array_equal(rows[j], -rows[i] + 0.0)], default=-1)
+                for i in range(len(rows))]
+    assert partners(C, d).tolist() == expected
+    assert expected[3] == 5 and expected[5] == 9 and expected[7] == 13 and expected[30] == -1

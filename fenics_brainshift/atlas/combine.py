@@ -26,7 +26,7 @@ from functools import cached_property
 
 import numpy as np
 
-from .active_set import ACTIVE, DataHessian, bound_rows, least_distance, partners, solve_on_active
+from .active_set import ACTIVE, DataHessian, Slack, bound_rows, least_distance, partners, solve_on_active
 
 
 ALPHAS = tuple(10.0 ** np.arange(-4, 3.5, 1.0))  # the cross-validation grid of alpha (per mm^2)
@@ -72,6 +72,12 @@ class Problem:
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         return bound_rows(self.unit_rows[0])
 
+    @cached_property
+    def slack(self) -> Slack:
+        """The constraints' C c - d, for every refit (its transposed copy of the general rows
+        was a tenth of an update with the skull's rows when each refit made its own)."""
+        return Slack(*self.unit_rows, *self.bounds)
+
     def with_constraints(self, C: np.ndarray, d: np.ndarray) -> "Problem":
         return Problem(self.A, self.b, self.groups, self.noise, self.gram, self.cross,
                        np.vstack([self.C, C]), np.concatenate([self.d, d]), self.anchor)
@@ -83,17 +89,18 @@ class Problem:
         H = DataHessian(A, self.noise, self.gram, alpha / MM2)
         g = A.T @ b / self.noise ** 2 + (alpha / MM2) * self.cross
         if near is not None and WARM_START:
-            c = solve_on_active(H, g, *self.unit_rows, near, self.partner, bounds=self.bounds, infeasible=INFEASIBLE)
+            c = solve_on_active(H, g, *self.unit_rows, near, self.partner, bounds=self.bounds, infeasible=INFEASIBLE,
+                                slack=self.slack)
             if c is None and self.anchor is not None:  # from the point nearest `near` inside the rows
                 inside = towards(self.anchor, near, *self.unit_rows)
                 if inside is not None:
-                    c = solve_on_active(H, g, *self.unit_rows, inside, self.partner, bounds=self.bounds)
+                    c = solve_on_active(H, g, *self.unit_rows, inside, self.partner, bounds=self.bounds, slack=self.slack)
             if c is not None:
                 return c
         c = least_distance(H.dense(), g, self.C, self.d)
         if WARM_START:  # NNLS's answer polished into an exact vertex, that refits can start from
             polished = solve_on_active(H, g, *self.unit_rows, c, self.partner, iterations=POLISH_ITERATIONS,
-                                       bounds=self.bounds, infeasible=INFEASIBLE, active=NNLS_ACCURACY)
+                                       bounds=self.bounds, infeasible=INFEASIBLE, active=NNLS_ACCURACY, slack=self.slack)
             if polished is not None:
                 return polished
         return c

@@ -80,24 +80,47 @@ class SkullRows:
     The room at the first weights asked (the reference) is kept, and a later question (which
     nodes have less room than a margin, how deep the deepest is past the skull) measures the
     distance only at the nodes that bound leaves in doubt: the update's rounds asked it of
-    every boundary node, a third of an update with the skull (distances to 40k triangles)."""
+    every boundary node, a third of an update with the skull (distances to 40k triangles).
+    The distances at the last weights asked are kept too: a round asks the depth, the nodes
+    near and their rows at the same weights."""
 
     def __init__(self, skull, points: np.ndarray, modes: np.ndarray):
         self.skull, self.points = skull, points  # the boundary nodes and their modes (M, B, 3)
-        # float64 and contiguous once: a combination is then one product (tensordot of the
-        # atlas's float32 slice copied and converted it every call: a third of an update)
+        # float64 and contiguous once, in two layouts: by weight (a combination of the few
+        # weights not 0 is one product) and by node (a row of C is then a node's contiguous
+        # (3, M) block: gathering the nodes' columns from the first layout was most of rows())
         self.flat = np.ascontiguousarray(modes.reshape(len(modes), -1), dtype=float)
-        self.modes = self.flat.reshape(modes.shape)
-        self._reference = None  # (weights, their displacement (B, 3), room (B,))
+        self.by_node = np.ascontiguousarray(self.flat.T.reshape(len(points), 3, len(modes)))
+        self._reference = None  # (u (B, 3), room (B,)) at the first weights asked
+        self._last = None  # (weights, u (B, 3), room (B,) NaN where not measured, grad (B, 3))
 
     def displacement(self, c: np.ndarray) -> np.ndarray:
-        """u (B, 3) of the nodes at weights c, over the weights that are not 0."""
+        """u (B, 3) of the nodes at weights c, over the weights that are not 0 (all of them when
+        most are not: gathering the rows first then copied most of the modes)."""
         used = c.nonzero()[0]
+        if 4 * len(used) > len(c):
+            return (c @ self.flat).reshape(-1, 3)
         return (c[used] @ self.flat[used]).reshape(-1, 3)
+
+    def _at(self, c: np.ndarray) -> tuple:
+        """(c, u (B, 3), room (B,) NaN where not yet measured, grad (B, 3)) at weights c."""
+        if self._last is None or not np.array_equal(self._last[0], c):
+            B = len(self.points)
+            self._last = (np.array(c, dtype=float), self.displacement(c), np.full(B, np.nan), np.zeros((B, 3)))
+        return self._last
+
+    def _phi(self, c: np.ndarray, nodes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(room, grad) of these nodes (default: all) at weights c, measured once per weights."""
+        _, u, room, grad = self._at(c)
+        nodes = np.arange(len(self.points)) if nodes is None else nodes
+        missing = nodes[np.isnan(room[nodes])]
+        if len(missing):
+            room[missing], grad[missing] = self.skull.phi(self.points[missing] + u[missing])
+        return room[nodes], grad[nodes]
 
     def room(self, c: np.ndarray) -> np.ndarray:
         """phi (B,) of the nodes at weights c: the room left before the skull (< 0: past it)."""
-        return self.skull.phi(self.points + self.displacement(c))[0]
+        return self._phi(c)[0]
 
     def _in_doubt(self, c: np.ndarray, below: float) -> tuple[np.ndarray, np.ndarray]:
         """(nodes whose room at c may be below `below`, their room at c): the rest have more."""
@@ -105,15 +128,13 @@ class SkullRows:
             room = self.room(c)
             if not (np.isfinite(c).all() and np.isfinite(room).all()):  # (no bound from it: every node)
                 return np.arange(len(room)), room
-            self._reference = (np.array(c, dtype=float), self.displacement(c), room)
-        c_ref, u_ref, room_ref = self._reference
-        change = c - c_ref
-        used = change.nonzero()[0]
-        du = (change[used] @ self.flat[used]).reshape(-1, 3)
+            self._reference = (self._at(c)[1], room)
+        u_ref, room_ref = self._reference
+        du = self._at(c)[1] - u_ref  # (the fits' weights are sparse, their change from the first is not)
         doubt = np.flatnonzero(room_ref - np.linalg.norm(du, axis=1) < below)
         if not len(doubt):
             return doubt, np.zeros(0)
-        return doubt, self.skull.phi(self.points[doubt] + u_ref[doubt] + du[doubt])[0]
+        return doubt, self._phi(c, doubt)[0]
 
     def near(self, c: np.ndarray, margin: float = SKULL_MARGIN) -> np.ndarray:
         """The nodes with less room than `margin` at c."""
@@ -127,7 +148,7 @@ class SkullRows:
 
     def rows(self, c: np.ndarray, nodes: np.ndarray):
         """(C, d): C c >= d keeps these nodes inside (to SKULL_SLACK), linearised at c."""
-        u = np.tensordot(c, self.modes[:, nodes, :], axes=1)
-        phi, grad = self.skull.phi(self.points[nodes] + u)
-        C = np.einsum("nd,mnd->nm", grad, self.modes[:, nodes, :])
+        phi, grad = self._phi(c, nodes)
+        C = np.einsum("nd,ndm->nm", grad, self.by_node[nodes])
+        u = self._at(c)[1][nodes]
         return C, np.einsum("nd,nd->n", grad, u) - phi - SKULL_SLACK
