@@ -316,3 +316,89 @@ def test_each_row_s_partner_is_the_last_row_that_is_its_negative():
                 for i in range(len(rows))]
     assert partners(C, d).tolist() == expected
     assert expected[3] == 5 and expected[5] == 9 and expected[7] == 13 and expected[30] == -1
+
+
+def test_the_posterior_spread_by_hand_on_a_two_state_family():
+    """Two states in the family (weights t and 1 - t), a third weight held at its bound: the
+    posterior lives on the line c = (t, 1 - t, 0), where t has variance 1 / (e.H.e), e = (1, -1, 0),
+    H = A'A / noise^2 + (alpha / mm^2) G; a node's spread is then |U_1 - U_2| sqrt(var t) (the
+    third mode, at its bound, adds nothing). With the residual 3x what the noise explains, the
+    variance scales by the chi-square per degree of freedom."""
+    from fenics_brainshift.atlas import posterior
+
+    rng = np.random.default_rng(8)
+    modes = rng.normal(size=(3, 50, 3)) * 1e-3
+    flat = modes.reshape(3, -1)
+    gram = flat @ flat.T / 50
+    family = np.array([True, True, True])
+    C, d = weight_constraints(family, np.zeros(3), np.zeros(3))
+    C, d = np.vstack([C, [0.0, 0.0, -1.0]]), np.r_[d, 0.0]  # the third weight <= 0: held at 0
+    points = 6
+    pre = rng.integers(0, 50, points)
+    A = modes[:, pre, :].reshape(3, -1).T  # (3 points, weights): point-pair rows
+    truth = np.array([0.3, 0.7, 0.0])
+    noise, alpha = 2e-4, 0.05
+    for excess in (1.0, 3.0):
+        b = A @ truth + excess * noise * rng.choice([-1.0, 1.0], len(A))  # (residual ~ excess x noise)
+        problem = Problem(A, b, np.repeat(np.arange(points), 3), noise, gram, gram @ truth, C, d)
+        c = problem.solve(alpha)
+        assert c[2] == 0.0 and 0 < c[0] < 1
+        H = A.T @ A / noise ** 2 + alpha / 1e-6 * gram
+        e = np.array([1.0, -1.0, 0.0])
+        variance = 1.0 / (e @ H @ e)
+        r = A @ c - b
+        factor = max(1.0, (r @ r) / noise ** 2 / (len(b) - 2))  # (rows minus the two free weights)
+        expected = np.linalg.norm(modes[0] - modes[1], axis=1) * np.sqrt(variance * factor)
+        got = posterior.spread(problem, alpha, c, modes)
+        assert np.allclose(got, expected, rtol=1e-6, atol=0.0)
+        assert (factor > 1.5) == (excess > 1.0)  # (both branches of the scale)
+
+
+def test_cross_validation_is_the_k_fold_error_and_stops_past_its_minimum():
+    """choose_alpha's curve against K-fold errors computed here by NNLS from scratch at every
+    alpha (the same folds), and its scan stopping once the error has grown by more than RISE at
+    RISES alphas in a row: the same choice as the whole grid's where the curve is U-shaped."""
+    from fenics_brainshift.atlas import combine
+
+    problem = _problem((1.0, 1.0), seed=5)
+    fold = combine.fold_of(problem.groups, combine.FOLDS)
+    alphas = combine.ALPHAS
+    brute = []
+    for alpha in alphas:
+        errors = []
+        for k in np.unique(fold):
+            H, g = _hessian(problem, alpha, np.flatnonzero(fold != k))
+            c = least_distance(H, g, problem.C, problem.d)
+            errors.append(problem.misfit(c, np.flatnonzero(fold == k)))
+        brute.append(float(np.sqrt(np.mean(np.concatenate(errors) ** 2)) * 1e3))
+    alpha, curve, whole = combine.choose_alpha(problem)
+    got = [p["cv_rms_mm"] for p in curve]
+    assert np.allclose(got, brute[:len(got)], rtol=1e-6)
+    rises = [b > (1 + combine.RISE) * a for a, b in zip(brute, brute[1:])]
+    stop = next((i + 3 for i in range(len(rises) - 1) if rises[i] and rises[i + 1]), len(alphas))  # (alpha i + 2 the last)
+    assert len(curve) == stop
+    assert stop < len(alphas)  # (this problem's curve does rise: the stop is tested)
+    assert alpha == alphas[int(np.argmin(brute))]  # (U-shaped here: the whole grid's choice)
+    H, g = _hessian(problem, alphas[0], np.arange(len(problem.b)))
+    assert np.allclose(whole, least_distance(H, g, problem.C, problem.d), atol=1e-9)
+
+
+def test_the_posterior_spread_is_that_of_the_exact_vertex_from_an_answer_of_nnls():
+    """NNLS's answer (every refit's when warm starts are off; a fit whose polish failed) has its
+    weights at their bounds off by up to 2e-8 on the 5 mm skull atlas (1e-15 on these small
+    problems: that error is added here): the posterior takes the same active face, and the same
+    spread, as from the exact vertex the active-set method polishes it into."""
+    from fenics_brainshift.atlas import posterior
+
+    problem = _problem((1.0, 1.0), seed=2)
+    modes = np.random.default_rng(1).normal(size=(len(problem.gram), 40, 3)) * 1e-3
+    rng = np.random.default_rng(3)
+    for alpha in (1e-3, 1e-1, 10.0):
+        exact = problem.solve(alpha)
+        H, g = _hessian(problem, alpha, np.arange(len(problem.b)))
+        rough = least_distance(H, g, problem.C, problem.d)
+        at_bound = exact == 0
+        assert at_bound.sum() > 10
+        rough[at_bound] += rng.uniform(-2e-10, 2e-8, at_bound.sum())
+        assert np.allclose(posterior.spread(problem, alpha, rough, modes), posterior.spread(problem, alpha, exact, modes),
+                           rtol=1e-4, atol=0.0)

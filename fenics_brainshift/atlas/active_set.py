@@ -135,7 +135,7 @@ def solve_on_active(H: np.ndarray, g: np.ndarray, C: np.ndarray, d: np.ndarray, 
         first = False
         if solved is None:
             return None
-        x, multipliers = solved
+        x, multipliers_of = solved
         p = x - c
         if np.abs(p).max() > 1e-12 * (1.0 + np.abs(c).max()):
             Cp = slack.along(p)
@@ -155,6 +155,7 @@ def solve_on_active(H: np.ndarray, g: np.ndarray, C: np.ndarray, d: np.ndarray, 
             # (solving the same system again to learn them was half the steps)
             s = s + Cp
         c = x
+        multipliers = multipliers_of()
         inequality = partner[held] < 0
         scale = max(float(np.abs(multipliers).max(initial=0.0)), 1e-300)
         worst = int(np.argmin(np.where(inequality, multipliers, np.inf))) if inequality.any() else -1
@@ -182,7 +183,10 @@ class Slack:
         out = np.empty(len(self.d))
         out[self.is_bound] = self.sign * p[self.column]
         moved = p.nonzero()[0]
-        out[self.general] = p[moved] @ self.by_weight[moved]
+        if 4 * len(moved) > len(p):  # (most weights moved: gathering their rows would copy most of them)
+            out[self.general] = p @ self.by_weight
+        else:
+            out[self.general] = p[moved] @ self.by_weight[moved]
         return out
 
     def __call__(self, c: np.ndarray) -> np.ndarray:
@@ -206,9 +210,11 @@ def bound_rows(C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _equality_solve(H, g, C, d, held, bound_of, sign):
-    """(c, lam) of H c - C_h' lam = g, C_h c = d_h (lam in the order of `held`): the weights a
-    held bound fixes are set, the rest solved from the KKT system of the free weights and the
-    other held rows. None if the rows are dependent (a weight bounded twice, dependent rows)."""
+    """(c, multipliers) of H c - C_h' lam = g, C_h c = d_h: c, and a function that gives lam in
+    the order of `held` (a blocked step does not need them: computing them every step was a
+    fifth of its cost). The weights a held bound fixes are set, the rest solved from the KKT
+    system of the free weights and the other held rows. None if the rows are dependent (a
+    weight bounded twice, dependent rows)."""
     n = len(g)
     of = bound_of[held]
     is_bound = of >= 0  # `bounds` and `general` are held's rows in held's order
@@ -221,16 +227,19 @@ def _equality_solve(H, g, C, d, held, bound_of, sign):
     c = np.zeros(n)
     c[fixed_index] = d[bounds] * sign[bounds]
     pinned = c.nonzero()[0]  # fixed weights not at 0 (most are: the family's lower bound)
-    Hc_pinned = H.times(pinned, c[pinned]) if len(pinned) else np.zeros(n)  # H c of the fixed weights
+    Hc_pinned = H.times(pinned, c[pinned]) if len(pinned) else None  # H c of the fixed weights
     C_general = C[general]
-    C_free = C_general[:, free]
     nf, k = len(free), len(general)
-    kkt = np.zeros((nf + k, nf + k))
+    kkt = np.empty((nf + k, nf + k))
     block, times_free = H.restricted(free)
     kkt[:nf, :nf] = block
-    kkt[:nf, nf:], kkt[nf:, :nf] = -C_free.T, C_free
-    rhs = np.concatenate([g[free] - Hc_pinned[free], d[general] - C_general @ c])
-    if kkt.size == 0:  # every weight fixed by its bound
+    if k:
+        C_free = C_general[:, free]
+        kkt[:nf, nf:], kkt[nf:, :nf], kkt[nf:, nf:] = -C_free.T, C_free, 0.0
+    rhs = np.empty(nf + k)
+    rhs[:nf] = g[free] if Hc_pinned is None else g[free] - Hc_pinned[free]
+    rhs[nf:] = d[general] - C_general @ c
+    if nf + k == 0:  # every weight fixed by its bound
         solution = np.zeros(0)
     else:  # (LAPACK's gesv directly: numpy's solve costs 4x as much on these small systems)
         _, _, solution, info = gesv(kkt, rhs)
@@ -244,33 +253,38 @@ def _equality_solve(H, g, C, d, held, bound_of, sign):
     if not np.isfinite(size) or not sqrt(residual @ residual) <= 1e-8 * size \
             or np.abs(solution[nf:]).max(initial=0.0) > 1e8 * size:
         return None
-    c[free] = solution[:nf]
-    lam_general = solution[nf:]
-    # a bound's multiplier from the stationarity of its weight: (H c - g)_k = C[:, k]' lam
-    Hc = Hc_pinned + times_free(c[free]) if nf else Hc_pinned
-    gradient = Hc[fixed_index] - g[fixed_index] - C_general[:, fixed_index].T @ lam_general
-    multipliers = np.empty(len(held))
-    multipliers[~is_bound] = lam_general
-    multipliers[is_bound] = sign[bounds] * gradient
+    c[free] = x
+
+    def multipliers() -> np.ndarray:
+        lam_general = solution[nf:]
+        # a bound's multiplier from the stationarity of its weight: (H c - g)_k = C[:, k]' lam
+        Hc = times_free(x) if nf else np.zeros(n)
+        if Hc_pinned is not None:
+            Hc += Hc_pinned
+        gradient = Hc[fixed_index] - g[fixed_index] - C_general[:, fixed_index].T @ lam_general
+        out = np.empty(len(held))
+        out[~is_bound] = lam_general
+        out[is_bound] = sign[bounds] * gradient
+        return out
     return c, multipliers
 
 
 def partners(C: np.ndarray, d: np.ndarray) -> np.ndarray:
     """For each row of C c >= d, the row that is its negative (an equality written as two), or -1
     (of rows alike, the last). Candidates by a random projection of the rows (a row and its
-    negative project to opposite values), confirmed row by row (looking up every row by its
-    bytes was 5 ms of an update with the skull's thousand rows; sorting the rows, 14)."""
-    rows = np.round(np.column_stack([C, d]), 12) + 0.0  # + 0.0: -0.0 and 0.0 alike
-    key = rows @ np.random.default_rng(0).standard_normal(rows.shape[1])
+    negative project to opposite values), confirmed row by row to 12 decimals (looking up every
+    row by its bytes was 5 ms of an update with the skull's thousand rows; sorting the rows, 14)."""
+    key = C @ np.random.default_rng(0).standard_normal(C.shape[1]) + 0.7071067811865476 * d
     order = np.argsort(key, kind="stable")  # (of equal keys, the later row last)
     sorted_key = key[order]
-    tolerance = 1e-9 * (1.0 + np.abs(key))
-    out = np.full(len(rows), -1, dtype=np.int64)
+    tolerance = 1e-9 * (1.0 + np.abs(key)) + 1e-10 * (1.0 + np.abs(C).sum(axis=1) + np.abs(d))  # (the rounding's)
+    out = np.full(len(d), -1, dtype=np.int64)
     lo = np.searchsorted(sorted_key, -key - tolerance, side="left")
     hi = np.searchsorted(sorted_key, -key + tolerance, side="right")
     for i in np.flatnonzero(hi > lo):  # (few: the bounds of a fixed weight, the family's sum)
-        for j in order[lo[i]:hi[i]][::-1]:  # the last row alike first
-            if np.array_equal(rows[j], -rows[i] + 0.0):
-                out[i] = j
-                break
+        negated = np.round(-np.r_[C[i], d[i]], 12) + 0.0  # + 0.0: -0.0 and 0.0 alike
+        candidates = order[lo[i]:hi[i]]
+        alike = [j for j in candidates if np.array_equal(np.round(np.r_[C[j], d[j]], 12) + 0.0, negated)]
+        if alike:
+            out[i] = max(alike)
     return out

@@ -25,7 +25,7 @@ def add_update(sub) -> None:
                                         "--pre and --target .mrk.json by label, a CSV with x_pre.. columns, an MNI "
                                         ".tag of landmark pairs; point to surface: points or a scanned surface) as "
                                         "a constrained least-squares problem; alpha by "
-                                        "cross-validation. Writes OUT/displacement.xdmf (with the bootstrap "
+                                        "cross-validation. Writes OUT/displacement.xdmf (with the per-node "
                                         "uncertainty), OUT/update.json, the moved surface and markups.")
     update.add_argument("atlas", help="atlas folder (brainshift atlas SCENE -o ATLAS)")
     update.add_argument("--target", required=True, help="measured intra-operative points (mm): .mrk.json, .csv, "
@@ -34,7 +34,9 @@ def add_update(sub) -> None:
     update.add_argument("--frame", type=str.upper, choices=["RAS", "LPS"], default=None,
                         help="frame of a CSV or an untagged surface target (default RAS)")
     update.add_argument("--noise", type=float, default=1.0, help="measurement noise (mm)")
-    update.add_argument("--bootstrap", type=int, default=30, help="resamplings of the points for the uncertainty")
+    update.add_argument("--bootstrap", type=int, default=0,
+                        help="the uncertainty from this many resamplings of the points (a refit each) instead of "
+                             "the weights' posterior (default: 0, the posterior, in closed form)")
     update.add_argument("--keep-all", action="store_true",
                         help="fit every point: none set aside as an outlier (by default a point whose "
                              "left-out error is far past the noise and the others' is set aside and reported)")

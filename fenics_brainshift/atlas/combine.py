@@ -31,6 +31,10 @@ from .active_set import ACTIVE, DataHessian, Slack, bound_rows, least_distance, 
 
 ALPHAS = tuple(10.0 ** np.arange(-4, 3.5, 1.0))  # the cross-validation grid of alpha (per mm^2)
 FOLDS = 5
+# the grid's scan stops once the error at points left out has grown this much (relative) at this many alphas in a
+# row: past the minimum, toward the prior, whose large alphas cost the most refit steps (the family's weights
+# freed one by one toward the prior's dense ones: a third of the cross-validation on the 5 mm skull atlas)
+RISE, RISES = 0.01, 2
 MM2 = 1e-6  # R in mm^2
 WARM_START = True  # False: every refit from scratch by NNLS (the baseline benchmarks/update.py times)
 # a start may be this far past its constraints (relative): they join the working set, which its first step holds.
@@ -42,19 +46,12 @@ NNLS_ACCURACY = 1e-6  # (relative) NNLS's answer: its rows this near equality st
 POLISH_ITERATIONS = 400  # of the polish (each one KKT solve; its set then serves every refit)
 
 
-@dataclass
-class Problem:
-    """The data (rows per point: `groups` says which point a row is of), the regulariser's
-    quadratic form (m^2) and the constraints every fit keeps."""
-    A: np.ndarray
-    b: np.ndarray
-    groups: np.ndarray
-    noise: float
-    gram: np.ndarray
-    cross: np.ndarray
-    C: np.ndarray
-    d: np.ndarray
-    anchor: np.ndarray | None = None  # weights inside every constraint, if known (a start's fallback)
+class Constraints:
+    """C c >= d, and what the solvers derive from it once (the same for every refit, and for
+    every update's first round: update.py keeps that one per atlas)."""
+
+    def __init__(self, C: np.ndarray, d: np.ndarray):
+        self.C, self.d = C, d
 
     @cached_property
     def unit_rows(self) -> tuple[np.ndarray, np.ndarray]:
@@ -78,9 +75,44 @@ class Problem:
         was a tenth of an update with the skull's rows when each refit made its own)."""
         return Slack(*self.unit_rows, *self.bounds)
 
+    def stacked(self, C: np.ndarray, d: np.ndarray) -> "Constraints":
+        return Constraints(np.vstack([self.C, C]), np.concatenate([self.d, d]))
+
+
+@dataclass
+class Problem:
+    """The data (rows per point: `groups` says which point a row is of), the regulariser's
+    quadratic form (m^2) and the constraints every fit keeps (C c >= d; `constraints`: the same
+    with what is derived from them, if already made)."""
+    A: np.ndarray
+    b: np.ndarray
+    groups: np.ndarray
+    noise: float
+    gram: np.ndarray
+    cross: np.ndarray
+    C: np.ndarray
+    d: np.ndarray
+    anchor: np.ndarray | None = None  # weights inside every constraint, if known (a start's fallback)
+    constraints: Constraints | None = None
+
+    def __post_init__(self):
+        if self.constraints is None:
+            self.constraints = Constraints(self.C, self.d)
+        elif self.constraints.C is not self.C or self.constraints.d is not self.d:
+            raise ValueError("Problem: `constraints` must be made of the same C and d")
+
+    unit_rows = property(lambda self: self.constraints.unit_rows)
+    partner = property(lambda self: self.constraints.partner)
+    bounds = property(lambda self: self.constraints.bounds)
+    slack = property(lambda self: self.constraints.slack)
+
     def with_constraints(self, C: np.ndarray, d: np.ndarray) -> "Problem":
-        return Problem(self.A, self.b, self.groups, self.noise, self.gram, self.cross,
-                       np.vstack([self.C, C]), np.concatenate([self.d, d]), self.anchor)
+        return self.with_all(self.constraints.stacked(C, d))
+
+    def with_all(self, constraints: Constraints) -> "Problem":
+        """The same data with these constraints instead."""
+        return Problem(self.A, self.b, self.groups, self.noise, self.gram, self.cross, constraints.C, constraints.d,
+                       self.anchor, constraints)
 
     def solve(self, alpha: float, rows: np.ndarray | None = None, near: np.ndarray | None = None) -> np.ndarray:
         """The constrained minimiser with the data rows `rows` (default: all); `near`: weights
@@ -137,11 +169,13 @@ def fold_of(groups: np.ndarray, folds: int, seed: int = 0) -> np.ndarray:
 
 
 def choose_alpha(problem: Problem, alphas=ALPHAS, folds: int = FOLDS,
-                 near: np.ndarray | None = None) -> tuple[float, list[dict]]:
-    """The alpha of least mean error at points left out (K-fold), and the curve. `near`:
-    weights to start from. Each fold's fit starts from the same fold's at the last alpha (the
-    same data: over the grid's flat part the same active set, one KKT solve), the first
-    alpha's from the fit to all the points."""
+                 near: np.ndarray | None = None) -> tuple[float, list[dict], np.ndarray]:
+    """The alpha of least mean error at points left out (K-fold), the curve, and the fit to all
+    the points at the first alpha (a start for the fit at the chosen one). `near`: weights to
+    start from. Each fold's fit starts from the same fold's at the last alpha (the same data:
+    over the grid's flat part the same active set, one KKT solve), the first alpha's from the
+    fit to all the points. The grid is scanned upward and the scan stops when the error has
+    grown by more than RISE at RISES alphas in a row (the curve then ends there)."""
     fold = fold_of(problem.groups, min(folds, len(np.unique(problem.groups))))
     curve = []
     whole = problem.solve(alphas[0], near=near)
@@ -153,8 +187,12 @@ def choose_alpha(problem: Problem, alphas=ALPHAS, folds: int = FOLDS,
             errors.append(problem.misfit(c, np.flatnonzero(fold == k)))
         e = np.concatenate(errors)
         curve.append({"alpha": float(alpha), "cv_rms_mm": float(np.sqrt(np.mean(e ** 2)) * 1e3)})
+        errors_so_far = [p["cv_rms_mm"] for p in curve]
+        if len(curve) > RISES and all(b > (1 + RISE) * a for a, b in zip(errors_so_far[-RISES - 1:-1],
+                                                                          errors_so_far[-RISES:])):
+            break
     best = min(curve, key=lambda p: p["cv_rms_mm"])
-    return best["alpha"], curve
+    return best["alpha"], curve, whole
 
 
 def leave_one_out(problem: Problem, alpha: float, most: int | None = None, seed: int = 2,

@@ -76,11 +76,13 @@ class SurfaceRows:
 class SkullRows:
     """Inequality rows keeping the boundary nodes inside the skull (a RigidSkull).
 
-    The room phi is a signed distance, 1-Lipschitz: phi(X + u) >= phi(X + u_r) - |u - u_r|.
-    The room at the first weights asked (the reference) is kept, and a later question (which
-    nodes have less room than a margin, how deep the deepest is past the skull) measures the
-    distance only at the nodes that bound leaves in doubt: the update's rounds asked it of
-    every boundary node, a third of an update with the skull (distances to 40k triangles).
+    The room phi is a signed distance, 1-Lipschitz: phi(X + u) >= phi(X + u_k) - |u - u_k|.
+    Each node's room where it was last measured is kept (at first, every node's at the first
+    weights asked), and a later question (which nodes have less room than a margin, how deep
+    the deepest is past the skull) measures the distance only at the nodes that bound leaves in
+    doubt: the update's rounds asked it of every boundary node, a third of an update with the
+    skull (distances to 40k triangles); each node's own last measurement, not the first
+    weights', as the fits' weights move away from those and the bound from them loosens.
     The distances at the last weights asked are kept too: a round asks the depth, the nodes
     near and their rows at the same weights."""
 
@@ -91,7 +93,7 @@ class SkullRows:
         # (3, M) block: gathering the nodes' columns from the first layout was most of rows())
         self.flat = np.ascontiguousarray(modes.reshape(len(modes), -1), dtype=float)
         self.by_node = np.ascontiguousarray(self.flat.T.reshape(len(points), 3, len(modes)))
-        self._reference = None  # (u (B, 3), room (B,)) at the first weights asked
+        self._known = None  # (u (B, 3), room (B,)): each node where its room was last measured
         self._last = None  # (weights, u (B, 3), room (B,) NaN where not measured, grad (B, 3))
 
     def displacement(self, c: np.ndarray) -> np.ndarray:
@@ -116,6 +118,8 @@ class SkullRows:
         missing = nodes[np.isnan(room[nodes])]
         if len(missing):
             room[missing], grad[missing] = self.skull.phi(self.points[missing] + u[missing])
+            if self._known is not None and np.isfinite(room[missing]).all():
+                self._known[0][missing], self._known[1][missing] = u[missing], room[missing]
         return room[nodes], grad[nodes]
 
     def room(self, c: np.ndarray) -> np.ndarray:
@@ -124,14 +128,14 @@ class SkullRows:
 
     def _in_doubt(self, c: np.ndarray, below: float) -> tuple[np.ndarray, np.ndarray]:
         """(nodes whose room at c may be below `below`, their room at c): the rest have more."""
-        if self._reference is None:
+        if self._known is None:
             room = self.room(c)
             if not (np.isfinite(c).all() and np.isfinite(room).all()):  # (no bound from it: every node)
                 return np.arange(len(room)), room
-            self._reference = (self._at(c)[1], room)
-        u_ref, room_ref = self._reference
-        du = self._at(c)[1] - u_ref  # (the fits' weights are sparse, their change from the first is not)
-        doubt = np.flatnonzero(room_ref - np.linalg.norm(du, axis=1) < below)
+            self._known = (self._at(c)[1].copy(), room.copy())
+        u_known, room_known = self._known
+        du = self._at(c)[1] - u_known
+        doubt = np.flatnonzero(room_known - np.linalg.norm(du, axis=1) < below)
         if not len(doubt):
             return doubt, np.zeros(0)
         return doubt, self._phi(c, doubt)[0]

@@ -9,8 +9,9 @@ Order of the work, each step on the last one's weights:
 3. point to surface: the nearest points found again on the moved surface, and the skull's
    rows taken again at the new weights (nodes the fit brought near join), the fit made again,
    until the weights stand still and no node is past the skull (ROUNDS at most);
-4. the leave-one-out error at each point and a bootstrap over the points: the per-node spread
-   of the displacement.
+4. the leave-one-out error at each point, and the per-node spread of the displacement: from
+   the weights' posterior on the fit's active face in closed form (posterior.py), or from a
+   bootstrap over the points (`samples` refits).
 """
 from __future__ import annotations
 
@@ -22,7 +23,8 @@ import numpy as np
 
 from ..errors import InputError
 from ..physics.skull import RigidSkull
-from .combine import Problem, bootstrap, choose_alpha, leave_one_out, weight_constraints
+from . import posterior
+from .combine import Constraints, Problem, bootstrap, choose_alpha, leave_one_out, weight_constraints
 from .locate import MeshLocator
 from .rows import PointRows, SkullRows, SurfaceRows
 
@@ -48,11 +50,12 @@ class UpdateResult:
     leave_one_out: np.ndarray  # (points,) m
     displacement: np.ndarray  # (N, 3) m at the atlas's nodes
     surface_displacement: np.ndarray | None  # (S, 3) m at the fine surface's vertices
-    spread: np.ndarray  # (N,) m: the bootstrap's standard deviation of |u| per node
+    spread: np.ndarray  # (N,) m: the standard deviation of |u| per node (posterior or bootstrap)
     skull: dict = field(default_factory=dict)
     seconds: dict = field(default_factory=dict)
     warning: str | None = None
     outliers: list[int] = field(default_factory=list)  # the points set aside (not in the fit)
+    spread_from: str = "posterior"  # or "bootstrap (N resamplings)"
 
     def volume_changes(self, atlas) -> dict[str, float]:
         """Each swelling region's fitted volume change."""
@@ -106,6 +109,36 @@ def prior_weights(atlas) -> np.ndarray:
     return atlas.once["prior_weights"]
 
 
+def prepare(atlas) -> float:
+    """What every update of this atlas needs, made once when it is loaded (as a navigation
+    system keeps it in memory): the prior's weights, the mesh's locator, the skull's distance
+    tree and rows over the boundary nodes, and the nodes near the skull at the prior's weights
+    with their rows (every update's first round). Returns the seconds it took."""
+    start = time.perf_counter()
+    prior_weights(atlas)
+    locator(atlas)
+    _skull_at_prior(atlas)
+    return time.perf_counter() - start
+
+
+def _skull_at_prior(atlas):
+    """(nodes, constraints): the boundary nodes near the skull at the prior's weights, and the
+    weights' constraints with those nodes' rows (combine.Constraints, what the solvers derive
+    from them made once); or None without a skull."""
+    if "skull_at_prior" not in atlas.once:
+        skull, c = _skull(atlas, atlas.vertex_modes), prior_weights(atlas)
+        if skull is None:
+            atlas.once["skull_at_prior"] = None
+        else:
+            nodes = skull.near(c)
+            constraints = Constraints(*weight_constraints(atlas.family, *bounds(atlas), family_sum(atlas)))
+            constraints = constraints.stacked(*skull.rows(c, nodes))
+            for derived in ("unit_rows", "partner", "bounds", "slack"):
+                getattr(constraints, derived)
+            atlas.once["skull_at_prior"] = (nodes, constraints)
+    return atlas.once["skull_at_prior"]
+
+
 def locator(atlas) -> MeshLocator:
     if "locator" not in atlas.once:
         atlas.once["locator"] = MeshLocator(atlas.points, atlas.tetrahedra)
@@ -122,9 +155,10 @@ def _prior_weights(atlas) -> np.ndarray:
     return least_distance(H, atlas.cross, C, d)
 
 
-def update(atlas, target, noise: float, samples: int = 30, keep_inside: bool = True,
+def update(atlas, target, noise: float, samples: int = 0, keep_inside: bool = True,
            set_aside: bool = True) -> UpdateResult:
     """The update of an atlas (store.Atlas) to a target (fit.targets.Target), noise in m;
+    samples: 0 for the spread from the posterior, else the bootstrap's resamplings;
     keep_inside: the skull's rows in the fit (False: the modes' own contact alone, to measure
     what the rows add); set_aside: points whose left-out error is far past the noise and the
     other points' (a pointer slip, a landmark on the wrong structure) are set aside and the
@@ -203,14 +237,18 @@ def _update(atlas, target, noise: float, samples: int, keep_inside: bool) -> Upd
     setup_s = time.perf_counter() - start
     for round_ in range(ROUNDS):
         problem = Problem(*data_rows(c), noise, atlas.gram, atlas.cross, C0, d0, anchor=prior_weights(atlas))
-        if skull is not None:  # the nodes near the skull at these weights join those before
+        if skull is not None and round_ == 0:  # (c: the prior's weights)
+            nodes, constraints = _skull_at_prior(atlas)
+            problem = problem.with_all(constraints)
+        elif skull is not None:  # the nodes near the skull at these weights join those before
             nodes = np.union1d(nodes, skull.near(c))
             problem = problem.with_constraints(*skull.rows(c, nodes))
+        near = c
         if alpha is None:  # alpha once, at the first rows (the nearest points change little after)
             t = time.perf_counter()
-            alpha, curve = choose_alpha(problem, near=c)
+            alpha, curve, near = choose_alpha(problem, near=c)  # (its fit to every point: nearer than c)
             cv_s = time.perf_counter() - t
-        c_new = problem.solve(alpha, near=c)
+        c_new = problem.solve(alpha, near=near)
         change, c = float(np.abs(c_new - c).max()), c_new
         deepest = skull.deepest(c) if skull is not None else 0.0
         if (point_to_point or change < 1e-6) and deepest <= PAST_SKULL:
@@ -222,13 +260,15 @@ def _update(atlas, target, noise: float, samples: int, keep_inside: bool) -> Upd
         residual = np.abs(surface.rows(c, target.measured)[3])
     t = time.perf_counter()
     loo = leave_one_out(problem, alpha, LEAVE_OUT_MAX, near=c)
-    sampled = bootstrap(problem, alpha, samples, near=c) if samples else np.zeros((0, len(c)))
     u = combination(c, modes)
-    spread = np.zeros(len(u))
-    if len(sampled):
+    if samples:
+        sampled = bootstrap(problem, alpha, samples, near=c)
         used = np.flatnonzero(np.any(sampled != 0, axis=0))  # (most of the family's weights are 0)
         fields = np.tensordot(sampled[:, used], modes[used], axes=1)  # (B, N, 3)
         spread = np.sqrt(np.mean(np.sum((fields - fields.mean(axis=0)) ** 2, axis=2), axis=0))
+        spread_from = f"bootstrap ({samples} resamplings)"
+    else:
+        spread, spread_from = posterior.spread(problem, alpha, c, modes), "posterior"
     spread_s = time.perf_counter() - t
     surface_u = None if atlas.surface_modes is None else combination(c, atlas.surface_modes)
     skull_report = {}
@@ -237,9 +277,9 @@ def _update(atlas, target, noise: float, samples: int, keep_inside: bool) -> Upd
                         "deepest_past_mm": (deepest if skull is not None else _skull(atlas, modes).deepest(c)) * 1e3}
     warning = _warning(residual, noise, skull_report.get("deepest_past_mm", 0.0) * 1e-3, keep_inside)
     seconds = {"setup_ms": setup_s * 1e3, "fit_ms": fit_s * 1e3, "cross_validation_ms": cv_s * 1e3,
-               "leave_one_out_and_bootstrap_ms": spread_s * 1e3, "total_ms": (time.perf_counter() - start) * 1e3}
+               "leave_one_out_and_spread_ms": spread_s * 1e3, "total_ms": (time.perf_counter() - start) * 1e3}
     return UpdateResult(c, alpha, curve, prior_residual, residual, loo, u, surface_u, spread, skull_report, seconds,
-                        warning)
+                        warning, spread_from=spread_from)
 
 
 def combination(c: np.ndarray, modes: np.ndarray) -> np.ndarray:
