@@ -371,7 +371,7 @@ def test_cross_validation_is_the_k_fold_error_and_stops_past_its_minimum():
             c = least_distance(H, g, problem.C, problem.d)
             errors.append(problem.misfit(c, np.flatnonzero(fold == k)))
         brute.append(float(np.sqrt(np.mean(np.concatenate(errors) ** 2)) * 1e3))
-    alpha, curve, whole = combine.choose_alpha(problem)
+    alpha, curve, whole = combine.choose_alpha(problem, near=problem.solve(alphas[0]))
     got = [p["cv_rms_mm"] for p in curve]
     assert np.allclose(got, brute[:len(got)], rtol=1e-6)
     rises = [b > (1 + combine.RISE) * a for a, b in zip(brute, brute[1:])]
@@ -379,7 +379,7 @@ def test_cross_validation_is_the_k_fold_error_and_stops_past_its_minimum():
     assert len(curve) == stop
     assert stop < len(alphas)  # (this problem's curve does rise: the stop is tested)
     assert alpha == alphas[int(np.argmin(brute))]  # (U-shaped here: the whole grid's choice)
-    H, g = _hessian(problem, alphas[0], np.arange(len(problem.b)))
+    H, g = _hessian(problem, alpha, np.arange(len(problem.b)))  # (and the fit to every point at it)
     assert np.allclose(whole, least_distance(H, g, problem.C, problem.d), atol=1e-9)
 
 

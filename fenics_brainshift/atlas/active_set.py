@@ -29,27 +29,36 @@ ITERATIONS = 200
 class DataHessian:
     """H = A'A / noise^2 + s G + ridge I (G symmetric), not formed: a refit's active-set
     iterations need H over the free weights and its columns there times the free weights
-    (forming H cost more than the iterations)."""
+    (forming H cost more than the iterations). The free weights' block is kept by free set
+    within a refit (a weight freed and fixed again comes back to an earlier set)."""
 
     def __init__(self, A: np.ndarray, noise: float, gram: np.ndarray, s: float):
         self.A, self.w, self.gram, self.s = A, 1.0 / noise ** 2, gram, s
+        self.AT = np.ascontiguousarray(A.T)  # (a weight's data column as a contiguous row)
         trace = self.w * float(np.einsum("ij,ij->", A, A)) + s * float(np.trace(gram))
         self.ridge = RIDGE * max(trace / len(gram), 1e-300)  # a numerically positive definite H
+        self._blocks = {}
 
     def times(self, columns: np.ndarray, x: np.ndarray) -> np.ndarray:
         """H[:, columns] x."""
-        out = self.w * (self.A.T @ (self.A[:, columns] @ x)) + self.s * (x @ self.gram[columns])
+        out = self.w * (self.AT @ (x @ self.AT[columns])) + self.s * (x @ self.gram[columns])
         out[columns] += self.ridge * x
         return out
 
     def restricted(self, free: np.ndarray):
         """(H[free, free], x -> H[:, free] x): the columns of `free` taken once for both."""
-        A_free, G_free = self.A[:, free], self.gram[free]  # (G's rows: its columns, and contiguous)
-        block = self.w * (A_free.T @ A_free) + self.s * G_free[:, free]
-        block.flat[::len(free) + 1] += self.ridge
+        key = free.tobytes()
+        if key not in self._blocks:
+            AT_free, G_free = self.AT[free], self.gram[free]  # (G's rows: its columns, and contiguous)
+            block = self.w * (AT_free @ AT_free.T) + self.s * G_free[:, free]
+            block.flat[::len(free) + 1] += self.ridge
+            if len(self._blocks) > 64:
+                self._blocks.clear()
+            self._blocks[key] = (block, AT_free, G_free)
+        block, AT_free, G_free = self._blocks[key]
 
         def times(x: np.ndarray) -> np.ndarray:
-            out = self.w * (self.A.T @ (A_free @ x)) + self.s * (x @ G_free)
+            out = self.w * (self.AT @ (x @ AT_free)) + self.s * (x @ G_free)
             out[free] += self.ridge * x
             return out
         return block, times
@@ -123,10 +132,10 @@ def solve_on_active(H: np.ndarray, g: np.ndarray, C: np.ndarray, d: np.ndarray, 
     if np.any(s < -np.maximum(tolerance, infeasible * (1.0 + np.abs(d)))):
         return None
     working = s <= np.maximum(tolerance, active * (1.0 + np.abs(d)))  # (and the rows the start is past)
-    rows = np.arange(len(d))
+    seconds = ((partner >= 0) & (partner < np.arange(len(d)))).nonzero()[0]  # (the second row of each pair)
     first = True
     for _ in range(iterations):
-        held = _held(working, partner, rows)
+        held = _held(working, partner, seconds)
         solved = _equality_solve(H, g, C, d, held, bound_of, sign)
         if solved is None and first and np.any(working & (bound_of < 0)):
             working &= bound_of >= 0  # dependent general rows at the start: they join one at a time
@@ -193,10 +202,17 @@ class Slack:
         return self.along(c) - self.d
 
 
-def _held(working: np.ndarray, partner: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """The working rows held as equalities: of an equality pair both in the set, the first."""
-    second = (partner >= 0) & (partner < rows) & working[np.maximum(partner, 0)]
-    return (working & ~second).nonzero()[0]
+def _held(working: np.ndarray, partner: np.ndarray, seconds: np.ndarray) -> np.ndarray:
+    """The working rows held as equalities: of an equality pair both in the set, the first
+    (`seconds`: the rows that are the second of their pair, a few)."""
+    if not len(seconds):
+        return working.nonzero()[0]
+    both = seconds[working[seconds] & working[partner[seconds]]]
+    if not len(both):
+        return working.nonzero()[0]
+    held = working.copy()
+    held[both] = False
+    return held.nonzero()[0]
 
 
 def bound_rows(C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -219,7 +235,8 @@ def _equality_solve(H, g, C, d, held, bound_of, sign):
     of = bound_of[held]
     is_bound = of >= 0  # `bounds` and `general` are held's rows in held's order
     bounds, general, fixed_index = held[is_bound], held[~is_bound], of[is_bound]
-    is_free = np.ones(n, dtype=bool)
+    is_free = np.empty(n, dtype=bool)
+    is_free.fill(True)  # (np.ones: a tenth of this line's cost again, in Python)
     is_free[fixed_index] = False
     free = is_free.nonzero()[0]  # (not flatnonzero: its overhead was a tenth of the solve)
     if len(free) != n - len(fixed_index):  # a weight bounded twice
@@ -232,7 +249,7 @@ def _equality_solve(H, g, C, d, held, bound_of, sign):
     nf, k = len(free), len(general)
     kkt = np.empty((nf + k, nf + k))
     block, times_free = H.restricted(free)
-    kkt[:nf, :nf] = block
+    kkt[:nf, :nf] = block  # (a copy: gesv must not overwrite the block kept)
     if k:
         C_free = C_general[:, free]
         kkt[:nf, nf:], kkt[nf:, :nf], kkt[nf:, nf:] = -C_free.T, C_free, 0.0
@@ -245,14 +262,15 @@ def _equality_solve(H, g, C, d, held, bound_of, sign):
         _, _, solution, info = gesv(kkt, rhs)
         if info != 0:  # dependent rows: NNLS sorts them out
             return None
-    # nearly dependent rows solve to garbage without an error: keep only a solution that solves,
-    # measured against the weights' part (dependent rows' multipliers grow without bound)
+        # nearly dependent rows solve to garbage without an error: keep only a solution that
+        # solves, measured against the weights' part (dependent rows' multipliers grow without bound)
+        x = solution[:nf]
+        size = max(sqrt(rhs @ rhs) + np.abs(kkt).sum(axis=0).max() * sqrt(x @ x), 1e-300)
+        residual = kkt @ solution - rhs
+        if not np.isfinite(size) or not sqrt(residual @ residual) <= 1e-8 * size \
+                or (k and np.abs(solution[nf:]).max() > 1e8 * size):
+            return None
     x = solution[:nf]
-    size = max(sqrt(rhs @ rhs) + np.abs(kkt).sum(axis=0).max(initial=0.0) * sqrt(x @ x), 1e-300)
-    residual = kkt @ solution - rhs
-    if not np.isfinite(size) or not sqrt(residual @ residual) <= 1e-8 * size \
-            or np.abs(solution[nf:]).max(initial=0.0) > 1e8 * size:
-        return None
     c[free] = x
 
     def multipliers() -> np.ndarray:
@@ -261,7 +279,7 @@ def _equality_solve(H, g, C, d, held, bound_of, sign):
         Hc = times_free(x) if nf else np.zeros(n)
         if Hc_pinned is not None:
             Hc += Hc_pinned
-        gradient = Hc[fixed_index] - g[fixed_index] - C_general[:, fixed_index].T @ lam_general
+        gradient = (Hc - g - lam_general @ C_general)[fixed_index]
         out = np.empty(len(held))
         out[~is_bound] = lam_general
         out[is_bound] = sign[bounds] * gradient
