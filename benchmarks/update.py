@@ -205,7 +205,9 @@ def main() -> None:
                      f"{r['posterior_covers_deep']:.0%} / {r['bootstrap_covers_deep']:.0%} | "
                      f"{r['update_fit_ms']:.1f} / {r['update_total_ms']:.0f} | {r['update_total_bootstrap_ms']:.0f} | "
                      f"{r['update_total_scratch_ms']:.0f} | {r['fit_s']:.1f} |")
-    lines += ["", "update fit / total: the weights' fit alone / the whole update, with cross-validation, "
+    lines += ["", "update fit / total: the fit's rounds after cross-validation (which fits every point at each "
+              "alpha: the rounds start from its fit at the chosen one, and re-linearise the skull's rows) / the "
+              "whole update, with cross-validation, "
               "leave-one-out and the spread from the weights' posterior (the default; median of 5), the atlas "
               f"prepared once on loading it ({prepare_s * 1e3:.0f} ms: atlas/update.py prepare); with bootstrap: the "
               f"same with the spread from a {BOOTSTRAP}-sample bootstrap (`--bootstrap {BOOTSTRAP}`, median of 3); "

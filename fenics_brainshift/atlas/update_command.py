@@ -166,7 +166,7 @@ def _lines(atlas, target, result, out: Path, image: bool) -> list[str]:
     lines = [f"update: {target.kind}, {len(target.measured)} points, {len(result.weights)} modes; residual RMS "
              f"{rms(result.prior_residual[keep]):.2f} mm (scene) -> {rms(result.residual[keep]):.2f} mm (updated), "
              f"left out {float(np.sqrt(np.nanmean(result.leave_one_out[keep] ** 2))) * 1e3:.2f} mm; fit "
-             f"{result.seconds['fit_ms']:.0f} ms (alpha {result.alpha:g} by cross-validation), the whole update "
+             f"{result.seconds['weights_ms']:.0f} ms (alpha {result.alpha:g} by cross-validation), the whole update "
              f"{result.seconds['total_ms']:.0f} ms",
              f"  scenarios: {top or 'none'}"]
     if result.stiffness(atlas) is not None:
