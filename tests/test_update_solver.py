@@ -347,11 +347,18 @@ def test_the_posterior_spread_by_hand_on_a_two_state_family():
         e = np.array([1.0, -1.0, 0.0])
         variance = 1.0 / (e @ H @ e)
         r = A @ c - b
-        factor = max(1.0, (r @ r) / noise ** 2 / (len(b) - 2))  # (rows minus the two free weights)
+        factor = max(1.0, (r @ r) / noise ** 2 / (len(b) - 1))  # (rows minus the face's dimension, 1)
         expected = np.linalg.norm(modes[0] - modes[1], axis=1) * np.sqrt(variance * factor)
         got = posterior.spread(problem, alpha, c, modes)
         assert np.allclose(got, expected, rtol=1e-6, atol=0.0)
         assert (factor > 1.5) == (excess > 1.0)  # (both branches of the scale)
+        # a general inequality the fit presses (a skull's row through it, t <= t*): it bounds the
+        # posterior on one side, it does not pin it (held as an equality, the face was the point
+        # and the spread 0: a review)
+        pressed = Problem(A, b, problem.groups, noise, gram, gram @ truth, np.vstack([C, [-1.0, 1.0, 0.0]]),
+                          np.r_[d, c[1] - c[0]])  # (-t + (1 - t) >= its value at t*: t <= t*)
+        assert np.allclose(pressed.solve(alpha), c, atol=1e-9)
+        assert np.allclose(posterior.spread(pressed, alpha, c, modes), expected, rtol=1e-6, atol=0.0)
 
 
 def test_cross_validation_is_the_k_fold_error_and_stops_past_its_minimum():
@@ -360,7 +367,7 @@ def test_cross_validation_is_the_k_fold_error_and_stops_past_its_minimum():
     RISES alphas in a row: the same choice as the whole grid's where the curve is U-shaped."""
     from fenics_brainshift.atlas import combine
 
-    problem = _problem((1.0, 1.0), seed=5)
+    problem = _problem((1.0, 1.0), seed=0)
     fold = combine.fold_of(problem.groups, combine.FOLDS)
     alphas = combine.ALPHAS
     brute = []
@@ -375,7 +382,8 @@ def test_cross_validation_is_the_k_fold_error_and_stops_past_its_minimum():
     got = [p["cv_rms_mm"] for p in curve]
     assert np.allclose(got, brute[:len(got)], rtol=1e-6)
     rises = [b > (1 + combine.RISE) * a for a, b in zip(brute, brute[1:])]
-    stop = next((i + 3 for i in range(len(rises) - 1) if rises[i] and rises[i + 1]), len(alphas))  # (alpha i + 2 the last)
+    R = combine.RISES  # (rises[i]: at alpha i + 1; a stop after alpha j leaves j + 1 in the curve)
+    stop = next((j + 1 for j in range(R, len(brute)) if all(rises[j - R:j])), len(alphas))
     assert len(curve) == stop
     assert stop < len(alphas)  # (this problem's curve does rise: the stop is tested)
     assert alpha == alphas[int(np.argmin(brute))]  # (U-shaped here: the whole grid's choice)

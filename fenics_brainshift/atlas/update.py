@@ -50,7 +50,7 @@ class UpdateResult:
     leave_one_out: np.ndarray  # (points,) m
     displacement: np.ndarray  # (N, 3) m at the atlas's nodes
     surface_displacement: np.ndarray | None  # (S, 3) m at the fine surface's vertices
-    spread: np.ndarray  # (N,) m: the standard deviation of |u| per node (posterior or bootstrap)
+    spread: np.ndarray  # (N,) m: per node, the RMS deviation sqrt(E|u - E u|^2) (posterior or bootstrap)
     skull: dict = field(default_factory=dict)
     seconds: dict = field(default_factory=dict)
     warning: str | None = None
