@@ -11,13 +11,14 @@ inside it (rows.py). Each problem is solved exactly (active_set.py) by Lawson an
 to a least-distance problem solved by scipy's NNLS (Solving Least Squares Problems, 1974,
 ch. 23): a factor of the Hessian, one NNLS of the constraints' size. The many refits of
 cross-validation, leave-one-out and the bootstrap start from a nearby solution with the same
-constraints (the data rows change): the full fit's, and for a cross-validation fold its own
-fit at the previous alpha; by the primal active-set method, a few small KKT solves over the
-free weights; NNLS if it does not get there.
+constraints (the data rows change): the full fit's, and for a cross-validation fold the
+better of its own fit at the previous alpha and the full fit at this one; by the primal
+active-set method, a few small KKT solves over the free weights; NNLS if it does not get there.
 
 alpha is chosen by K-fold cross-validation over the measured points (the error at points left
 out), from a grid; leave-one-out errors and a bootstrap over the points (the spread of the
-displacement over refits) come from the same solver.
+displacement over refits, `brainshift update --bootstrap N`) come from the same solver; the
+default spread is the posterior's (posterior.py), without refits.
 """
 from __future__ import annotations
 

@@ -10,7 +10,7 @@ Order of the work, each step on the last one's weights:
    rows taken again at the new weights (nodes the fit brought near join), the fit made again,
    until the weights stand still and no node is past the skull (ROUNDS at most);
 4. the leave-one-out error at each point, and the per-node spread of the displacement: from
-   the weights' posterior on the fit's active face in closed form (posterior.py), or from a
+   the weights' posterior on the fit's face in closed form (posterior.py), or from a
    bootstrap over the points (`samples` refits).
 """
 from __future__ import annotations
@@ -246,7 +246,7 @@ def _update(atlas, target, noise: float, samples: int, keep_inside: bool) -> Upd
         near = c
         if alpha is None:  # alpha once, at the first rows (the nearest points change little after)
             t = time.perf_counter()
-            alpha, curve, near = choose_alpha(problem, near=c)  # (its fit to every point: nearer than c)
+            alpha, curve, near = choose_alpha(problem, near=c)  # (its fit to every point at alpha: nearer than c)
             cv_s = time.perf_counter() - t
         c_new = problem.solve(alpha, near=near)
         change, c = float(np.abs(c_new - c).max()), c_new
