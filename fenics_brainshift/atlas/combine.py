@@ -140,11 +140,18 @@ class Problem:
                 return polished
         return c
 
-    def objective(self, alpha: float, c: np.ndarray, rows: np.ndarray | None = None) -> float:
-        """What the fit with these data rows minimises, at c (up to a constant)."""
+    def regulariser(self, c: np.ndarray) -> float:
+        """R(c) up to a constant (m^2): c.G.c - 2 cross.c."""
+        return float(c @ (self.gram @ c) - 2.0 * self.cross @ c)
+
+    def objective(self, alpha: float, c: np.ndarray, rows: np.ndarray | None = None,
+                  regulariser: float | None = None) -> float:
+        """What the fit with these data rows minimises, at c (up to a constant); `regulariser`:
+        R(c) if already known (it does not depend on the rows)."""
         A, b = (self.A, self.b) if rows is None else (self.A[rows], self.b[rows])
         r = A @ c - b
-        return float(r @ r) / self.noise ** 2 + (alpha / MM2) * float(c @ (self.gram @ c) - 2.0 * self.cross @ c)
+        R = self.regulariser(c) if regulariser is None else regulariser
+        return float(r @ r) / self.noise ** 2 + (alpha / MM2) * R
 
     def misfit(self, c: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
         """Each point's error (m): the norm of its rows' residuals."""
@@ -189,16 +196,19 @@ def choose_alpha(problem: Problem, alphas=ALPHAS, folds: int = FOLDS,
     the error has grown by more than RISE at RISES alphas in a row (the curve then ends there)."""
     fold = fold_of(problem.groups, min(folds, len(np.unique(problem.groups))))
     rows_of = {k: np.flatnonzero(fold != k) for k in np.unique(fold)}
-    curve, fits, last = [], {}, {}
+    curve, fits, last = [], {}, {}  # last[k]: fold k's fit at the last alpha, and its R
     whole = near
     for alpha in alphas:
         whole = fits[alpha] = problem.solve(alpha, near=whole)
+        R_whole = problem.regulariser(whole)  # (once an alpha, not once a fold: a 351 x 351 product)
         errors = []
         for k, rows in rows_of.items():
             start = whole
-            if k in last and problem.objective(alpha, last[k], rows) < problem.objective(alpha, whole, rows):
-                start = last[k]
-            c = last[k] = problem.solve(alpha, rows, near=start)
+            if k in last and problem.objective(alpha, last[k][0], rows, last[k][1]) < \
+                    problem.objective(alpha, whole, rows, R_whole):
+                start = last[k][0]
+            c = problem.solve(alpha, rows, near=start)
+            last[k] = (c, problem.regulariser(c))
             errors.append(problem.misfit(c, np.flatnonzero(fold == k)))
         e = np.concatenate(errors)
         curve.append({"alpha": float(alpha), "cv_rms_mm": float(np.sqrt(np.mean(e ** 2)) * 1e3)})
