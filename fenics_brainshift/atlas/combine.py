@@ -35,8 +35,8 @@ FOLDS = 5
 # the grid's scan stops once the error at points left out has grown this much (relative) at this many alphas in a
 # row: past the minimum, toward the prior, whose large alphas cost the most refit steps (the family's weights
 # freed one by one toward the prior's dense ones: a third of the cross-validation on the 5 mm skull atlas). Three,
-# not two: on random 8-point problems a review found two rises skipping a lower minimum in 11 of 200 (a curve with
-# two dips), three in none; on the 5 mm skull atlas neither ever changed the choice
+# not two: on random 8-point problems a review's scratch runs found two rises skipping a lower minimum in 11 of 200
+# (a curve with two dips), three in none; on the 5 mm skull atlas neither ever changed the choice
 RISE, RISES = 0.01, 3
 MM2 = 1e-6  # R in mm^2
 WARM_START = True  # False: every refit from scratch by NNLS (the baseline benchmarks/update.py times)
