@@ -1,12 +1,14 @@
-"""Where a cube leaning into a closed box 1 mm around it stops (docs/limits.md): the paper's
-gelatin block (50 x 50 x 25 mm, 6 x 6 x 3 cells), fixed at its base, gravity tilted by
---angles degrees toward +x, inside a 12-triangle box 1 mm from every face
-(tests/test_contact_solvers.py's scene). For each lean: whether the settled state is found,
-and at the state Newton stopped in, the pressed nodes within 0.5 mm of two walls: where they
-started, how far each is past the walls it presses (negative: past), and the one contact
-normal the node has. Writes benchmarks/results/contact_box_corner.md. One rank.
+"""A cube leaning into a closed box 1 mm around it, where nodes press two walls at once
+(docs/limits.md): the paper's gelatin block (50 x 50 x 25 mm, 6 x 6 x 3 cells), fixed at its
+base, gravity tilted by --angles degrees toward +x, inside a 12-triangle box 1 mm from every
+face (tests/test_contact_solvers.py's scene), linear and neo-Hookean. For each lean: whether
+the settled state is found, in what time, and at the state Newton ended in the pressed nodes
+within 0.5 mm of two walls: where they started, how far each is inside the walls it presses
+(negative: past), and the contact pressure vector on it. Until the multiplier became a vector
+(session 27) the linear block stopped at all three angles (this file at commit 797ca56).
+Writes benchmarks/results/contact_box_corner.md. One rank.
 
-    python benchmarks/contact_box_corner.py [--angles 20,46,90]
+    python benchmarks/contact_box_corner.py [--angles 20,46,90] [--models linear,neo-hookean]
 """
 from __future__ import annotations
 
@@ -45,10 +47,10 @@ def box(path: Path) -> str:
     return str(path)
 
 
-def lean(angle_deg: float, skull: str) -> dict:
+def lean(angle_deg: float, skull: str, model: str) -> dict:
     a = np.radians(angle_deg)
     data = {"mesh": {"shape": "box", "size": [L, L, H], "cells": [6, 6, 3]},
-            "material": {"E": 729.0, "nu": 0.48, "density": 1048.0},
+            "material": {"E": 729.0, "nu": 0.48, "density": 1048.0, "model": model},
             "gravity": {"vector": [9.81 * np.sin(a), 0.0, -9.81 * np.cos(a)]},
             "fixed": [{"where": "z < 1e-9"}], "time": {"mode": "quasi-static"}, "skull": {"file": skull}}
     sim = Simulation(scene_from_dict(data), MPI.COMM_WORLD)
@@ -61,8 +63,8 @@ def lean(angle_deg: float, skull: str) -> dict:
         outcome = "stops: " + str(exc).split(";")[0]
     seconds = time.perf_counter() - t
     contact = sim.contact
-    y, phi, normal, _ = contact._state(sim.u)  # (where Newton stopped)
-    pressed = contact._pressed(phi)
+    state = contact._state(sim.u)  # (where Newton stopped, or settled)
+    y, normal, pressed = state.y, state.normal, contact._pressed(state.phi)
     room = np.column_stack([y[:, 0] + GAP, L + GAP - y[:, 0], y[:, 1] + GAP, L + GAP - y[:, 1], H + GAP - y[:, 2]])
     nearest = np.sort(room, axis=1)
     corner = np.flatnonzero(pressed & (nearest[:, 1] < NEAR))
@@ -70,35 +72,39 @@ def lean(angle_deg: float, skull: str) -> dict:
     for i in corner:
         two = np.argsort(room[i])[:2]
         rows.append({"start_mm": contact.X[i] * 1e3, "walls": [WALLS[w] for w in two],
-                     "room_um": room[i, two] * 1e6, "normal": normal[i]})
+                     "room_um": room[i, two] * 1e6, "pressure": state.p[i] * normal[i]})
+    deepest = contact.penetration(sim.u)
     sim.destroy()
-    return {"angle": angle_deg, "outcome": outcome, "seconds": seconds, "pressed": int(pressed.sum()), "corner": rows}
+    return {"model": model, "deepest": deepest, "angle": angle_deg, "outcome": outcome, "seconds": seconds, "pressed": int(pressed.sum()), "corner": rows}
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--angles", default="20,46,90")
+    parser.add_argument("--models", default="linear,neo-hookean")
     args = parser.parse_args()
     logs.configure("WARNING")
     folder = Path(tempfile.mkdtemp(prefix="brainshift-box-"))
     skull = box(folder / "box.stl")
-    results = [lean(float(a), skull) for a in args.angles.split(",")]
-    lines = ["# A cube leaning into a closed box 1 mm around it: where Newton stops", "",
-             f"{machine_line()}; one rank; `python benchmarks/contact_box_corner.py --angles {args.angles}`. The "
-             "paper's gelatin block, fixed at its base, gravity tilted toward +x; the skull a 12-triangle box 1 mm "
-             f"from every face. Corner nodes: pressed nodes within {NEAR * 1e3:g} mm of two walls at the state "
-             "Newton stopped in; room: how far inside each wall (negative: past it); normal: the node's one "
-             "contact normal.", ""]
+    results = [lean(float(a), skull, m) for m in args.models.split(",") for a in args.angles.split(",")]
+    lines = ["# A cube leaning into a closed box 1 mm around it: nodes pressed by two walls", "",
+             f"{machine_line()}; one rank; `python benchmarks/contact_box_corner.py --angles {args.angles} --models "
+             f"{args.models}`. The paper's gelatin block, fixed at its base, gravity tilted toward +x; the skull a "
+             "12-triangle box 1 mm from every face, [skull] tolerance 1e-5 m. Time: the settled state's solve. "
+             f"Corner nodes: pressed nodes within {NEAR * 1e3:g} mm of two walls at the state Newton ended in; "
+             "room: how far inside each wall (negative: past it); pressure: the contact pressure vector on the "
+             "node (Pa).", ""]
     for r in results:
-        lines += [f"## {r['angle']:g} degrees: {r['outcome']} ({r['seconds']:.1f} s, {r['pressed']} pressed nodes)", ""]
+        lines += [f"## {r['model']}, {r['angle']:g} degrees: {r['outcome']} ({r['seconds']:.2f} s, "
+                  f"{r['pressed']} pressed nodes, deepest {r['deepest'] * 1e6:.2f} um past the skull)", ""]
         if not r["corner"]:
             lines += ["No pressed node within 0.5 mm of two walls.", ""]
             continue
-        lines += ["| start (mm) | walls | room (um) | contact normal |", "|---|---|---|---|"]
+        lines += ["| start (mm) | walls | room (um) | pressure (Pa) |", "|---|---|---|---|"]
         for c in r["corner"]:
             lines.append(f"| {', '.join(f'{v:.1f}' for v in c['start_mm'])} | {' and '.join(c['walls'])} | "
-                         f"{', '.join(f'{v:.0f}' for v in c['room_um'])} | "
-                         f"({', '.join(f'{v:.2f}' for v in c['normal'])}) |")
+                         f"{', '.join(f'{v:.1f}' for v in c['room_um'])} | "
+                         f"({', '.join(f'{v:.1f}' for v in c['pressure'])}) |")
         lines.append("")
     out = ROOT / "benchmarks" / "results" / "contact_box_corner.md"
     out.write_text("\n".join(lines))

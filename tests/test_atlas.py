@@ -649,7 +649,8 @@ def test_a_bad_tag_file_is_one_line(tmp_path, text, words):
 
 def test_a_poses_next_level_starts_from_its_last_two_extrapolated():
     """build.predict_start by hand: levels 40 and 35 mm settled, the next at 30 mm starts from
-    twice the last less the one before (its multipliers too, none below zero); a jump back up
+    twice the last less the one before (its multipliers too, the pressure vectors: one turned
+    past zero, pointing into the skull, is none); a jump back up
     or far ahead, or a scenario without a level, keeps the last state."""
     from types import SimpleNamespace
 
@@ -657,15 +658,16 @@ def test_a_poses_next_level_starts_from_its_last_two_extrapolated():
 
     def forward():
         return SimpleNamespace(sim=SimpleNamespace(u=SimpleNamespace(x=SimpleNamespace(array=np.array([5.0, 5.0]))),
-                                                   contact=SimpleNamespace(multipliers=np.array([9.0, 9.0]))))
-    last = [(0.040, np.array([1.0, 2.0]), np.array([0.0, 4.0])), (0.035, np.array([2.0, 2.5]), np.array([1.0, 1.0]))]
+                                                   contact=SimpleNamespace(multipliers=np.full((2, 3), 9.0))))
+    last = [(0.040, np.array([1.0, 2.0]), np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 4.0]])),
+            (0.035, np.array([2.0, 2.5]), np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]))]
     f = forward()
     predict_start(f, last, {"fluid.level": 0.030, "gravity.angle_z": 6.0})
-    assert f.sim.u.x.array == pytest.approx([3.0, 3.0]) and f.sim.contact.multipliers == pytest.approx([2.0, 0.0])
+    assert f.sim.u.x.array == pytest.approx([3.0, 3.0]) and np.allclose(f.sim.contact.multipliers, [[2.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
     f = forward()
     predict_start(f, last, {"fluid.level": 0.0325})  # half a step ahead
     assert f.sim.u.x.array == pytest.approx([2.5, 2.75])
     for values in ({"fluid.level": 0.045}, {"fluid.level": 0.020}, {"gravity.angle_z": 6.0}):
         f = forward()
         predict_start(f, last, values)
-        assert f.sim.u.x.array.tolist() == [5.0, 5.0] and f.sim.contact.multipliers.tolist() == [9.0, 9.0]
+        assert f.sim.u.x.array.tolist() == [5.0, 5.0] and f.sim.contact.multipliers.tolist() == [[9.0] * 3] * 2

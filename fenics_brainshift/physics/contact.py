@@ -1,29 +1,40 @@
 """Frictionless contact of the body's surface nodes with a rigid skull, by an augmented
-Lagrangian (node-wise, Alart-Curnier's form without friction).
+Lagrangian whose multiplier at each node is a vector (the projection form of Alart-Curnier's,
+without friction).
 
 Each surface vertex i, with its share w_i of the surface area (a third of each surface
-triangle it is a corner of), carries the contact pressure
+triangle it is a corner of), at y_i = x_i + u_i, carries the force
 
-    p_i = max(0, lambda_i - k phi(x_i + u_i)),     force  f_i = w_i p_i grad phi,
+    f_i = w_i p(z_i) grad phi(z_i),   z_i = y_i - lambda_i / k,   p(z) = k max(0, -phi(z)),
 
-phi the skull's distance field (physics/skull.py: negative past the skull), lambda_i its
-multiplier and k a penalty (Pa/m) set from the stiffness and the mesh size, not by hand
-(and, in a time step, from the inertia too). The kink of max is rounded over a tenth of the
-tolerance, so that Newton does not cycle between a node's two sides of it. Newton solves the
-equilibrium for fixed multipliers, then lambda <- p, until the contact conditions hold to the
-scene's tolerance: no node deeper past the skull, and none pushed while off it. The pressure
-pushes along grad phi only, so nodes slide freely along the skull. The tangent of -f, each
+phi the skull's distance field (physics/skull.py: negative past the skull), lambda_i the
+node's multiplier (a pressure vector, Pa) and k a penalty (Pa/m) set from the stiffness and
+the mesh size, not by hand (and, in a time step, from the inertia too). k (z - its nearest
+point of the skull's inside) is exactly that force: on a flat wall it is the scalar form
+max(0, lambda . n - k phi(y)) n. The multiplier is a vector because a node may press two
+walls at once (a concave edge of the skull): the force needed there is any vector between
+the walls' normals, and with a scalar multiplier along grad phi(y) its direction was set by
+where the node sat micrometres past the edge, turning at a rate of 1/phi as it moved
+(benchmarks/results/contact_box_corner.md); with lambda / k the shifted point z lies
+|lambda| / k past the edge, and the direction turns no faster than k / |lambda|. The kink
+of max is rounded over a tenth of the tolerance, so that Newton does not cycle between a
+node's two sides of it. Newton solves the equilibrium for fixed multipliers, then
+lambda <- p(z) grad phi(z), until the contact conditions hold to the scene's tolerance: no
+node deeper past the skull, and none pushed while off it. The force is along the skull's
+normal at z's nearest point, so nodes slide freely along the skull. The tangent of -f, each
 node's 3x3 block, is taken by central differences of the node's force: the pressure term
 w k n n^T and the turning of n around the skull's edges and corners alike. A node off the
 skull adds nothing to it: where no fraction of Newton's step reduces the residual, the step
 is taken as far as the first such node's contact (step_limit; stepping/newton.py's watchdog).
 
-Distances are the cost: phi is 1-Lipschitz, so a node whose last exact phi, less how far it
+Distances are the cost: phi is 1-Lipschitz, so a point whose last exact phi, less how far it
 has moved since, still leaves it far from the skull cannot be pressed, and is not queried
 again (its phi is then that lower bound). On N ranks each rank handles the vertices of the
 surface facets of its cells, with its share of their area; the forces are summed over ranks.
 """
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import dolfinx.la
 import numpy as np
@@ -43,6 +54,39 @@ def _add_blocks(A: PETSc.Mat, dofs: np.ndarray, blocks: np.ndarray) -> None:
     A.assemble()
 
 
+class _Distances:
+    """phi and grad phi at the nodes' points, exact only where they may matter: a point whose
+    last exact phi, less how far it has moved since, is above ``reach`` (per node) keeps that
+    lower bound (phi is 1-Lipschitz) and its last normal."""
+
+    def __init__(self, skull, n: int):
+        self.skull = skull
+        self.queries = 0
+        self._y = np.full((n, 3), np.nan)  # where phi was last computed exactly
+        self._phi = np.zeros(n)
+        self._normal = np.zeros((n, 3))
+
+    def __call__(self, y: np.ndarray, reach) -> tuple[np.ndarray, np.ndarray]:
+        bound = self._phi - np.linalg.norm(y - self._y, axis=1)
+        need = ~(bound > reach)  # (NaN: never computed)
+        if np.any(need):
+            phi, normal = self.skull.phi(y[need])
+            self._y[need], self._phi[need], self._normal[need] = y[need], phi, normal
+            self.queries += int(need.sum())
+        bound[need] = self._phi[need]
+        return bound, self._normal
+
+
+class ContactState(NamedTuple):
+    """The nodes at a displacement: positions y, shifted points z = y - lambda / k, phi and
+    grad phi at z, and the pressures p(z) (Pa)."""
+    y: np.ndarray
+    z: np.ndarray
+    phi: np.ndarray
+    normal: np.ndarray
+    p: np.ndarray
+
+
 class SkullContact:
     def __init__(self, V, facets, skull, E: float, tolerance: float, constraints=None):
         self.V, self.skull, self.tolerance = V, skull, tolerance
@@ -55,8 +99,9 @@ class SkullContact:
         self.static_penalty = self.penalty = PENALTY_FACTOR * E / self.h
         self.vector = dolfinx.la.create_petsc_vector(V.dofmap.index_map, V.dofmap.index_map_bs)
         self._n_owned = V.dofmap.index_map.size_local
-        self.queries = 0  # exact distance queries over the run (points)
+        self._queried = 0  # exact distance queries of earlier surfaces and of the tangent
         self.nodes = np.zeros(0, dtype=np.int32)
+        self.multipliers = np.zeros((0, 3))
         self.set_surface(facets)
 
     def set_surface(self, facets) -> None:
@@ -66,55 +111,55 @@ class SkullContact:
         area = 0.5 * np.linalg.norm(np.cross(X[:, 1] - X[:, 0], X[:, 2] - X[:, 0]), axis=1)
         nodes, first, pair_node = np.unique(facets.vertex_dofs.ravel(), return_index=True, return_inverse=True)
         nodes = nodes.astype(np.int32)  # block dofs of V on the surface, this rank's share
-        kept = np.zeros(len(nodes))
+        kept = np.zeros((len(nodes), 3))
         if len(self.nodes):
             where = np.searchsorted(self.nodes, nodes).clip(max=len(self.nodes) - 1)
             found = self.nodes[where] == nodes
             kept[found] = self.multipliers[where[found]]
-        self.nodes, self.multipliers = nodes, kept  # multipliers in Pa
+            self._queried = self.queries
+        self.nodes, self.multipliers = nodes, kept  # multipliers: pressure vectors (Pa)
         self.X = X.reshape(-1, 3)[first]  # their reference positions
         self.weights = np.bincount(pair_node, weights=np.repeat(area / 3.0, 3), minlength=len(nodes))
         self._area = None  # nodal surface areas, for the pressure output
-        self._y_exact = np.full(self.X.shape, np.nan)  # where phi was last computed exactly
-        self._phi_exact = np.zeros(len(nodes))
-        self._normal_exact = np.zeros(self.X.shape)
+        self._at_z = _Distances(self.skull, len(nodes))  # the shifted points', for the forces
+        self._at_y = _Distances(self.skull, len(nodes))  # the nodes' own, for the measures
+
+    @property
+    def queries(self) -> int:
+        """Exact distance queries over the run (points)."""
+        return self._queried + self._at_z.queries + self._at_y.queries
 
     # -- the distance, queried only where a node may be pressed -------------------------------
     def _width(self) -> float:
         return SMOOTHING * self.tolerance
 
-    def _phi(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(phi, grad phi) at the nodes' positions y: exact where the node may be pressed, a
-        lower bound (phi at the last exact point less the distance moved) elsewhere."""
-        bound = self._phi_exact - np.linalg.norm(y - self._y_exact, axis=1)
-        reach = self.multipliers / self.penalty + REACH * self._width()
-        need = ~(bound > reach)  # (NaN: never computed)
-        if np.any(need):
-            phi, normal = self.skull.phi(y[need])
-            self._y_exact[need], self._phi_exact[need], self._normal_exact[need] = y[need], phi, normal
-            self.queries += int(need.sum())
-        bound[need] = self._phi_exact[need]
-        return bound, self._normal_exact
-
-    def _pressure(self, multipliers: np.ndarray, phi: np.ndarray) -> np.ndarray:
-        """max(0, lambda - k phi), its kink rounded over the width (softplus)."""
+    def _pressure(self, phi: np.ndarray) -> np.ndarray:
+        """k max(0, -phi), its kink rounded over the width (softplus)."""
         width = self._width()
-        z = (multipliers / self.penalty - phi) / width
+        z = -phi / width
         return self.penalty * width * (np.maximum(z, 0.0) + np.log1p(np.exp(-np.abs(z))))
 
-    def _state(self, u) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(positions, phi, unit normals, pressures) of the nodes at the displacement u."""
+    def _state(self, u) -> ContactState:
+        """The nodes' positions, shifted points, phi and normals there, and pressures at u."""
         y = self.X + u.x.array.reshape(-1, 3)[self.nodes]
-        phi, normal = self._phi(y)
-        return y, phi, normal, self._pressure(self.multipliers, phi)
+        z = y - self.multipliers / self.penalty
+        phi, normal = self._at_z(z, REACH * self._width())
+        return ContactState(y, z, phi, normal, self._pressure(phi))
+
+    def _room(self, u) -> np.ndarray:
+        """phi at the nodes themselves: exact wherever a node may be pressed or past the skull,
+        a lower bound elsewhere."""
+        y = self.X + u.x.array.reshape(-1, 3)[self.nodes]
+        reach = np.linalg.norm(self.multipliers, axis=1) / self.penalty + REACH * self._width()
+        return self._at_y(y, reach)[0]
 
     # -- what Newton needs ----------------------------------------------------------------------
     def assemble(self, u) -> PETSc.Vec:
         """The contact forces at u into self.vector (owned entries summed over ranks)."""
-        _, _, normal, p = self._state(u)
+        state = self._state(u)
         with self.vector.localForm() as local:
             local.set(0.0)
-            local.array.reshape(-1, 3)[self.nodes] = (self.weights * p)[:, None] * normal
+            local.array.reshape(-1, 3)[self.nodes] = (self.weights * state.p)[:, None] * state.normal
         self.vector.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         return self.vector
 
@@ -124,28 +169,30 @@ class SkullContact:
         skull at rest then has a regular tangent. engaged: every node within reach as if
         pressed well past the kink (the full penalty): for a matrix that must hold the nodes
         about to press, not the tangent."""
-        y, phi, _, _ = self._state(u)
-        pressed = self._pressed(phi)
-        y, lam, w = y[pressed], self.multipliers[pressed], self.weights[pressed]
+        state = self._state(u)
+        pressed = self._pressed(state.phi)
+        z, w = state.z[pressed], self.weights[pressed]
         if engaged:  # as if pressed well past the rounded kink: the full penalty
-            lam = np.maximum(lam, self.penalty * (phi[pressed] + 10.0 * self._width()))
+            depth = np.maximum(state.phi[pressed] + 10.0 * self._width(), 0.0)
+            z = z - depth[:, None] * state.normal[pressed]
         h = FD_STEP * self.h
-        blocks = np.empty((len(y), 3, 3))
+        blocks = np.empty((len(z), 3, 3))
         for j in range(3):
             step = np.zeros(3)
             step[j] = h
-            blocks[:, :, j] = -scale * (self._force(y + step, lam, w) - self._force(y - step, lam, w)) / (2 * h)
+            blocks[:, :, j] = -scale * (self._force(z + step, w) - self._force(z - step, w)) / (2 * h)
         if self.constraints is not None:  # a node on a septum: its block projected as the matrix is
             blocks = self.constraints.blocks(self.nodes[pressed], blocks)
         return self.nodes[pressed], blocks
 
     def _pressed(self, phi: np.ndarray) -> np.ndarray:
-        """Which nodes the tangent holds: within REACH rounding widths of pressing."""
-        return self.multipliers / self.penalty - phi >= -REACH * self._width()
+        """Which nodes the tangent holds: their shifted points within REACH rounding widths of
+        the skull (phi at z)."""
+        return phi <= REACH * self._width()
 
     def pressed_dofs(self, u) -> np.ndarray:
         """The block dofs of the nodes tangent_blocks would hold at u (no finite differences)."""
-        return self.nodes[self._pressed(self._state(u)[1])]
+        return self.nodes[self._pressed(self._state(u).phi)]
 
     def add_tangent(self, A: PETSc.Mat, u, scale: float = 1.0, blocks=None) -> None:
         """A += scale d(-f)/du on the pressed nodes (A assembled after); ``blocks``: those of
@@ -174,26 +221,27 @@ class SkullContact:
         self.vector.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         return self.vector
 
-    def _force(self, y: np.ndarray, multipliers: np.ndarray, weights: np.ndarray) -> np.ndarray:
-        """Forces (n, 3) of nodes at positions y (exact distances)."""
-        phi, normal = self.skull.phi(y)
-        self.queries += len(y)
-        return (weights * self._pressure(multipliers, phi))[:, None] * normal
+    def _force(self, z: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        """Forces (n, 3) of nodes whose shifted points are z (exact distances)."""
+        phi, normal = self.skull.phi(z)
+        self._queried += len(z)
+        return (weights * self._pressure(phi))[:, None] * normal
 
     def step_limit(self, u, du) -> float:
         """The largest fraction (at most 1) of the step du from u that brings no node from the
-        force-free side of its pressure's kink (phi > lambda / k) past it, by phi's linear
-        prediction along the node's normal; the same on every rank. Such a node adds nothing to
+        force-free side of its pressure's kink (phi(z) > 0) past it, by phi's linear
+        prediction along the normal at z; the same on every rank. Such a node adds nothing to
         the tangent, so Newton's whole step takes it as far past the skull as the step reaches."""
-        _, phi, normal, _ = self._state(u)
-        rate = np.einsum("ni,ni->n", normal, du.x.array.reshape(-1, 3)[self.nodes])  # d phi / d step
-        kink = self.multipliers / self.penalty
-        reaching = (phi > kink) & (phi + rate < kink)
-        local = float(np.min((phi[reaching] - kink[reaching]) / -rate[reaching], initial=1.0))
+        state = self._state(u)
+        rate = np.einsum("ni,ni->n", state.normal, du.x.array.reshape(-1, 3)[self.nodes])  # d phi / d step
+        reaching = (state.phi > 0) & (state.phi + rate < 0)
+        local = float(np.min(state.phi[reaching] / -rate[reaching], initial=1.0))
         return self.comm.allreduce(local, op=MPI.MIN)
 
     def update_multipliers(self, u) -> None:
-        self.multipliers = self._state(u)[3]
+        """lambda <- the pressure vector at u."""
+        state = self._state(u)
+        self.multipliers = state.p[:, None] * state.normal
 
     def for_time_step(self, c_mass: float, density: float) -> None:
         """In a time step inertia stiffens every node by c_mass M: the penalty follows it (else
@@ -203,26 +251,26 @@ class SkullContact:
     # -- measures ---------------------------------------------------------------------------------
     def violation(self, u) -> float:
         """How far the contact conditions are from holding (m): the largest |min(phi, p / k)|,
-        which counts a node past the skull (phi < 0) and a node pushed while off it (p > 0
-        with phi > 0: a stale multiplier) alike."""
-        _, phi, _, p = self._state(u)
+        phi at the node itself, which counts a node past the skull (phi < 0) and a node pushed
+        while off it (p > 0 with phi > 0: a stale multiplier) alike."""
+        phi, p = self._room(u), self._state(u).p
         local = float(np.abs(np.minimum(phi, p / self.penalty)).max(initial=0.0))
         return self.comm.allreduce(local, op=MPI.MAX)
 
     def pressing(self, u) -> bool:
         """Is any node pressed, as the tangent counts them (on every rank)?"""
-        local = bool(np.any(self._pressed(self._state(u)[1])))
+        local = bool(np.any(self._pressed(self._state(u).phi)))
         return self.comm.allreduce(local, op=MPI.LOR)
 
     def penetration(self, u) -> float:
         """The deepest any surface node is past the skull (m, 0 if none)."""
-        phi = self._state(u)[1]
+        phi = self._room(u)
         return self.comm.allreduce(float(max(0.0, -phi.min(initial=np.inf))), op=MPI.MAX)
 
     def clearance(self, u) -> float:
         """The smallest room left between the surface and the skull (m; negative: penetration;
         nodes far from the skull count with a lower bound)."""
-        return self.comm.allreduce(float(self._state(u)[1].min(initial=np.inf)), op=MPI.MIN)
+        return self.comm.allreduce(float(self._room(u).min(initial=np.inf)), op=MPI.MIN)
 
     def nodal_pressure(self, u) -> np.ndarray:
         """The contact pressure (Pa) at every owned block dof of V: the node's force over its

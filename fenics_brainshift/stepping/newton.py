@@ -376,9 +376,8 @@ class NewtonStatic:
             return ""
         where = "" if deepest is None else f"the deepest node {deepest:.3g} m past the skull where Newton stopped, "
         if deepest is not None and deepest <= self.contact.tolerance:  # not the tolerance: the skull's shape
-            advice = ("the deepest node is within it, a looser one will not help; if the skull has a sharp "
-                      "inner edge or corner, as a box does, a node pressed by two walls at once may find no single "
-                      "contact normal: round or smooth the skull there, docs/limits.md")
+            advice = ("the deepest node is within it, a looser one will not help; the skull's shape where the "
+                      "body presses it may be the cause, docs/limits.md")
         else:
             advice = "if the body is held, a looser tolerance may settle"
         return f"; with skull contact: {where}[skull] tolerance = {self.contact.tolerance:g} m ({advice})"
