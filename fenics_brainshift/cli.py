@@ -172,6 +172,7 @@ def main(argv: list[str] | None = None) -> int:
     commands = {"info": _info_command, "scenes": _scenes, "mesh": _mesh, "compare": _compare, "bench": _bench,
                 "run": _run, "prepare": _prepare, "warp": _warp, "fit": _fit, "atlas": _atlas, "update": _update}
     try:
+        _check_finite(args)
         return commands[args.command](args, comm)
     except InputError as exc:  # bad input: nothing was written
         if comm.rank == 0:
@@ -197,12 +198,26 @@ def main(argv: list[str] | None = None) -> int:
                 what = f"{exc.strerror or exc}" + (f" '{exc.filename}'" if exc.filename else "")
             else:  # (a C++ writer's message: its first line says which file)
                 what = f"a file could not be written ({str(exc).strip().splitlines()[0][:200]})"
-            print(f"brainshift: error: {what}: free space or choose another folder (a run's summary.json says "
-                  f"\"running\", not \"ok\": its files are incomplete)", file=sys.stderr)
+            note = (" (a run's summary.json says \"running\", not \"ok\": its files are incomplete)"
+                    if args.command in ("run", "fit", "update") else "")
+            print(f"brainshift: error: {what}: free space or choose another folder{note}", file=sys.stderr)
         if comm.size > 1:  # a write fails on the rank that writes: the others wait in its barrier
             sys.stderr.flush()
             comm.Abort(1)
         return 1
+
+
+def _check_finite(args) -> None:
+    """Every number given on the command line is finite: argparse's float() takes "nan" and
+    "inf", which then ran on (compare wrote NaN into its JSON) or named the wrong fix."""
+    import math
+
+    from .errors import InputError
+
+    for key, value in vars(args).items():
+        for v in value if isinstance(value, (list, tuple)) else [value]:
+            if isinstance(v, float) and not math.isfinite(v):
+                raise InputError(f"--{key.replace('_', '-')}: {v} is not a finite number")
 
 
 def _run(args, comm) -> int:

@@ -37,6 +37,36 @@ def test_markups_whose_positions_are_not_three_finite_numbers(tmp_path, position
         read_markups(_markups(tmp_path / "p.mrk.json", position), "--target")
 
 
+@pytest.mark.parametrize("document, words", [
+    ({"markups": [1]}, "markups entry 0 is not an object"),
+    ({"markups": ["x"]}, "markups entry 0 is not an object"),
+    ({"markups": [{"controlPoints": [{"position": [10 ** 400, 0, 0]}]}]}, "no position of 3 numbers")])
+def test_markups_whose_structure_is_not_slicers(tmp_path, document, words):
+    """Entries that are not objects raised an AttributeError, an integer past float range an
+    OverflowError: tracebacks."""
+    path = tmp_path / "p.mrk.json"
+    path.write_text(json.dumps(document))
+    with pytest.raises(InputError, match=words):
+        read_markups(path, "--target")
+
+
+def test_a_point_never_placed_in_slicer_is_left_out_as_slicer_does(tmp_path, caplog):
+    """Slicer lists a point that was added but never placed with "position": "" and
+    positionStatus "undefined" (vtkMRMLMarkupsJsonStorageNode), and skips it when it reads the
+    file; the whole file was refused ("no position of 3 numbers"). A file of none placed is."""
+    points = [{"label": "F-1", "position": [1.0, 2.0, 3.0], "positionStatus": "defined"},
+              {"label": "F-2", "position": "", "positionStatus": "undefined"},
+              {"label": "F-3", "position": [4.0, 5.0, 6.0], "positionStatus": "defined"}]
+    path = tmp_path / "p.mrk.json"
+    path.write_text(json.dumps({"markups": [{"coordinateSystem": "LPS", "controlPoints": points}]}))
+    labels, ras = read_markups(path, "--target")
+    assert labels == ["F-1", "F-3"] and ras.tolist() == [[-1.0, -2.0, 3.0], [-4.0, -5.0, 6.0]]
+    assert "1 control point(s) never placed" in caplog.text
+    path.write_text(json.dumps({"markups": [{"coordinateSystem": "LPS", "controlPoints": points[1:2]}]}))
+    with pytest.raises(InputError, match=r"holds no control points that were placed \(1 never placed\)"):
+        read_markups(path, "--target")
+
+
 @pytest.mark.parametrize("rows, words", [
     ("x,y,z\n1,2,3\nnan,2,3\n", "line 3: x = nan is not a finite number"),
     ("x,y,z\n1,2,3\n1,inf,3\n", "line 3: y = inf is not a finite number"),
@@ -103,11 +133,19 @@ def test_p1_near_incompressibility_is_warned(nu, degree, warned):
 
 
 @pytest.mark.parametrize("argv, words", [
-    (["fit", "cube", "--target", "t.csv", "--params", "material.G", "--noise", "inf"], "--noise must be a finite"),
-    (["fit", "cube", "--target", "t.csv", "--params", "material.G", "--noise", "nan"], "--noise must be a finite"),
-    (["warp", "run", "--image", "x.nii.gz", "-o", "y.nii.gz", "--blend", "inf"], "--blend must be a finite"),
-    (["warp", "run", "--image", "x.nii.gz", "-o", "y.nii.gz", "--blend", "nan"], "--blend must be a finite")])
+    (["fit", "cube", "--target", "t.csv", "--params", "material.G", "--noise", "inf"], "--noise: inf is not a finite"),
+    (["fit", "cube", "--target", "t.csv", "--params", "material.G", "--noise", "nan"], "--noise: nan is not a finite"),
+    (["warp", "run", "--image", "x.nii.gz", "-o", "y.nii.gz", "--blend", "inf"], "--blend: inf is not a finite"),
+    (["warp", "run", "--image", "x.nii.gz", "-o", "y.nii.gz", "--blend", "nan"], "--blend: nan is not a finite"),
+    # compare ran on and wrote NaN into compare.json, or blamed --search
+    (["compare", "a.stl", "b.stl", "c.stl", "--radius", "nan"], "--radius: nan is not a finite"),
+    (["compare", "a.stl", "b.stl", "c.stl", "--depth", "inf"], "--depth: inf is not a finite"),
+    (["compare", "a.stl", "b.stl", "c.stl", "--up", "nan", "1", "0"], "--up: nan is not a finite"),
+    (["compare", "a.stl", "b.stl", "c.stl", "--roi", "nan", "1", "0", "1"], "--roi: nan is not a finite"),
+    (["mesh", "m.nii.gz", "--voxel", "inf"], "--voxel: inf is not a finite"),
+    (["update", "atlas", "--target", "t.csv", "--noise", "nan"], "--noise: nan is not a finite")])
 def test_command_line_numbers_that_are_not_finite(tmp_path, monkeypatch, capsys, argv, words, serial_only):
+    """Every number of every command, before anything is read or written."""
     from fenics_brainshift.cli import main
 
     monkeypatch.chdir(tmp_path)

@@ -266,3 +266,27 @@ def test_a_run_that_is_not_of_this_image_or_did_not_finish_is_refused(tmp_path, 
     h5.write_bytes(h5.read_bytes()[: h5.stat().st_size // 3])
     with pytest.raises(InputError, match=r"cannot be read .*damaged or incomplete"):
         DeformedMesh.from_run(damaged)
+
+
+def test_warp_writes_the_image_and_its_transform_both_or_neither(tmp_path, cube_run, capsys, serial_only):
+    """The transform's final move failing (a folder where the file should go) left the image
+    without its transform, and the message spoke of a run's summary.json. Now neither is
+    left, nor a temporary file, and the one line names the path."""
+    from fenics_brainshift.cli import main
+
+    _, out = cube_run
+    body = DeformedMesh.from_run(out)
+    affine = np.eye(4)
+    affine[:3, 3] = body.points.min(axis=0) - 5.0
+    image = _smooth_image(tuple(int(s) for s in np.ptp(body.points, axis=0) + 10)).astype(np.float32)
+    nib.save(nib.Nifti1Image(image, affine), str(tmp_path / "pre.nii.gz"))
+    (tmp_path / "w" / "t.h5").mkdir(parents=True)  # the transform's name taken by a folder
+    args = ["warp", str(out), "--image", str(tmp_path / "pre.nii.gz"), "-o", str(tmp_path / "w" / "intra.nii.gz"),
+            "--transform", str(tmp_path / "w" / "t.h5")]
+    assert main(args) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "t.h5" in err[0] and "summary.json" not in err[0], err
+    assert sorted(p.name for p in (tmp_path / "w").iterdir()) == ["t.h5"]  # (the folder only)
+    (tmp_path / "w" / "t.h5").rmdir()
+    assert main(args) == 0
+    assert sorted(p.name for p in (tmp_path / "w").iterdir()) == ["intra.nii.gz", "t.h5"]

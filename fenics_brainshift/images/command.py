@@ -30,21 +30,13 @@ def warp_command(args, comm) -> list[str]:
     if not warp.inside.any():
         raise InputError(f"warp: the run's brain does not overlap '{Path(args.image).name}' (mesh {body.points.min(0)} "
                          f"to {body.points.max(0)} mm RAS); is the image in the mesh's frame? (--mesh-frame)")
-    if comm.rank == 0:  # both or neither: the transform to a temporary file first, then the image
+    if comm.rank == 0:  # both or neither: each to a temporary file, then both moved into place
         warped = warp.apply(labels=args.labels)
         transform = Path(args.transform) if args.transform else None
-        pending = transform.with_name(f".{transform.name}.tmp.h5") if transform else None
         for path in [output] + ([transform] if transform else []):  # (check_writable allowed new folders)
             path.parent.mkdir(parents=True, exist_ok=True)
-        try:
-            if pending is not None:
-                write_itk_transform(warp, pending, float32=args.transform_float32)
-            write_like(volume, warped, output)
-            if pending is not None:
-                os.replace(pending, transform)
-        finally:
-            if pending is not None and pending.exists():
-                pending.unlink()
+        _write_both(output, lambda path: write_like(volume, warped, path), transform,
+                    lambda path: write_itk_transform(warp, path, float32=args.transform_float32))
     comm.barrier()
     moved = warp.moved()
     status = run_status(Path(args.run_dir))
@@ -54,3 +46,26 @@ def warp_command(args, comm) -> list[str]:
             f"{int(warp.inside.sum())} inside the deformed brain); {'nearest' if args.labels else 'linear'} "
             f"sampling; wrote {output}" + (f" and {args.transform}" if args.transform else "")
             + (f"; labels {sorted(np.unique(warped).tolist())[:12]}" if args.labels and comm.rank == 0 else "")]
+
+
+def _write_both(image: Path, write_image, transform: Path | None, write_transform) -> None:
+    """The image and (if asked) the transform, both or neither: each written to a temporary
+    name beside its target (the same ending, which says the format), then moved into place;
+    where the second move fails, the first file is taken back out."""
+    pending = [(image, image.with_name(f".tmp-{image.name}"), write_image)]
+    if transform is not None:
+        pending.append((transform, transform.with_name(f".tmp-{transform.name}"), write_transform))
+    placed = []
+    try:
+        for _, temporary, write in pending:
+            write(temporary)
+        for target, temporary, _ in pending:
+            os.replace(temporary, target)
+            placed.append(target)
+    except BaseException:
+        for target in placed:
+            target.unlink(missing_ok=True)
+        raise
+    finally:
+        for _, temporary, _ in pending:
+            temporary.unlink(missing_ok=True)

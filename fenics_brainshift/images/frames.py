@@ -11,12 +11,15 @@ them, so a point read from one file and written to another comes back where it w
 from __future__ import annotations
 
 import json
+import logging
 import os
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputError
+
+log = logging.getLogger(__name__)
 
 LPS_TO_RAS = np.diag([-1.0, -1.0, 1.0])  # its own inverse
 MARKUPS_SCHEMA = ("https://raw.githubusercontent.com/slicer/slicer/master/Modules/Loadable/Markups/"
@@ -48,8 +51,11 @@ def read_markups(path: str | Path, what: str = "markups") -> tuple[list[str], np
     if not isinstance(markups, list) or not markups:
         raise InputError(f"{what}: '{path.name}' has no \"markups\" list; save a point list from 3D Slicer "
                          f"(Markups module) as .mrk.json")
-    labels, points = [], []
-    for markup in markups:
+    labels, points, unplaced = [], [], 0
+    for m, markup in enumerate(markups):
+        if not isinstance(markup, dict):
+            raise InputError(f"{what}: '{path.name}': markups entry {m} is not an object (got {markup!r}); save "
+                             f"the point list from 3D Slicer (Markups module) as .mrk.json")
         frame = str(markup.get("coordinateSystem", "LPS")).upper()
         if frame not in ("LPS", "RAS"):
             raise InputError(f"{what}: '{path.name}': coordinateSystem '{frame}' is neither LPS nor RAS")
@@ -60,9 +66,12 @@ def read_markups(path: str | Path, what: str = "markups") -> tuple[list[str], np
         if not isinstance(points_in_file, list):
             raise InputError(f"{what}: '{path.name}': \"controlPoints\" is not a list")
         for n, point in enumerate(points_in_file):
+            if isinstance(point, dict) and point.get("positionStatus") in ("undefined", "preview"):
+                unplaced += 1  # a point Slicer lists but that was never placed ("position": ""): Slicer skips it
+                continue
             position = point.get("position") if isinstance(point, dict) else None
             if not isinstance(position, list) or len(position) != 3 or not all(
-                    isinstance(c, (int, float)) and not isinstance(c, bool) for c in position):
+                    isinstance(c, (int, float)) and not isinstance(c, bool) and abs(c) < 1e300 for c in position):
                 raise InputError(f"{what}: '{path.name}': control point {n} has no position of 3 numbers "
                                  f"(got {position!r})")
             xyz = np.asarray(position, dtype=float)
@@ -71,8 +80,12 @@ def read_markups(path: str | Path, what: str = "markups") -> tuple[list[str], np
                                  f"position that is not finite ({position}); delete or place it again in Slicer")
             points.append(lps_to_ras(xyz) if frame == "LPS" else xyz)
             labels.append(str(point.get("label") or f"P-{len(labels) + 1}"))
+    if unplaced:
+        log.warning("%s: '%s': %d control point(s) never placed in Slicer (positionStatus undefined) left out",
+                    what, path.name, unplaced)
     if not points:
-        raise InputError(f"{what}: '{path.name}' holds no control points")
+        raise InputError(f"{what}: '{path.name}' holds no control points"
+                         + (f" that were placed ({unplaced} never placed)" if unplaced else ""))
     points = np.array(points)
     if len(points) > 1 and np.abs(points).max() < METRES_LOOK:
         raise InputError(f"{what}: '{path.name}': every position is within {METRES_LOOK:g} mm of the origin "
