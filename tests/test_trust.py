@@ -282,3 +282,35 @@ def test_a_full_disk_mid_run_is_one_line_and_never_ok(tmp_path, monkeypatch, cap
     words = "No space left on device" if raised == "OSError" else "a file could not be written (Failed to write HDF5"
     assert words in last and "displacement.h5" in last and "Traceback" not in err
     assert json.loads((out / "summary.json").read_text())["status"] == "running"
+
+
+def test_a_fit_never_mixes_with_what_its_folder_held(tmp_path, capsys, serial_only):
+    """`fit --no-run` into an earlier fit's folder left the new fit.json and fitted.toml beside
+    the old fitted run (its "ok" summary and its displacement: warp would warp the old fit), and
+    wrote before taking the folder's lock; a later `run` into the folder left the fit's files.
+    Now the fit clears the folder's earlier outputs under the lock, `run OUT/fitted.toml` keeps
+    the fit it runs, and any other run clears it."""
+    from fenics_brainshift.cli import main
+
+    out = tmp_path / "F"
+    small = ["--set", "mesh.cells=[4, 4, 2]", "--set", "time.mode=quasi-static"]
+    assert main(["run", "cube", "--out", str(out)] + small) == 0  # an earlier run in the folder
+    (out / "fit.json").write_text("{}")  # and an earlier fit's files
+    (out / "fitted.toml").write_text("# earlier")
+    pre = np.array([[25.0, 25.0, 25.0], [10.0, 10.0, 25.0], [40.0, 40.0, 25.0], [10.0, 40.0, 25.0]])
+    rows = ["x,y,z,x_pre,y_pre,z_pre"] + [",".join(f"{v:g}" for v in [*(p - [0, 0, 2.0]), *p]) for p in pre]
+    (tmp_path / "t.csv").write_text("\n".join(rows) + "\n")
+    fit = ["fit", "cube", "--target", str(tmp_path / "t.csv"), "--params", "material.G", "--noise", "0.5",
+           "--out", str(out), "--no-run"] + small
+    assert main(fit) == 0
+    assert not (out / "displacement.xdmf").exists() and not (out / "probes.csv").exists()
+    assert json.loads((out / "summary.json").read_text())["kind"] == "fit"
+    fitted_G = load_scene(out / "fitted.toml").material.G
+    assert fitted_G != load_scene("cube").material.G  # the new fit's
+    assert "material.G" in json.loads((out / "fit.json").read_text())["parameters"]
+    assert main(["run", str(out / "fitted.toml")]) == 0  # into its own folder: the fit stays
+    assert (out / "fitted.toml").exists() and (out / "fit.json").exists()
+    assert json.loads((out / "summary.json").read_text())["status"] == "ok"
+    assert main(["run", "cube", "--out", str(out)] + small) == 0  # another run: the fit goes
+    assert not (out / "fitted.toml").exists() and not (out / "fit.json").exists()
+    capsys.readouterr()

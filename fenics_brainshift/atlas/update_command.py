@@ -44,10 +44,7 @@ def update_command(args, comm) -> list[str]:
     comm.barrier()
     lock = RunLock(out, comm)
     try:
-        clear_run(out, comm, atlas.info.get("scene_name", "atlas"))
-        for name in ("update.json", "uncertainty.nii.gz", "targets_updated.mrk.json"):
-            if comm.rank == 0 and (out / name).is_file():
-                (out / name).unlink()
+        clear_run(out, comm, atlas.info.get("scene_name", "atlas"))  # (an earlier update's files too)
         if comm.rank == 0:
             _write_outputs(out, atlas, target, result, image, spread_image)
         comm.barrier()

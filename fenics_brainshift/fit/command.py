@@ -4,7 +4,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import InputError
-from ..outputs.files import check_writable
+from ..outputs.files import RunLock, check_writable, clear_run, write_json
 from ..runner import run
 from ..scene import load_scene
 from .calibrate import check_enough, fit
@@ -33,12 +33,20 @@ def fit_command(args, comm) -> list[str]:
     if comm.rank == 0:
         out.mkdir(parents=True, exist_ok=True)
     comm.barrier()
-    values = dict(zip(names, (float(v) for v in result.values)))
-    fitted = write_fitted_scene(args.scene, args.set, scene_changes(scene, values), out) if comm.rank == 0 else None
-    fitted = comm.bcast(fitted, root=0)
-    write_fit_json(out, result, target, comm, surface)
-    if not args.no_run:
-        run(load_scene(fitted), out, comm)
+    lock = RunLock(out, comm)  # one writer at a time; the folder's earlier run, fit or update cleared
+    try:
+        clear_run(out, comm, scene.name)
+        values = dict(zip(names, (float(v) for v in result.values)))
+        fitted = write_fitted_scene(args.scene, args.set, scene_changes(scene, values), out) if comm.rank == 0 else None
+        fitted = comm.bcast(fitted, root=0)
+        write_fit_json(out, result, target, comm, surface)
+        if not args.no_run:
+            run(load_scene(fitted), out, comm, keep=[out / "fit.json", out / "fitted.toml"])
+        else:  # (not "running": nothing else is coming)
+            write_json(out / "summary.json", {"scene": scene.name, "status": "ok", "kind": "fit",
+                                              "note": "--no-run: the fit alone, no fitted run"}, comm)
+    finally:
+        lock.release()
     report = result.as_dict()
     kind = target.kind + (f" (to {surface})" if surface else "")
     lines = [f"fit: {kind}, {len(target.measured)} points; {result.solves} settled states in "

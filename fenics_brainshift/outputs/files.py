@@ -40,10 +40,13 @@ def _can_create_in(folder: Path) -> bool:
     return True
 
 
-# what a run writes into its folder (outputs/xdmf.py, pictures.py, runner/driver.py): cleared
-# before a run writes there, so that a re-run never sits beside an earlier run's files
+# what a run writes into its folder (outputs/xdmf.py, pictures.py, runner/driver.py), and what
+# the fit and the update write beside a run's files (fit/report.py, atlas/update_command.py):
+# cleared before a run writes there, so that a re-run never sits beside an earlier run's files,
+# nor a run beside the fit or update of another
 RUN_FILES = ("summary.json", "probes.csv", "probes_final.mrk.json", "displacement.xdmf", "displacement.h5",
-             "deformed.png", "probes.png", "surface_final.vtk", "surface_final.stl", "skull.stl")
+             "deformed.png", "probes.png", "surface_final.vtk", "surface_final.stl", "skull.stl",
+             "fit.json", "fitted.toml", "update.json", "uncertainty.nii.gz", "targets_updated.mrk.json")
 RUN_SERIES = ("surface_[0-9][0-9][0-9][0-9].vtk", "surface_[0-9][0-9][0-9][0-9].stl")
 
 
@@ -53,11 +56,16 @@ class RunLock:
     lock when the process ends, however it ends: a run killed with SIGKILL leaves no stale lock."""
 
     NAME = ".brainshift.lock"
+    _held: dict = {}  # folder -> how many holders in this process (a fit's run inside the fit)
 
     def __init__(self, out: Path, comm):
         import fcntl
 
         self.comm, self._file, problem = comm, None, None
+        self._key = str(Path(out).resolve())
+        if self._key in RunLock._held:  # this process holds it already: nested, not a second writer
+            RunLock._held[self._key] += 1
+            return
         if comm.rank == 0:
             f = open(out / self.NAME, "a+")
             try:
@@ -77,20 +85,26 @@ class RunLock:
         problem = comm.bcast(problem, root=0)
         if problem:
             raise InputError(problem)
+        RunLock._held[self._key] = 1
 
     def release(self) -> None:
+        count = RunLock._held.pop(self._key, 0)
+        if count > 1:
+            RunLock._held[self._key] = count - 1
+            return
         if self._file is not None:
             self._file.close()  # (closing drops the flock)
             self._file = None
 
 
-def clear_run(out: Path, comm, scene_name: str) -> None:
-    """Remove an earlier run's files from ``out`` (only those a run writes), then mark the
-    folder's summary.json "running": a run killed from here on never leaves the earlier
-    run's "ok" beside its own partial files."""
+def clear_run(out: Path, comm, scene_name: str, keep=()) -> None:
+    """Remove an earlier run's files from ``out`` (only those a run, a fit or an update
+    writes; not the files in ``keep``), then mark the folder's summary.json "running": a run
+    killed from here on never leaves the earlier run's "ok" beside its own partial files."""
     if comm.rank == 0:
+        kept = {Path(p).resolve() for p in keep}
         for path in [out / name for name in RUN_FILES] + [p for pattern in RUN_SERIES for p in out.glob(pattern)]:
-            if path.is_file():
+            if path.is_file() and path.resolve() not in kept:
                 path.unlink()
     write_json(out / "summary.json", {"scene": scene_name, "status": "running"}, comm)
 

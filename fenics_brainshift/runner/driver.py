@@ -51,11 +51,13 @@ class Result:
         return self.summary["probes"]
 
 
-def run(scene: Scene, out: str | Path | None = None, comm=MPI.COMM_WORLD, raise_on_stop: bool = True) -> Result:
+def run(scene: Scene, out: str | Path | None = None, comm=MPI.COMM_WORLD, raise_on_stop: bool = True,
+        keep=()) -> Result:
     """Run a scene. With ``out``, write DIR/summary.json, displacement.xdmf, probes.csv (and the
     fine surface and pictures when the scene asks); without it, write nothing. A guard that
     fires raises SolverError after the last good state is written (raise_on_stop=False: the
-    Result says so in summary["status"] instead)."""
+    Result says so in summary["status"] instead). An earlier run's, fit's or update's files in
+    ``out`` are cleared first, but those in ``keep`` (the scene file being run, a fit's own)."""
     t_start = time.perf_counter()
     out = Path(out) if out is not None else None
     if out is not None:
@@ -73,7 +75,7 @@ def run(scene: Scene, out: str | Path | None = None, comm=MPI.COMM_WORLD, raise_
                 out.mkdir(parents=True, exist_ok=True)
             comm.barrier()
             lock = RunLock(out, comm)
-            clear_run(out, comm, scene.name)
+            clear_run(out, comm, scene.name, keep)
             _write_skull(sim, out)
             m = sim.model
             writer = FieldWriter(out, m.mesh, m.V, scene.output.fields, m.constitutive, embedding,
