@@ -79,6 +79,7 @@ BAD = [
     ("unknown section", {**column_dict(4), "materials": {"E": 1.0}}, "unknown section [materials]; did you mean 'material'?"),
     ("mistyped key", _with("material", densty=1000.0), "[material] unknown key 'densty'; did you mean 'density'?"),
     ("mistyped name", {**column_dict(4), "fixed": [{"where": "zz < 0.001"}]}, "unknown name 'zz'; did you mean 'z'?"),
+    ("key in another case", _with("material", g=1000.0), "[material] unknown key 'g'; did you mean 'G'?"),
     ("fixed selects nothing", {**column_dict(4), "fixed": [{"where": "z < -1.0"}]}, "selects no node"),
     ("fixed eval attempt", {**column_dict(4), "fixed": [{"where": "__import__('os').system('true')"}]}, "[[fixed]] where"),
     ("fixed bad axes", {**column_dict(4), "fixed": [{"where": "z < 0.001", "axes": "w"}]}, "[[fixed]] axes"),
@@ -200,7 +201,9 @@ def test_not_toml_and_missing_scene(tmp_path, capsys):
     assert main(["run", str(bad)]) == 2
     assert "not valid TOML" in capsys.readouterr().err
     assert main(["run", str(tmp_path / "none.toml")]) == 2
-    assert "not found" in capsys.readouterr().err
+    assert "not found (bundled scenes" in capsys.readouterr().err
+    assert main(["run", "cub"]) == 2  # a bundled scene's name mistyped
+    assert "scene file 'cub' not found; did you mean 'cube'? (bundled scenes" in capsys.readouterr().err
 
 
 def test_files_in_overrides_are_relative_to_the_current_directory(tmp_path, monkeypatch):

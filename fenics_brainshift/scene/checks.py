@@ -47,6 +47,8 @@ def integer(where: str, value: Any, minimum: int) -> int:
 
 
 def did_you_mean(name: str, known) -> str:
-    """" did you mean 'x'?" for the closest of ``known`` to a mistyped ``name``, or ""."""
-    close = difflib.get_close_matches(str(name), [str(k) for k in known], n=1, cutoff=0.6)
+    """" did you mean 'x'?" for the closest of ``known`` to a mistyped ``name``, or "": the
+    same name in another case first ('g' for 'G', which difflib finds no closer than 'E')."""
+    same = [str(k) for k in known if str(k).lower() == str(name).lower()]
+    close = same or difflib.get_close_matches(str(name), [str(k) for k in known], n=1, cutoff=0.6)
     return f" did you mean '{close[0]}'?" if close else ""

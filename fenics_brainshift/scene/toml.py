@@ -168,7 +168,11 @@ def scene_data(path: str | Path, overrides: list[str] = ()) -> tuple[dict, Path]
     if not path.is_file():
         bundled = bundled_scene(str(path))
         if bundled is None:
-            raise InputError(f"scene file '{path}' not found (bundled scenes: `brainshift scenes`)")
+            from ..data import scene_names
+
+            hint = did_you_mean(path.name, scene_names()) if path.parent == Path(".") else ""
+            raise InputError(f"scene file '{path}' not found" + (f";{hint}" if hint else "")
+                             + " (bundled scenes: `brainshift scenes`)")
         path = bundled
     try:
         data = tomllib.loads(path.read_text())
