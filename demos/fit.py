@@ -14,10 +14,10 @@
 # to them, starting from the bundled scene; 10 more measured points, not used by the fit,
 # check the prediction.
 #
-#     python demos/fit.py                          # 5 mm brain, writes out_fit/
+#     python demos/fit.py                          # 5 mm brain, writes out_demo_fit/
 #     python demos/fit.py --set mesh.voxel=0.008   # quicker
 #
-# out_fit/: pre.mrk.json, intra.mrk.json (the synthetic measurements), fitted.toml, fit.json,
+# out_demo_fit/: pre.mrk.json, intra.mrk.json (the synthetic measurements), fitted.toml, fit.json,
 # fit.png (truth, prior and fitted side by side), the fitted scene's run.
 
 # +
@@ -43,7 +43,7 @@ FITTED, HELD_OUT = 20, 10
 def parse_args(argv=None):
     p = argparse.ArgumentParser(description="Fit the bundled brain scene to synthetic intra-operative points.",
                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    p.add_argument("--out", default="out_fit", help="output folder")
+    p.add_argument("--out", default="out_demo_fit", help="output folder")
     p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", help="scene overrides")
     p.add_argument("--seed", type=int, default=1, help="of the points' choice and noise")
     return p.parse_args(argv)

@@ -12,10 +12,10 @@
 # that 3D Slicer applies to any image, segmentation or model (docs/slicer.md). The T1 comes
 # from nilearn's wheel on the package index (downloaded once into ~/.cache/fenics-brainshift).
 #
-#     python demos/warp.py                      # writes out_warp/
+#     python demos/warp.py                      # writes out_demo_warp/
 #     python demos/warp.py --set mesh.voxel=0.008   # a quicker, coarser brain
 #
-# out_warp/: t1_pre.nii.gz (the template, for Slicer), t1_intra.nii.gz (predicted),
+# out_demo_warp/: t1_pre.nii.gz (the template, for Slicer), t1_intra.nii.gz (predicted),
 # warp.h5 (the transform), warp.png (slices: pre-operative, predicted, difference, with the
 # brain's outline before and after), and the run's own files.
 
@@ -39,7 +39,7 @@ from fenics_brainshift.images.rasterize import rasterize
 def parse_args(argv=None):
     p = argparse.ArgumentParser(description="Warp the pre-operative T1 by the brain's predicted shift.",
                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    p.add_argument("--out", default="out_warp", help="output folder")
+    p.add_argument("--out", default="out_demo_warp", help="output folder")
     p.add_argument("--image", help="the pre-operative image (default: the ICBM152 T1, fetched once)")
     p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
                    help="scene overrides, as for brainshift run")

@@ -46,3 +46,35 @@ def test_links_and_paths_exist(page):
         path = (base / target).resolve()
         assert path.exists(), f"{page.name}: {target}"
         assert ROOT in path.parents or path == ROOT, f"{page.name}: {target} is outside the repository"
+
+
+def _written_by(command: str) -> list[str]:
+    """The paths a brainshift command line writes (--out, -o, --output, --transform)."""
+    words = command.split()
+    return [words[i + 1] for i, w in enumerate(words[:-1]) if w in ("--out", "-o", "--output", "--transform")]
+
+
+def test_the_documented_commands_write_into_their_own_ignored_folders():
+    """The README's Slicer, calibration and patient commands wrote T1_intra.nii.gz, warp.h5 and
+    patient/ into the repository's root (not ignored by git) and reused the quick start's
+    out_brain and out_fit, overwriting them. Every output of a brainshift command in the
+    README and the docs lies in an out_* folder (.gitignore: out_*/), and in the README no two
+    commands write into the same folder, nor a warp into a run's (a re-run clears only its own
+    files: the old warp would sit beside the new run)."""
+    ignored = (ROOT / ".gitignore").read_text().splitlines()
+    assert "out_*/" in ignored
+    folders = {}  # README: top folder -> the command lines writing into it
+    for page in DOCS:
+        blocks = re.findall(r"```(?:sh|bash)\n(.*?)```", page.read_text(), re.S)
+        lines = " ".join(blocks).replace("\\\n", " ").splitlines()
+        for line in lines:
+            command = line.split("#")[0].strip()
+            if not re.match(r"(mpirun -n \d+ )?(\.venv/bin/)?brainshift ", command):
+                continue
+            for path in _written_by(command):
+                top = path.split("/")[0]
+                assert re.fullmatch(r"out_[A-Za-z0-9_]+", top), f"{page.name}: '{command}' writes {path}"
+                if page.name == "README.md":
+                    folders.setdefault(top, set()).add(command)
+    shared = {top: sorted(c) for top, c in folders.items() if len(c) > 1}
+    assert not shared, shared
