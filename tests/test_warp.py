@@ -16,6 +16,7 @@ from scipy import ndimage
 
 from conftest import mpirun, subprocess_env
 from fenics_brainshift.images import DeformedMesh, Warp, read_volume, write_itk_transform
+from fenics_brainshift.images.warp import check_size
 
 
 def _oblique_affine(spacing=(1.0, 1.2, 0.9), angle=0.3, origin=(-20.0, 15.0, -8.0)) -> np.ndarray:
@@ -255,6 +256,19 @@ def test_a_run_that_is_not_of_this_image_or_did_not_finish_is_refused(tmp_path, 
                                          r"labelled"):
         nib.save(nib.Nifti1Image(np.where(inside, 0, 3).astype(np.int16), affine), str(tmp_path / "labels.nii.gz"))
         Warp.compute(read_volume(tmp_path / "labels.nii.gz"), body, labels=True)
+    # the cube inside a head's foreground (an ellipsoid 180 x 220 x 200 mm about it): on the
+    # object, but not the object (the cube on the ICBM152 T1 moved 153,801 voxels, exit 0)
+    head_affine = np.eye(4)
+    head_affine[:3, 3] = body.points.mean(axis=0) - 120.0
+    ijk = np.indices((240, 240, 240)).reshape(3, -1).T - 120.0
+    head = ((ijk / [90.0, 110.0, 100.0]) ** 2).sum(axis=1) < 1.0
+    nib.save(nib.Nifti1Image((200.0 * head).reshape(240, 240, 240).astype(np.float32), head_affine),
+             str(tmp_path / "head.nii.gz"))
+    head = read_volume(tmp_path / "head.nii.gz")
+    Warp.compute(head, body)  # (Warp warps any mesh on any grid)
+    with pytest.raises(InputError, match=r"the run's mesh is 75 mm across .*, the object in 'head.nii.gz' 3\d\d mm"):
+        check_size(body.points, head)  # brainshift warp's check
+    check_size(body.points, read_volume(tmp_path / "ct.nii.gz"))  # the cube's own image
     killed = tmp_path / "killed"
     shutil.copytree(out, killed)
     (killed / "summary.json").write_text('{"status": "running"}')

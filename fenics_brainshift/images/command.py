@@ -9,7 +9,7 @@ import numpy as np
 from ..errors import InputError
 from ..outputs.files import check_writable
 from .volumes import is_volume, read_volume, write_like
-from .warp import DeformedMesh, Warp, run_status, write_itk_transform
+from .warp import DeformedMesh, Warp, check_size, run_status, write_itk_transform
 
 
 def warp_command(args, comm) -> list[str]:
@@ -26,6 +26,7 @@ def warp_command(args, comm) -> list[str]:
         check_writable(path.parent, comm, "folder of " + ("-o" if path == output else "--transform"), "-o")
     volume = read_volume(args.image, "warp: --image")
     body = DeformedMesh.from_run(args.run_dir, args.mesh_frame)
+    check_size(body.points, volume, args.labels)
     warp = Warp.compute(volume, body, args.blend, comm, labels=args.labels)
     if not warp.inside.any():
         raise InputError(f"warp: the run's brain does not overlap '{Path(args.image).name}' (mesh {body.points.min(0)} "

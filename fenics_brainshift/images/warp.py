@@ -185,26 +185,56 @@ def _check_overlap(X: np.ndarray, shape, volume: Volume) -> None:
 FOREGROUND = 0.05  # of the image's range above its darkest (1st percentile): above is the object
 
 
+def _on_object(volume: Volume, labels: bool = False):
+    """(which values are the image's object, what that means in words): above the image's
+    darkest by FOREGROUND of its range (an MR's background is 0, a CT's air -1000 HU: measured
+    from the 1st percentile, not from 0), or, in a label map, any label but 0 (FreeSurfer's and
+    Slicer's background)."""
+    if labels:
+        return (lambda values: values != 0), "its voxels labelled, not 0"
+    low, high = np.percentile(np.asarray(volume.data, dtype=np.float64).ravel()[::7], [1, 99])
+    threshold = low + FOREGROUND * (high - low)
+    return (lambda values: values > threshold), f"its voxels above its darkest by {FOREGROUND:.0%} of its range"
+
+
 def _check_foreground(centroids: np.ndarray, volume: Volume, labels: bool = False) -> None:
     """The body must lie on the image's object, not only on its grid: the cube laid on a
     brain T1's empty corner warped air, exit 0. Half the mesh's cells (their centroids' voxels)
-    at least must be on the object: above the image's darkest by FOREGROUND of its range (an
-    MR's background is 0, a CT's air -1000 HU: measured from the 1st percentile, not from 0),
-    or, in a label map, any label but 0 (FreeSurfer's and Slicer's background)."""
-    data = np.asarray(volume.data, dtype=np.float64)
+    at least must be on the object (_on_object)."""
+    data = volume.data
     index = np.clip(np.rint(centroids).astype(np.int64), 0, np.array(data.shape) - 1)
-    at = data[tuple(index.T)]
-    if labels:
-        on, what = at != 0, "its voxels labelled, not 0"
-    else:
-        low, high = np.percentile(data.ravel()[::7], [1, 99])
-        on = at - low > FOREGROUND * (high - low)
-        what = f"its voxels above its darkest by {FOREGROUND:.0%} of its range"
-    bright = float(on.mean())
+    on, what = _on_object(volume, labels)
+    bright = float(on(np.asarray(data[tuple(index.T)], dtype=np.float64)).mean())
     if bright < OVERLAP:
         raise InputError(f"warp: {bright:.0%} of the run's mesh lies on the object in '{volume.path.name}' ({what}; "
                          f"{OVERLAP:.0%} at least), the rest on its background: is it the run of this image's "
                          f"object, in its frame (--mesh-frame) and unit?")
+
+
+SIZE = 0.4  # the mesh's diagonal at least this fraction of the image object's
+
+
+def check_size(points: np.ndarray, volume: Volume, labels: bool = False) -> None:
+    """The run's body must be the image's object, not a small thing inside it: the cube laid
+    on a brain T1 lies on the head's foreground and passed the checks of Warp.compute (153,801
+    voxels moved, exit 0). The mesh's diagonal must be SIZE of the object's at least (each a
+    robust bounding box: the object's voxels' 1st to 99th percentiles along each axis): on the
+    ICBM152 T1 (the head, 242 mm) the bundled brain's 8 mm mesh is 1.17 of it, the gelatin cube
+    0.31 (tests/test_warp.py: a 75 mm cube in a 330 mm head). For `brainshift warp`; Warp itself
+    warps any mesh on any grid."""
+    data = np.asarray(volume.data)
+    step = max(1, int(round((data.size / 2e6) ** (1 / 3))))  # (a few million voxels suffice)
+    on, _ = _on_object(volume, labels)
+    index = np.argwhere(on(data[::step, ::step, ::step].astype(np.float64))) * step
+    if len(index) == 0:
+        return
+    lo, hi = np.percentile(volume.index_to_ras(index.astype(float)), [1, 99], axis=0)
+    object_mm = float(np.linalg.norm(hi - lo))
+    mesh_mm = float(np.linalg.norm(np.ptp(points, axis=0)))
+    if mesh_mm < SIZE * object_mm:
+        raise InputError(f"warp: the run's mesh is {mesh_mm:.0f} mm across (its bounding box's diagonal), the object "
+                         f"in '{volume.path.name}' {object_mm:.0f} mm: is it the run of this image's object, in its "
+                         f"unit? (of a part of it: crop the image to that part first)")
 
 
 def _blend_outside(v: np.ndarray, inside: np.ndarray, spacing: np.ndarray, blend_mm: float) -> None:
