@@ -56,7 +56,8 @@ def _add_mesh(sub) -> None:
                       help="keep voxels the object fills at least this much (0: any it touches, the paper's rule)")
     mesh.add_argument("--parts", type=int, default=1, help="keep this many largest face-connected parts")
     mesh.add_argument("--labels", nargs="+", help="labels of a label volume to mesh, as values or a .seg.nrrd's "
-                                                 "segment names (default: all > 0)")
+                                                 "segment names (default: all > 0; a .seg.nrrd of several segments "
+                                                 "must name them)")
     mesh.add_argument("-o", "--output", default="mesh.xdmf", help="output XDMF file")
 
 
@@ -69,7 +70,8 @@ def _add_warp(sub) -> None:
                                       "displacement-field transform for 3D Slicer (docs/slicer.md).",
                           formatter_class=_Defaults)
     warp.add_argument("run_dir", metavar="RUN_DIR", help="a run's output folder (its displacement.xdmf)")
-    warp.add_argument("--image", required=True, help="pre-operative volume (.nii, .nii.gz, .nrrd, .seg.nrrd), "
+    warp.add_argument("--image", required=True, help="pre-operative volume (.nii, .nii.gz, .nrrd, a .seg.nrrd without "
+                                                     "overlapping segments), "
                                                      "in the frame of the run's mesh (mm)")
     warp.add_argument("-o", "--output", required=True, help="warped volume (.nii.gz or .nrrd)")
     warp.add_argument("--labels", action="store_true", help="a label volume: nearest voxel, labels stay labels "

@@ -192,6 +192,22 @@ def test_a_segmentation_of_several_segments_needs_labels(tmp_path, capsys, seria
     assert "2 segments (brain, tumour)" in capsys.readouterr().err
 
 
+def test_a_value_that_is_several_layers_segments_needs_the_name(tmp_path, capsys, serial_only):
+    """`--labels 1` on the layered file took label 1 of every layer, the brain and the tumour
+    inside it, with exit 0; Slicer numbers each layer from 1, so a value names a segment only
+    within its layer: refused, naming both. A value one segment has (the skull's 2) meshes."""
+    from fenics_brainshift.cli import main
+
+    _layered_segmentation(tmp_path / "head.seg.nrrd")
+    assert main(["mesh", str(tmp_path / "head.seg.nrrd"), "--voxel", "2", "--labels", "1", "-o",
+                 str(tmp_path / "x.xdmf")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "label 1 of 'head.seg.nrrd' is each of the segments 'brain', 'tumour'" in err, err
+    assert len(err.splitlines()) == 1 and not (tmp_path / "x.xdmf").exists()
+    assert main(["mesh", str(tmp_path / "head.seg.nrrd"), "--voxel", "2", "--labels", "2", "-o",
+                 str(tmp_path / "skull.xdmf")]) == 0
+
+
 def test_warp_refuses_a_layered_segmentation_in_one_line(tmp_path):
     _layered_segmentation(tmp_path / "head.seg.nrrd")
     with pytest.raises(Exception, match="overlapping segments .2 layers.; export the segments needed as a labelmap"):

@@ -141,7 +141,8 @@ def segment_names(volume: Volume) -> list[str]:
 def label_mask(volume: Volume, labels, what: str = "labels") -> np.ndarray:
     """The voxels (bool, [i, j, k]) in any of ``labels`` (values or segment names); in a
     layered segmentation a name is its layer's voxels of its value, as Slicer reads it, and a
-    value is that value in any layer. None: every labelled voxel."""
+    value is that value in any layer, refused where it is the value of segments in several
+    layers. None: every labelled voxel."""
     if volume.layers is None:
         if labels is None:
             return volume.data > 0
@@ -156,7 +157,11 @@ def label_mask(volume: Volume, labels, what: str = "labels") -> np.ndarray:
                 raise InputError(f"{what}: no segment '{label}' in '{volume.path.name}'; its segments: {known}")
             layer, value = volume.segment_layers[label]
             mask |= volume.layers[layer] == value
-        else:
+        else:  # a value: ambiguous where segments of several layers share it (Slicer numbers each layer from 1)
+            named = [n for n, (_, value) in volume.segment_layers.items() if value == int(label)]
+            if len(named) > 1:
+                raise InputError(f"{what}: label {label} of '{volume.path.name}' is each of the segments "
+                                 f"{', '.join(repr(n) for n in named)} (in different layers): give the segment's name")
             mask |= (volume.layers == int(label)).any(axis=0)
     return mask
 
