@@ -232,6 +232,12 @@ time.sleep(60)
         last = err.splitlines()[-1]  # (after the run's log lines)
         assert f"another brainshift run (pid {holder.pid}) is writing into it" in last and "Traceback" not in err
         assert {p.name: p.stat().st_mtime_ns for p in out.iterdir()} == before  # nothing touched
+        from conftest import mpirun, subprocess_env  # and on two ranks: one line, from rank 0
+        done = subprocess.run(mpirun() + [sys.executable, "-m", "fenics_brainshift.cli"] + args,
+                              capture_output=True, text=True, env=subprocess_env(), timeout=300)
+        assert done.returncode == 2 and "Traceback" not in done.stderr, done.stderr
+        assert done.stderr.count(f"another brainshift run (pid {holder.pid}) is writing into it") == 1
+        assert {p.name: p.stat().st_mtime_ns for p in out.iterdir()} == before
     finally:
         holder.send_signal(signal.SIGKILL)
         holder.wait()
