@@ -60,9 +60,14 @@ def test_many_probes_are_named_beside_the_plot_and_settled_states_are_points(tmp
 
 
 def test_a_dynamic_run_draws_its_probes_as_lines(tmp_path, figures):
+    """A few probes: their legend (loc "best" inside the probes' axes, blind to the level's
+    second axis) covered the fluid level's line; now it is under the plot, covering nothing."""
     pictures.probe_plot(_probes_folder(tmp_path, ["a", "b"], np.linspace(0.0, 2.0, 21)), [0, 0, -9.81])
     ax = figures[-1].axes[0]
     assert all(line.get_linestyle() == "-" for line in ax.get_lines()[:2]) and ax.get_xlabel() == "time (s)"
+    legend = ax.get_legend().get_window_extent()
+    assert not legend.overlaps(ax.get_window_extent())
+    assert not any(legend.overlaps(t.get_window_extent()) for t in [ax.xaxis.label, *ax.get_xticklabels()])
 
 
 def test_the_surface_error_map_names_its_axes_in_ras(tmp_path, figures):

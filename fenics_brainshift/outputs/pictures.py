@@ -157,7 +157,7 @@ def nice_ceiling(value: float) -> float:
     return float(next(m * power for m in (1.0, 2.0, 2.5, 5.0, 10.0) if m * power >= value * (1 - 1e-12)))
 
 
-LEGEND_INSIDE = 6  # probes named in a legend inside the plot; more go beside it
+LEGEND_INSIDE = 6  # probes named in a legend under the plot; more go beside it
 
 
 def probe_plot(out: Path, gravity, path: Path | None = None, title: str = "Probes",
@@ -198,8 +198,9 @@ def probe_plot(out: Path, gravity, path: Path | None = None, title: str = "Probe
     if beside:  # many probes: the legend beside the plot, in columns, covering nothing
         ax.legend(lines, [ln.get_label() for ln in lines], fontsize=7, loc="upper left", bbox_to_anchor=(1.12, 1.0),
                   ncol=1 + len(lines) // 16, borderaxespad=0.0)
-    else:
-        ax.legend(lines, [ln.get_label() for ln in lines], fontsize=8, loc="best")
+    else:  # a few: in a row under the plot ("best" inside saw one axis only: it covered the level's line)
+        ax.legend(lines, [ln.get_label() for ln in lines], fontsize=8, loc="upper center",
+                  bbox_to_anchor=(0.5, -0.16), ncol=min(len(lines), 4), frameon=False)
     ax.set_title(title)
     fig.tight_layout()
     path = path or out / "probes.png"
