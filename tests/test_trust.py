@@ -320,3 +320,57 @@ def test_a_fit_never_mixes_with_what_its_folder_held(tmp_path, capsys, serial_on
     assert main(["run", "cube", "--out", str(out)] + small) == 0  # another run: the fit goes
     assert not (out / "fitted.toml").exists() and not (out / "fit.json").exists()
     capsys.readouterr()
+
+
+def _stl(path, triangles) -> str:
+    """A binary STL of the given triangles (T, 3, 3), none for an empty file."""
+    import meshio
+
+    t = np.asarray(triangles, dtype=float).reshape(-1, 3, 3)
+    meshio.write(str(path), meshio.Mesh(t.reshape(-1, 3), [("triangle", np.arange(3 * len(t)).reshape(-1, 3))]),
+                 binary=True)
+    return str(path)
+
+
+@pytest.mark.parametrize("triangles, words", [
+    ([], "holds no triangles"),
+    ([[[0.0, 0.0, 0.0], [1.0, 1.0, 1.0], [2.0, 2.0, 2.0]]] * 4, "holds no triangle with an area")])
+def test_empty_or_degenerate_surfaces_are_one_line_as_skull_or_target(tmp_path, capsys, triangles, words, serial_only):
+    """A skull or a measured surface with no facets, or only zero-area ones: one line naming the
+    file, exit 2, nothing written (behaviour seen by hand before; now held by a test)."""
+    from fenics_brainshift.cli import main
+
+    surface = _stl(tmp_path / "s.stl", triangles)
+    out = tmp_path / "out"
+    small = ["--set", "mesh.cells=[4, 4, 2]", "--set", "time.mode=quasi-static"]
+    for argv in (["run", "cube", "--out", str(out), "--set", f"skull.file={surface}"] + small,
+                 ["fit", "cube", "--target", surface, "--params", "material.G", "--out", str(out)] + small):
+        assert main(argv) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and words in err[0] and "s.stl" in err[0], err
+        assert not out.exists()
+
+
+def test_a_full_disk_during_fit_is_one_line_and_never_ok(tmp_path, monkeypatch, capsys, serial_only):
+    """No space left while the fit writes fit.json: one line naming the file, exit 1; the
+    folder's summary says "running" (the fit cleared it first), not an earlier run's "ok"."""
+    import errno
+
+    from fenics_brainshift.cli import main
+    from fenics_brainshift.fit import command
+
+    out = tmp_path / "F"
+    small = ["--set", "mesh.cells=[4, 4, 2]", "--set", "time.mode=quasi-static"]
+    assert main(["run", "cube", "--out", str(out)] + small) == 0
+    (tmp_path / "t.csv").write_text("x,y,z,x_pre,y_pre,z_pre\n25,25,23,25,25,25\n10,10,23,10,10,25\n40,40,23,40,40,25\n")
+
+    def full(out_folder, *a, **k):
+        raise OSError(errno.ENOSPC, "No space left on device", str(out_folder / "fit.json"))
+    monkeypatch.setattr(command, "write_fit_json", full)
+    capsys.readouterr()
+    assert main(["fit", "cube", "--target", str(tmp_path / "t.csv"), "--params", "material.G", "--out", str(out)]
+                + small) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert "No space left on device" in err[-1] and "fit.json" in err[-1] and not any("Traceback" in e for e in err)
+    assert json.loads((out / "summary.json").read_text())["status"] == "running"
+    assert not (out / "displacement.xdmf").exists()

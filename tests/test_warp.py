@@ -304,3 +304,41 @@ def test_warp_writes_the_image_and_its_transform_both_or_neither(tmp_path, cube_
     (tmp_path / "w" / "t.h5").rmdir()
     assert main(args) == 0
     assert sorted(p.name for p in (tmp_path / "w").iterdir()) == ["intra.nii.gz", "t.h5"]
+
+
+def test_warp_of_a_run_that_stopped_says_which_state_it_warps(tmp_path, cube_run, capsys, monkeypatch, serial_only):
+    """A run interrupted (Ctrl-C) or stopped by a guard (exit 3) kept its last good state: warp
+    uses it and says so; a full disk while writing the image is one line, exit 1, and leaves
+    neither file."""
+    import errno
+    import json
+    import shutil
+
+    from fenics_brainshift.cli import main
+    from fenics_brainshift.images import command
+
+    _, out = cube_run
+    body = DeformedMesh.from_run(out)
+    affine = np.eye(4)
+    affine[:3, 3] = body.points.min(axis=0) - 5.0
+    image = _smooth_image(tuple(int(s) for s in np.ptp(body.points, axis=0) + 10)).astype(np.float32)
+    nib.save(nib.Nifti1Image(image, affine), str(tmp_path / "pre.nii.gz"))
+    for status in ("interrupted", "stopped: energy from nowhere at t = 3 s"):
+        run = tmp_path / "run"
+        shutil.rmtree(run, ignore_errors=True)
+        shutil.copytree(out, run)
+        summary = json.loads((run / "summary.json").read_text())
+        (run / "summary.json").write_text(json.dumps({**summary, "status": status}))
+        assert main(["warp", str(run), "--image", str(tmp_path / "pre.nii.gz"), "-o", str(tmp_path / "w.nii.gz")]) == 0
+        said = capsys.readouterr().out
+        assert f"the run did not end well (summary.json: {status}): this is its last good state" in said
+
+    def full(volume, data, path):
+        raise OSError(errno.ENOSPC, "No space left on device", str(path))
+    monkeypatch.setattr(command, "write_like", full)
+    target = tmp_path / "full" / "w.nii.gz"
+    assert main(["warp", str(out), "--image", str(tmp_path / "pre.nii.gz"), "-o", str(target), "--transform",
+                 str(tmp_path / "full" / "t.h5")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "No space left on device" in err[0] and "summary.json" not in err[0], err
+    assert list((tmp_path / "full").iterdir()) == []
