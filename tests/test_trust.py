@@ -57,9 +57,16 @@ def test_a_point_never_placed_in_slicer_is_left_out_as_slicer_does(tmp_path, cap
     points = [{"label": "F-1", "position": [1.0, 2.0, 3.0], "positionStatus": "defined"},
               {"label": "F-2", "position": "", "positionStatus": "undefined"},
               {"label": "F-3", "position": [4.0, 5.0, 6.0], "positionStatus": "defined"}]
+    import logging
+
     path = tmp_path / "p.mrk.json"
     path.write_text(json.dumps({"markups": [{"coordinateSystem": "LPS", "controlPoints": points}]}))
-    labels, ras = read_markups(path, "--target")
+    logger = logging.getLogger("fenics_brainshift")  # (it does not propagate once the CLI configured it)
+    logger.addHandler(caplog.handler)
+    try:
+        labels, ras = read_markups(path, "--target")
+    finally:
+        logger.removeHandler(caplog.handler)
     assert labels == ["F-1", "F-3"] and ras.tolist() == [[-1.0, -2.0, 3.0], [-4.0, -5.0, 6.0]]
     assert "1 control point(s) never placed" in caplog.text
     path.write_text(json.dumps({"markups": [{"coordinateSystem": "LPS", "controlPoints": points[1:2]}]}))

@@ -71,7 +71,8 @@ def read_markups(path: str | Path, what: str = "markups") -> tuple[list[str], np
                 continue
             position = point.get("position") if isinstance(point, dict) else None
             if not isinstance(position, list) or len(position) != 3 or not all(
-                    isinstance(c, (int, float)) and not isinstance(c, bool) and abs(c) < 1e300 for c in position):
+                    isinstance(c, float) or (isinstance(c, int) and not isinstance(c, bool) and abs(c) < 1e300)
+                    for c in position):  # (an int past float range: OverflowError)
                 raise InputError(f"{what}: '{path.name}': control point {n} has no position of 3 numbers "
                                  f"(got {position!r})")
             xyz = np.asarray(position, dtype=float)
