@@ -9,8 +9,8 @@ triangle it is a corner of), at y_i = x_i + u_i, carries the force
 
 phi the skull's distance field (physics/skull.py: negative past the skull), lambda_i the
 node's multiplier (a pressure vector, Pa) and k a penalty (Pa/m) set from the stiffness and
-the mesh size, not by hand (and, in a time step, from the inertia too). k (z - its nearest
-point of the skull's inside) is exactly that force: on a flat wall it is the scalar form
+the mesh size, not by hand (and, in a time step, from the inertia too). That force is
+k (z's nearest point inside the skull - z) (the kink aside): on a flat wall, the scalar form
 max(0, lambda . n - k phi(y)) n. The multiplier is a vector because a node may press two
 walls at once (a concave edge of the skull): the force needed there is any vector between
 the walls' normals, and with a scalar multiplier along grad phi(y) its direction was set by
