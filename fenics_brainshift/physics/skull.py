@@ -18,6 +18,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 LEAF = 8  # triangles per leaf box (fewer: more boxes to test, more: more triangles to test)
+FAR = 0.05  # a point farther than this fraction of the surface's size from it is "far" ...
+FAR_CHUNK = 32  # ... and far points are measured this many at a time (their candidates: most triangles)
 KD_EPS = 1.0  # the first bound's centroid need not be the nearest: within twice its distance is found far quicker
 
 
@@ -143,6 +145,22 @@ class RigidSkull:
         tri = self.triangles[first]
         bound = np.linalg.norm(closest_points_on_triangles(y, tri[:, 0], tri[:, 1], tri[:, 2]) - y, axis=1)
         bound = bound * (1 + 1e-9) + self._slack
+        far = bound > FAR * self._size
+        if not far.any():
+            return self._nearest(y, first, bound)
+        # a point far from the surface has most triangles within its bound: a few such points at
+        # a time (a diverging iterate 1e6 m out took every triangle for each of 5262 nodes: 57
+        # million pairs, the machine's memory)
+        out = (np.empty(len(y)), np.empty(len(y)), np.empty((len(y), 3)))
+        groups = [np.flatnonzero(~far)] + np.array_split(np.flatnonzero(far), -(-int(far.sum()) // FAR_CHUNK))
+        for group in groups:
+            if len(group):
+                for whole, part in zip(out, self._nearest(y[group], first[group], bound[group])):
+                    whole[group] = part
+        return out
+
+    def _nearest(self, y: np.ndarray, first: np.ndarray, bound: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """distance's answer for points y, each with a triangle ``first`` within ``bound``."""
         point, leaf = self._tree.within(y, bound)
         slots = self._tree.slots[leaf]
         full = slots >= 0

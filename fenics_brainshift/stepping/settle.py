@@ -12,6 +12,9 @@ from ..errors import SolverError
 from .anderson import AndersonAcceleration
 
 
+GROWTH = 100.0  # a fixed point with the skull's reaction whose iterate grows this much over its first solve diverges
+
+
 class Settle:
     """The fixed-point loop around a solver, for one model's supports and fluid load."""
 
@@ -36,7 +39,7 @@ class Settle:
         of the last solve."""
         x_vec, trial = compat.petsc_vec(x), self._trial
         self.acceleration.reset(keep_history=same_problem)
-        its, change = 0, float("nan")
+        its, change, first = 0, float("nan"), None
         for k in range(1, self.max_iterations + 1):
             rhs = rhs_for_current_x()
             if self.follower and not depends_on_x and k > 1 and self.fluid.reused_last:
@@ -50,7 +53,13 @@ class Settle:
                 trial.copy(x_vec)
                 x.x.scatter_forward()
                 break
-            change = self.acceleration.update(x_vec, trial) / max(scale, trial.norm(), 1e-300)
+            size = trial.norm()
+            first = max(scale, size) if first is None else first
+            if depends_on_x and size > GROWTH * first:  # diverging: the rest would only go farther (the skull's
+                # distances to iterates metres out cost most of a resection's run; its caller falls back to Newton)
+                raise SolverError(f"the fixed point with the skull's reaction diverged at t = {t:g} s (|x| "
+                                  f"{size / first:.0f} times its first solve's after {k} iterations)")
+            change = self.acceleration.update(x_vec, trial) / max(scale, size, 1e-300)
             x.x.scatter_forward()
             if change <= self.tolerance:
                 break
