@@ -228,9 +228,7 @@ def _run(args, comm) -> int:
 
     scene = load_scene(args.scene, args.set + (["output.pictures=true"] if args.pictures else []))
     out = args.out or scene.output.folder
-    keep = []  # a scene file inside the folder it runs into (a fit's fitted.toml) is not cleared
-    if Path(args.scene).is_file():
-        keep = [Path(args.scene)] + ([Path(args.scene).with_name("fit.json")] if Path(args.scene).name == "fitted.toml" else [])
+    keep = [Path(args.scene)] if Path(args.scene).is_file() else []  # (a fit's fitted.toml, run where it was fitted)
     result = run(scene, out, comm, keep=keep)
     if comm.rank == 0:
         summary = result.summary

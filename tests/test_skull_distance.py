@@ -246,3 +246,13 @@ def test_far_points_are_measured_a_few_at_a_time():
     assert np.all(side[:200] == 1.0) and np.all(side[300:] == 1.0)
     # measured (tracemalloc): 30 MB a few at a time, 285 MB all at once (and it grows with the points)
     assert peak < 100e6, f"{peak / 1e6:.0f} MB"
+
+
+def test_a_point_beyond_any_body_is_not_a_number_not_a_crash():
+    """A diverging iterate 1e160 m out squared past float range and raised an IndexError (a
+    traceback instead of the run's "no longer finite" guard): it is NaN, as an infinite one."""
+    points, triangles = lattice_box(*(np.linspace(0.0, s, 4) for s in (W, D, H)))
+    distance, side, direction = RigidSkull(points, triangles).distance(
+        np.array([[1e160, 0.0, 0.0], [W / 2, D / 2, H / 2], [np.inf, 0.0, 0.0]]))
+    assert np.isnan(distance[[0, 2]]).all() and np.isnan(direction[[0, 2]]).all()
+    assert distance[1] == pytest.approx(min(W, D, H) / 2) and side[1] == -1.0

@@ -52,11 +52,13 @@ def test_markups_whose_structure_is_not_slicers(tmp_path, document, words):
 
 def test_a_point_never_placed_in_slicer_is_left_out_as_slicer_does(tmp_path, caplog):
     """Slicer lists a point that was added but never placed with "position": "" and
-    positionStatus "undefined" (vtkMRMLMarkupsJsonStorageNode), and skips it when it reads the
-    file; the whole file was refused ("no position of 3 numbers"). A file of none placed is."""
+    positionStatus "undefined" (vtkMRMLMarkupsJsonStorageNode; "missing" for one skipped while
+    placing, Slicer 5), and leaves it out when it reads the file; the whole file was refused
+    ("no position of 3 numbers"). A file of none placed is."""
     points = [{"label": "F-1", "position": [1.0, 2.0, 3.0], "positionStatus": "defined"},
               {"label": "F-2", "position": "", "positionStatus": "undefined"},
-              {"label": "F-3", "position": [4.0, 5.0, 6.0], "positionStatus": "defined"}]
+              {"label": "F-3", "position": [4.0, 5.0, 6.0], "positionStatus": "defined"},
+              {"label": "F-4", "position": "", "positionStatus": "missing"}]  # (skipped: Slicer 5)
     import logging
 
     path = tmp_path / "p.mrk.json"
@@ -68,7 +70,7 @@ def test_a_point_never_placed_in_slicer_is_left_out_as_slicer_does(tmp_path, cap
     finally:
         logger.removeHandler(caplog.handler)
     assert labels == ["F-1", "F-3"] and ras.tolist() == [[-1.0, -2.0, 3.0], [-4.0, -5.0, 6.0]]
-    assert "1 control point(s) never placed" in caplog.text
+    assert "2 control point(s) never placed" in caplog.text
     path.write_text(json.dumps({"markups": [{"coordinateSystem": "LPS", "controlPoints": points[1:2]}]}))
     with pytest.raises(InputError, match=r"holds no control points that were placed \(1 never placed\)"):
         read_markups(path, "--target")
@@ -300,16 +302,18 @@ def test_a_full_disk_mid_run_is_one_line_and_never_ok(tmp_path, monkeypatch, cap
 def test_a_fit_never_mixes_with_what_its_folder_held(tmp_path, capsys, serial_only):
     """`fit --no-run` into an earlier fit's folder left the new fit.json and fitted.toml beside
     the old fitted run (its "ok" summary and its displacement: warp would warp the old fit), and
-    wrote before taking the folder's lock; a later `run` into the folder left the fit's files.
-    Now the fit clears the folder's earlier outputs under the lock, `run OUT/fitted.toml` keeps
-    the fit it runs, and any other run clears it."""
+    wrote before taking the folder's lock; a later `run` into the folder left the fit's files
+    beside its own. Now the fit clears the folder's run and earlier fit under the lock (but the
+    scene it fits: a fitted.toml fitted again where it lies), `run OUT/fitted.toml` runs where
+    it was fitted, and any other run into a fit's folder is refused (a copy of fitted.toml
+    carries the folder: removing the fit would lose it)."""
+    import shutil
+
     from fenics_brainshift.cli import main
 
     out = tmp_path / "F"
     small = ["--set", "mesh.cells=[4, 4, 2]", "--set", "time.mode=quasi-static"]
     assert main(["run", "cube", "--out", str(out)] + small) == 0  # an earlier run in the folder
-    (out / "fit.json").write_text("{}")  # and an earlier fit's files
-    (out / "fitted.toml").write_text("# earlier")
     pre = np.array([[25.0, 25.0, 25.0], [10.0, 10.0, 25.0], [40.0, 40.0, 25.0], [10.0, 40.0, 25.0]])
     rows = ["x,y,z,x_pre,y_pre,z_pre"] + [",".join(f"{v:g}" for v in [*(p - [0, 0, 2.0]), *p]) for p in pre]
     (tmp_path / "t.csv").write_text("\n".join(rows) + "\n")
@@ -318,15 +322,22 @@ def test_a_fit_never_mixes_with_what_its_folder_held(tmp_path, capsys, serial_on
     assert main(fit) == 0
     assert not (out / "displacement.xdmf").exists() and not (out / "probes.csv").exists()
     assert json.loads((out / "summary.json").read_text())["kind"] == "fit"
-    fitted_G = load_scene(out / "fitted.toml").material.G
-    assert fitted_G != load_scene("cube").material.G  # the new fit's
+    assert load_scene(out / "fitted.toml").material.G != load_scene("cube").material.G  # the new fit's
     assert "material.G" in json.loads((out / "fit.json").read_text())["parameters"]
     assert main(["run", str(out / "fitted.toml")]) == 0  # into its own folder: the fit stays
     assert (out / "fitted.toml").exists() and (out / "fit.json").exists()
     assert json.loads((out / "summary.json").read_text())["status"] == "ok"
-    assert main(["run", "cube", "--out", str(out)] + small) == 0  # another run: the fit goes
-    assert not (out / "fitted.toml").exists() and not (out / "fit.json").exists()
+    refit = ["fit", str(out / "fitted.toml")] + fit[2:]  # fitted again where it lies (it was deleted first)
+    assert main(refit) == 0 and load_scene(out / "fitted.toml").material.G > 0
+    shutil.copy(out / "fitted.toml", tmp_path / "variant.toml")  # [output] folder = F
     capsys.readouterr()
+    for other in (["run", str(tmp_path / "variant.toml")], ["run", "cube", "--out", str(out)] + small):
+        before = {p.name: p.stat().st_mtime_ns for p in out.iterdir()}
+        assert main(other) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert f"--out '{out}' holds a fit (fit.json): run its fitted.toml there, or choose another --out" in err[-1]
+        assert {p.name: p.stat().st_mtime_ns for p in out.iterdir() if p.name != ".brainshift.lock"} == \
+            {k: v for k, v in before.items() if k != ".brainshift.lock"}
 
 
 def _stl(path, triangles) -> str:

@@ -285,7 +285,9 @@ def test_a_run_that_is_not_of_this_image_or_did_not_finish_is_refused(tmp_path, 
 def test_warp_writes_the_image_and_its_transform_both_or_neither(tmp_path, cube_run, capsys, serial_only):
     """The transform's final move failing (a folder where the file should go) left the image
     without its transform, and the message spoke of a run's summary.json. Now neither is
-    left, nor a temporary file, and the one line names the path."""
+    left, nor a temporary file, an earlier warp's image is put back, and the one line names
+    the path. A detached NRRD header (.nhdr: its data file named for the temporary file) is
+    refused."""
     from fenics_brainshift.cli import main
 
     _, out = cube_run
@@ -297,13 +299,17 @@ def test_warp_writes_the_image_and_its_transform_both_or_neither(tmp_path, cube_
     (tmp_path / "w" / "t.h5").mkdir(parents=True)  # the transform's name taken by a folder
     args = ["warp", str(out), "--image", str(tmp_path / "pre.nii.gz"), "-o", str(tmp_path / "w" / "intra.nii.gz"),
             "--transform", str(tmp_path / "w" / "t.h5")]
+    (tmp_path / "w" / "intra.nii.gz").write_bytes(b"an earlier warp")
     assert main(args) == 1
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "t.h5" in err[0] and "summary.json" not in err[0], err
-    assert sorted(p.name for p in (tmp_path / "w").iterdir()) == ["t.h5"]  # (the folder only)
+    assert len(err) == 1 and f"'{tmp_path / 'w' / 't.h5'}'" in err[0] and "summary.json" not in err[0], err
+    assert sorted(p.name for p in (tmp_path / "w").iterdir()) == ["intra.nii.gz", "t.h5"]  # (the folder)
+    assert (tmp_path / "w" / "intra.nii.gz").read_bytes() == b"an earlier warp"  # put back, not lost
     (tmp_path / "w" / "t.h5").rmdir()
     assert main(args) == 0
     assert sorted(p.name for p in (tmp_path / "w").iterdir()) == ["intra.nii.gz", "t.h5"]
+    assert main(args[:4] + ["-o", str(tmp_path / "w" / "intra.nhdr")]) == 2  # a detached header: two files
+    assert "use a .nii.gz or .nrrd file name" in capsys.readouterr().err
 
 
 def test_warp_of_a_run_that_stopped_says_which_state_it_warps(tmp_path, cube_run, capsys, monkeypatch, serial_only):

@@ -44,7 +44,7 @@ def update_command(args, comm) -> list[str]:
     comm.barrier()
     lock = RunLock(out, comm)
     try:
-        clear_run(out, comm, atlas.info.get("scene_name", "atlas"))  # (an earlier update's files too)
+        clear_run(out, comm, atlas.info.get("scene_name", "atlas"), kind="update")  # (an earlier update's files too)
         if comm.rank == 0:
             _write_outputs(out, atlas, target, result, image, spread_image)
         comm.barrier()

@@ -35,7 +35,7 @@ def fit_command(args, comm) -> list[str]:
     comm.barrier()
     lock = RunLock(out, comm)  # one writer at a time; the folder's earlier run, fit or update cleared
     try:
-        clear_run(out, comm, scene.name)
+        clear_run(out, comm, scene.name, keep=[Path(args.scene)] if Path(args.scene).is_file() else [], kind="fit")
         values = dict(zip(names, (float(v) for v in result.values)))
         fitted = write_fitted_scene(args.scene, args.set, scene_changes(scene, values), out) if comm.rank == 0 else None
         fitted = comm.bcast(fitted, root=0)

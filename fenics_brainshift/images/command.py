@@ -18,7 +18,7 @@ def warp_command(args, comm) -> list[str]:
     output = Path(args.output)
     if not 0 < args.blend < float("inf"):
         raise InputError(f"warp: --blend must be a finite number of mm > 0 (got {args.blend:g})")
-    if not is_volume(output):
+    if not is_volume(output) or output.name.lower().endswith(".nhdr"):  # (a detached header: two files)
         raise InputError(f"warp: -o '{output.name}': use a .nii.gz or .nrrd file name")
     if args.transform and not args.transform.lower().endswith((".h5", ".hdf5")):
         raise InputError(f"warp: --transform '{args.transform}': use an ITK transform file name ending in .h5")
@@ -51,22 +51,39 @@ def warp_command(args, comm) -> list[str]:
 
 def _write_both(image: Path, write_image, transform: Path | None, write_transform) -> None:
     """The image and (if asked) the transform, both or neither: each written to a temporary
-    name beside its target (the same ending, which says the format), then moved into place;
-    where the second move fails, the first file is taken back out."""
+    name beside its target (the same ending, which says the format), then moved into place,
+    a file already there set aside first; where a move fails, the new files are taken back out,
+    the earlier ones put back, and the error names the target, not the temporary file."""
     pending = [(image, image.with_name(f".tmp-{image.name}"), write_image)]
     if transform is not None:
         pending.append((transform, transform.with_name(f".tmp-{transform.name}"), write_transform))
-    placed = []
+    placed, aside = [], []
+    target = None
     try:
-        for _, temporary, write in pending:
+        for target, temporary, write in pending:
             write(temporary)
         for target, temporary, _ in pending:
+            if target.is_file():
+                os.replace(target, target.with_name(f".old-{target.name}"))
+                aside.append(target)
             os.replace(temporary, target)
             placed.append(target)
+    except OSError as exc:
+        _undo(placed, aside)
+        raise OSError(exc.errno, exc.strerror or str(exc), str(target)) from None
     except BaseException:
-        for target in placed:
-            target.unlink(missing_ok=True)
+        _undo(placed, aside)
         raise
     finally:
         for _, temporary, _ in pending:
             temporary.unlink(missing_ok=True)
+    for target in aside:
+        target.with_name(f".old-{target.name}").unlink(missing_ok=True)
+
+
+def _undo(placed: list[Path], aside: list[Path]) -> None:
+    """The new files out, the earlier ones (set aside) back."""
+    for target in placed:
+        target.unlink(missing_ok=True)
+    for target in aside:
+        os.replace(target.with_name(f".old-{target.name}"), target)

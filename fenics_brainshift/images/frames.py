@@ -66,23 +66,24 @@ def read_markups(path: str | Path, what: str = "markups") -> tuple[list[str], np
         if not isinstance(points_in_file, list):
             raise InputError(f"{what}: '{path.name}': \"controlPoints\" is not a list")
         for n, point in enumerate(points_in_file):
-            if isinstance(point, dict) and point.get("positionStatus") in ("undefined", "preview"):
-                unplaced += 1  # a point Slicer lists but that was never placed ("position": ""): Slicer skips it
+            if isinstance(point, dict) and point.get("positionStatus") in ("undefined", "preview", "missing"):
+                unplaced += 1  # listed, never placed or skipped ("position": ""): Slicer leaves it out
                 continue
             position = point.get("position") if isinstance(point, dict) else None
             if not isinstance(position, list) or len(position) != 3 or not all(
                     isinstance(c, float) or (isinstance(c, int) and not isinstance(c, bool) and abs(c) < 1e300)
                     for c in position):  # (an int past float range: OverflowError)
-                raise InputError(f"{what}: '{path.name}': control point {n} has no position of 3 numbers "
+                raise InputError(f"{what}: '{path.name}': control point {n + 1} has no position of 3 numbers "
                                  f"(got {position!r})")
             xyz = np.asarray(position, dtype=float)
             if not np.isfinite(xyz).all():
-                raise InputError(f"{what}: '{path.name}': control point {n} ('{point.get('label', '')}') has a "
+                raise InputError(f"{what}: '{path.name}': control point {n + 1} ('{point.get('label', '')}') has a "
                                  f"position that is not finite ({position}); delete or place it again in Slicer")
             points.append(lps_to_ras(xyz) if frame == "LPS" else xyz)
             labels.append(str(point.get("label") or f"P-{len(labels) + 1}"))
     if unplaced:
-        log.warning("%s: '%s': %d control point(s) never placed in Slicer (positionStatus undefined) left out",
+        log.warning("%s: '%s': %d control point(s) never placed in Slicer (positionStatus undefined, preview or "
+                    "missing) left out",
                     what, path.name, unplaced)
     if not points:
         raise InputError(f"{what}: '{path.name}' holds no control points"

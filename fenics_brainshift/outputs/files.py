@@ -40,13 +40,12 @@ def _can_create_in(folder: Path) -> bool:
     return True
 
 
-# what a run writes into its folder (outputs/xdmf.py, pictures.py, runner/driver.py), and what
-# the fit and the update write beside a run's files (fit/report.py, atlas/update_command.py):
-# cleared before a run writes there, so that a re-run never sits beside an earlier run's files,
-# nor a run beside the fit or update of another
+# what a run writes into its folder (outputs/xdmf.py, pictures.py, runner/driver.py): cleared
+# before a run writes there, so that a re-run never sits beside an earlier run's files
 RUN_FILES = ("summary.json", "probes.csv", "probes_final.mrk.json", "displacement.xdmf", "displacement.h5",
-             "deformed.png", "probes.png", "surface_final.vtk", "surface_final.stl", "skull.stl",
-             "fit.json", "fitted.toml", "update.json", "uncertainty.nii.gz", "targets_updated.mrk.json")
+             "deformed.png", "probes.png", "surface_final.vtk", "surface_final.stl", "skull.stl")
+# the records a fit and an update write beside a run's files (fit/report.py, atlas/update_command.py)
+RECORDS = {"fit": ("fit.json", "fitted.toml"), "update": ("update.json", "uncertainty.nii.gz", "targets_updated.mrk.json")}
 RUN_SERIES = ("surface_[0-9][0-9][0-9][0-9].vtk", "surface_[0-9][0-9][0-9][0-9].stl")
 
 
@@ -97,13 +96,30 @@ class RunLock:
             self._file = None
 
 
-def clear_run(out: Path, comm, scene_name: str, keep=()) -> None:
-    """Remove an earlier run's files from ``out`` (only those a run, a fit or an update
-    writes; not the files in ``keep``), then mark the folder's summary.json "running": a run
-    killed from here on never leaves the earlier run's "ok" beside its own partial files."""
+def clear_run(out: Path, comm, scene_name: str, keep=(), kind: str = "run") -> None:
+    """Remove an earlier run's files from ``out`` (only those a run writes, and for a fit or an
+    update its own earlier record; not the files in ``keep``), then mark the folder's
+    summary.json "running": a run killed from here on never leaves the earlier run's "ok"
+    beside its own partial files. A folder holding another kind's record is refused first,
+    naming it: a run beside a fit's record would mix the two, and removing the record would
+    lose the user's fit (a run of the folder's own fitted.toml, in ``keep``, is the fit's)."""
+    problem = None
+    kept = {Path(p).resolve() for p in keep}
     if comm.rank == 0:
-        kept = {Path(p).resolve() for p in keep}
-        for path in [out / name for name in RUN_FILES] + [p for pattern in RUN_SERIES for p in out.glob(pattern)]:
+        for other, names in RECORDS.items():
+            if other == kind or not (out / names[0]).is_file():
+                continue
+            if other == "fit" and kind == "run" and (out / "fitted.toml").resolve() in kept:
+                continue  # the fit's own scene, run where it was fitted
+            problem = (f"--out '{out}' holds a {other} ({names[0]}): "
+                       + ("run its fitted.toml there, or choose another --out" if other == "fit" else
+                          "choose another --out"))
+    problem = comm.bcast(problem, root=0)
+    if problem:
+        raise InputError(problem)
+    if comm.rank == 0:
+        names = RUN_FILES + RECORDS.get(kind, ())
+        for path in [out / name for name in names] + [p for pattern in RUN_SERIES for p in out.glob(pattern)]:
             if path.is_file() and path.resolve() not in kept:
                 path.unlink()
     write_json(out / "summary.json", {"scene": scene_name, "status": "running"}, comm)

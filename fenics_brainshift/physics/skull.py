@@ -131,9 +131,10 @@ class RigidSkull:
 
     def distance(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(unsigned distance, side +1 outside / -1 inside, outward unit direction from the
-        surface to y (the nearest triangle's normal where y is on the surface)) of every point."""
+        surface to y (the nearest triangle's normal where y is on the surface)) of every point;
+        NaN for a point not finite or beyond 1e100 m (a diverged iterate)."""
         y = np.asarray(y, dtype=float).reshape(-1, 3)
-        finite = np.isfinite(y).all(axis=1)
+        finite = np.isfinite(y).all(axis=1) & (np.abs(y).max(axis=1, initial=0.0) < 1e100)  # (squares overflow)
         if not finite.all():  # a diverged iterate: NaN for it, so that its residual is not finite either
             out = (np.full(len(y), np.nan), np.full(len(y), np.nan), np.full((len(y), 3), np.nan))
             for whole, part in zip(out, self.distance(y[finite])):

@@ -56,8 +56,9 @@ def run(scene: Scene, out: str | Path | None = None, comm=MPI.COMM_WORLD, raise_
     """Run a scene. With ``out``, write DIR/summary.json, displacement.xdmf, probes.csv (and the
     fine surface and pictures when the scene asks); without it, write nothing. A guard that
     fires raises SolverError after the last good state is written (raise_on_stop=False: the
-    Result says so in summary["status"] instead). An earlier run's, fit's or update's files in
-    ``out`` are cleared first, but those in ``keep`` (the scene file being run, a fit's own)."""
+    Result says so in summary["status"] instead). An earlier run's files in ``out`` are cleared
+    first, but those in ``keep`` (the scene file being run); a folder holding a fit's or an
+    update's record is refused, but for the fit's own fitted.toml (outputs/files.py clear_run)."""
     t_start = time.perf_counter()
     out = Path(out) if out is not None else None
     if out is not None:
