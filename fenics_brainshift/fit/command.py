@@ -33,7 +33,7 @@ def fit_command(args, comm) -> list[str]:
     if comm.rank == 0:
         out.mkdir(parents=True, exist_ok=True)
     comm.barrier()
-    lock = RunLock(out, comm)  # one writer at a time; the folder's earlier run, fit or update cleared
+    lock = RunLock(out, comm)  # one writer at a time; its earlier run and fit cleared (an update's folder refused)
     try:
         clear_run(out, comm, scene.name, keep=[Path(args.scene)] if Path(args.scene).is_file() else [], kind="fit")
         values = dict(zip(names, (float(v) for v in result.values)))
