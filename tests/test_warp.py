@@ -282,6 +282,16 @@ def test_a_run_that_is_not_of_this_image_or_did_not_finish_is_refused(tmp_path, 
         DeformedMesh.from_run(damaged)
 
 
+def _image_around(body, path) -> np.ndarray:
+    """A smooth 1 mm image 5 mm beyond the body's bounding box on every side, written to path;
+    its affine."""
+    affine = np.eye(4)
+    affine[:3, 3] = body.points.min(axis=0) - 5.0
+    image = _smooth_image(tuple(int(s) for s in np.ptp(body.points, axis=0) + 10)).astype(np.float32)
+    nib.save(nib.Nifti1Image(image, affine), str(path))
+    return affine
+
+
 def test_warp_writes_the_image_and_its_transform_both_or_neither(tmp_path, cube_run, capsys, serial_only):
     """The transform's final move failing (a folder where the file should go) left the image
     without its transform, and the message spoke of a run's summary.json. Now neither is
@@ -291,11 +301,7 @@ def test_warp_writes_the_image_and_its_transform_both_or_neither(tmp_path, cube_
     from fenics_brainshift.cli import main
 
     _, out = cube_run
-    body = DeformedMesh.from_run(out)
-    affine = np.eye(4)
-    affine[:3, 3] = body.points.min(axis=0) - 5.0
-    image = _smooth_image(tuple(int(s) for s in np.ptp(body.points, axis=0) + 10)).astype(np.float32)
-    nib.save(nib.Nifti1Image(image, affine), str(tmp_path / "pre.nii.gz"))
+    _image_around(DeformedMesh.from_run(out), tmp_path / "pre.nii.gz")
     (tmp_path / "w" / "t.h5").mkdir(parents=True)  # the transform's name taken by a folder
     args = ["warp", str(out), "--image", str(tmp_path / "pre.nii.gz"), "-o", str(tmp_path / "w" / "intra.nii.gz"),
             "--transform", str(tmp_path / "w" / "t.h5")]
@@ -324,11 +330,7 @@ def test_warp_of_a_run_that_stopped_says_which_state_it_warps(tmp_path, cube_run
     from fenics_brainshift.images import command
 
     _, out = cube_run
-    body = DeformedMesh.from_run(out)
-    affine = np.eye(4)
-    affine[:3, 3] = body.points.min(axis=0) - 5.0
-    image = _smooth_image(tuple(int(s) for s in np.ptp(body.points, axis=0) + 10)).astype(np.float32)
-    nib.save(nib.Nifti1Image(image, affine), str(tmp_path / "pre.nii.gz"))
+    _image_around(DeformedMesh.from_run(out), tmp_path / "pre.nii.gz")
     for status in ("interrupted", "stopped: energy from nowhere at t = 3 s"):
         run = tmp_path / "run"
         shutil.rmtree(run, ignore_errors=True)
