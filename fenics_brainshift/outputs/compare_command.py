@@ -1,0 +1,64 @@
+"""`brainshift compare PRE INTRA SIM`: the command around the paper's error measures (metrics.py)."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..meshing.voxelize import read_surface
+from .files import check_writable
+from .metrics import compare
+
+
+def compare_command(args, comm) -> int:
+    """`brainshift compare` (arguments: cli.py): rank 0 measures, prints and writes."""
+    out = Path(args.output)
+    check_writable(out.parent, comm, "folder of -o", "-o")
+    if comm.rank != 0:
+        return 0
+    for name in (args.pre, args.intra, args.sim):
+        if not Path(name).is_file():
+            raise InputError(f"compare: '{name}' not found")
+    if min(args.scales) <= 0 or min(args.radius, args.depth, args.search, args.spacing) <= 0:
+        raise InputError("compare: --scales, --radius, --depth, --search and --spacing must be > 0")
+    pre, intra, sim = (read_surface(Path(f), s)[0] for f, s in zip((args.pre, args.intra, args.sim), args.scales))
+    check_scales((pre, intra, sim), args.scales)
+    mm = 1e-3
+    roi = ((args.roi[0] * mm, args.roi[1] * mm), (args.roi[2] * mm, args.roi[3] * mm)) if args.roi else None
+    try:
+        result = compare(pre, intra, sim, args.up, args.second, args.radius * mm, args.depth * mm,
+                         args.search * mm, roi, args.spacing * mm)
+    except ValueError as exc:  # the measures' own checks: surfaces that do not match, an empty ROI
+        raise InputError(f"compare: {exc}") from None
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({"units": "m", **result}, indent=1) + "\n")
+    for name in ("A", "B"):
+        r = result[name]
+        e = ["-" if v is None else f"{v:.0f}" for v in r["error_percent_vs_d_mri"]]
+        print(f"node {name}: d_MRI {np.round(np.array(r['d_mri']) * 1e3, 2)} mm, d_Sim "
+              f"{np.round(np.array(r['d_sim']) * 1e3, 2)} mm, Error % x {e[0]}, y {e[1]}, z {e[2]}, norm {e[3]}")
+    if "surface_error" in result:
+        se = result["surface_error"]
+        print(f"surface error along {se['height_axis']} ({se['grid_points']} grid points): max {se['max'] * 1e3:.2f}, "
+              f"min {se['min'] * 1e3:.2f}, mean {se['mean'] * 1e3:.2f}, median {se['median'] * 1e3:.2f}, "
+              f"MAE {se['mae'] * 1e3:.2f} mm")
+        from .pictures import surface_error_plot
+
+        surface_error_plot(out.with_suffix(".png"), se)
+    print(f"wrote {out}")
+    return 0
+
+
+def check_scales(surfaces, scales) -> None:
+    """Three surfaces of one brain are about one size: one that is 10x or 1000x the others
+    has the wrong --scales entry (it used to end in "raise --search")."""
+    sizes = np.array([np.linalg.norm(np.ptp(p, axis=0)) for p in surfaces])
+    typical = float(np.median(sizes))
+    for name, size, scale in zip(("PRE", "INTRA", "SIM"), sizes, scales):
+        if not typical / 3.0 <= size <= 3.0 * typical:
+            fix = scale * 10.0 ** round(float(np.log10(typical / size)))
+            raise InputError(f"compare: {name} is {size:.3g} m across against the others' {typical:.3g} m with --scales "
+                             f"{' '.join(f'{v:g}' for v in scales)}: is its scale {fix:g}? (--scales: each file's unit "
+                             f"in metres, PRE INTRA SIM)")
