@@ -76,7 +76,7 @@ def main(argv=None) -> int:
         write_markups(out / "pre.mrk.json", labels, pre * 1e3)
         write_markups(out / "intra.mrk.json", labels, intra * 1e3)
         code = brainshift(["--log-level", "WARNING", "update", str(out / "atlas"), "--pre", str(out / "pre.mrk.json"),
-                           "--target", str(out / "intra.mrk.json"), "--noise", str(NOISE_MM), "--out", str(out)])
+                           "--target", str(out / "intra.mrk.json"), "--noise", str(NOISE_MM), "--out", str(out), "--replace"])
         if code:
             return code
         truth = true_state(args.set)

@@ -291,6 +291,33 @@ def test_update_reports_a_slip_set_aside_and_keep_all_fits_it(atlas, atlas_folde
     assert report["set_aside"] == [] and report["residual_rms_mm"] > 1.0  # the slip, fitted, pulls
 
 
+def test_swapped_points_a_second_update_and_the_default_noise_are_said(atlas, atlas_folder, tmp_path, capsys):
+    """--pre and --target swapped: the measured shift points against the scene's (hand-made:
+    the known operation's points, reversed) and the report says so; a second update into the
+    same folder is refused in one line unless --replace; the default noise is named."""
+    from fenics_brainshift.cli import main
+
+    _markups(tmp_path, atlas, noise=0.3e-3)
+    right = ["update", str(atlas_folder), "--pre", str(tmp_path / "pre.mrk.json"), "--target",
+             str(tmp_path / "intra.mrk.json")]
+    assert main(right + ["--out", str(tmp_path / "a")]) == 0
+    said = capsys.readouterr().out
+    assert "are --pre and --target swapped" not in said and "1 mm per coordinate, the default" in said
+    assert json.loads((tmp_path / "a" / "update.json").read_text())["noise_stated"] is False
+    swapped = ["update", str(atlas_folder), "--pre", str(tmp_path / "intra.mrk.json"), "--target",
+               str(tmp_path / "pre.mrk.json"), "--noise", "0.3"]
+    assert main(swapped + ["--out", str(tmp_path / "b")]) == 0
+    assert "are --pre and --target swapped?" in capsys.readouterr().out
+    assert "swapped" in json.loads((tmp_path / "b" / "update.json").read_text())["warning"]
+    before = (tmp_path / "a" / "update.json").read_text()
+    assert main(right + ["--out", str(tmp_path / "a")]) == 2
+    err = capsys.readouterr().err
+    assert "holds an earlier update (20 points" in err and "--replace" in err and "Traceback" not in err
+    assert (tmp_path / "a" / "update.json").read_text() == before
+    assert main(right + ["--out", str(tmp_path / "a"), "--noise", "0.5", "--replace"]) == 0
+    assert json.loads((tmp_path / "a" / "update.json").read_text())["noise_mm"] == 0.5
+
+
 @pytest.mark.parametrize("case, words", [
     ("no atlas", "holds no atlas"),
     ("too few", "too few for the update: give at least 3"),
@@ -339,7 +366,7 @@ def test_bad_update_input_is_one_line(atlas, atlas_folder, tmp_path, capsys, cas
 @pytest.mark.parametrize("vary, words", [
     (["fluid.level"], "give KEY=VALUES"),
     (["material.E=1,2"], "cannot be varied"),
-    (["fluid.level=20,30"], "levels are in metres"),
+    (["fluid.level=20,30"], "in metres (mm / 1000)"),
     (["gravity.angle_x=90"], "angles are degrees"),
     (["swelling.tumour=-0.1,0.1"], "no such region"),
 ])
@@ -353,6 +380,22 @@ def test_bad_atlas_input_is_one_line(tmp_path, capsys, vary, words):
     errors = [line for line in err.splitlines() if line.startswith("brainshift: error")]  # (beside the log)
     assert len(errors) == 1 and words in errors[0] and "Traceback" not in err, err
     assert not (tmp_path / "a" / "atlas.h5").exists()
+
+
+def test_the_default_family_centres_on_the_drained_level_and_clips_it_to_the_body():
+    """A scene that drains over 10 s with the default [time] end of 1 s (as `prepare` writes
+    them) ends drained in a quasi-static run; the atlas's default levels and its prior take
+    that level, not the one at 1 s, and levels above the body are clipped, not refused."""
+    from fenics_brainshift.atlas.scenarios import clip_levels, family
+
+    drained = load_scene("brain", ["time.mode=quasi-static", "time.end=1", "fluid.level=[[0, 0.085], [10, 0.03]]"])
+    assert drained.settled_time == 10.0
+    assert load_scene("brain").settled_time == 16.0  # the bundled scene's end is its schedule's
+    levels = sorted({s["fluid.level"] for s in family(drained, {}, (-0.08, 0.07))})
+    # 14 levels 5 mm apart from 45 mm below the drained 0.03 m to 20 mm above it (at 1 s: 0.0795)
+    assert np.allclose(levels, np.linspace(0.03 - 0.045, 0.03 + 0.02, 14))
+    clipped = sorted({s["fluid.level"] for s in clip_levels(family(drained, {}, (-0.08, 0.04)), (-0.08, 0.04))})
+    assert max(clipped) == 0.04 and len(clipped) == 12
 
 
 SKULL = ["skull.gap=0.002"]

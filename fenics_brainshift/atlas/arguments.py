@@ -33,7 +33,9 @@ def add_update(sub) -> None:
     update.add_argument("--pre", help="the same points before the shift (.mrk.json, matched by label)")
     update.add_argument("--frame", type=str.upper, choices=["RAS", "LPS"], default=None,
                         help="frame of a CSV or an untagged surface target (default RAS)")
-    update.add_argument("--noise", type=float, default=1.0, help="measurement noise (mm)")
+    update.add_argument("--noise", type=float, default=None,
+                        help="measurement noise of a point, mm per coordinate (default 1, a tracked pointer's; "
+                             "the report says which was used)")
     update.add_argument("--bootstrap", type=int, default=0,
                         help="the uncertainty from this many resamplings of the points (a refit each) instead of "
                              "the weights' posterior (default: 0, the posterior, in closed form)")
@@ -42,3 +44,6 @@ def add_update(sub) -> None:
                              "left-out error is far past the noise and the others' is set aside and reported)")
     update.add_argument("--image", help="a volume (.nii.gz, .nrrd) on whose grid to write OUT/uncertainty.nii.gz")
     update.add_argument("--out", default="out_update", help="output folder")
+    update.add_argument("--replace", action="store_true",
+                        help="replace an earlier update in --out (refused otherwise: keep each update in its own "
+                             "folder, the record of what guided the operation)")

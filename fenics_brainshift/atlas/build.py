@@ -81,7 +81,7 @@ def build(scene, vary: dict, comm, source: str = "", sets=()) -> tuple[store.Atl
     forward = ForwardModel(solved, comm, newton_rtol=MODE_RTOL)
     model = forward.model
     regions = model.growth.regions
-    t_end = scene.time.end
+    t_end = scene.settled_time  # the drained state, whatever [time] end says
     priors = [float(r.at(t_end)) for r in scene.swelling] if scene.swelling else [0.0]
     vertices = GlobalVertices(model.mesh)
     fine = forward._fine_surface()

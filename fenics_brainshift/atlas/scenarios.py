@@ -106,14 +106,16 @@ def family(scene, vary: dict[str, list[float]], heights: tuple[float, float]) ->
     along up (m), the levels' range."""
     given = {k: v for k, v in vary.items() if k in FAMILY_KEYS}
     axes = dict(given) if given else _default_family(scene)
-    if "fluid.level" in axes:
+    if "fluid.level" in given:  # (the default levels are clipped to the body instead: clip_levels)
         if scene.fluid is None or scene.fluid.volume is not None:
             raise InputError("--vary fluid.level: the scene needs [fluid] with a level schedule (not a volume)")
         low, high = heights
         outside = [v for v in axes["fluid.level"] if not low - 1e-9 <= v <= high + 1e-9]
         if outside:
             raise InputError(f"--vary fluid.level: {outside[0]:g} m is not between the body's lowest and highest "
-                             f"point along up ({low:.4g} to {high:.4g} m): levels are in metres (mm / 1000)")
+                             f"point along up ({low:.4g} to {high:.4g} m; the scene's drained level "
+                             f"{_drained_level(scene):.4g} m): levels are heights along up in the scene's frame, "
+                             f"in metres (mm / 1000)")
     for key in FAMILY_KEYS[1:]:
         if any(abs(v) > MAX_ANGLE for v in axes.get(key, [])):
             raise InputError(f"--vary {key}: angles are degrees within +-{MAX_ANGLE:g} of the scene's pose")
@@ -124,10 +126,14 @@ def family(scene, vary: dict[str, list[float]], heights: tuple[float, float]) ->
     return grid or [{}]
 
 
+def _drained_level(scene) -> float:
+    return float(scene.fluid.level(scene.settled_time)) if scene.fluid.level else float("nan")
+
+
 def _default_family(scene) -> dict[str, list[float]]:
     axes: dict[str, list[float]] = {}
     if scene.fluid is not None and scene.fluid.volume is None and scene.fluid.level:
-        final = float(scene.fluid.level(scene.time.end))
+        final = float(scene.fluid.level(scene.settled_time))
         below, above, count = DEFAULT_LEVELS
         axes["fluid.level"] = list(np.linspace(final + below, final + above, count))
     g = np.asarray(scene.gravity.vector, dtype=float)
@@ -172,7 +178,7 @@ def swelling_modes(scene, vary: dict[str, list[float]]) -> list[SwellingMode]:
         return [SwellingMode(name, None, 0.0, lower if abs(lower) >= abs(upper) else upper, lower, upper)]
     out = []
     for i, (region, name) in enumerate(zip(regions, names)):
-        theta, full = float(region.at(scene.time.end)), float(region.volume_change)
+        theta, full = float(region.at(scene.settled_time)), float(region.volume_change)
         lower, upper = asked.get(name, (min(0.0, 1.5 * full), max(0.0, 1.5 * full)))
         if not lower <= theta <= upper:
             raise InputError(f"--vary swelling.{name}={lower:g},{upper:g}: the scene's own volume change "

@@ -155,6 +155,9 @@ def _prior_weights(atlas) -> np.ndarray:
     return least_distance(H, atlas.cross, C, d)
 
 
+AGAINST = -0.5  # cosine between the measured and the predicted shift below which the points look swapped
+
+
 def update(atlas, target, noise: float, samples: int = 0, keep_inside: bool = True,
            set_aside: bool = True) -> UpdateResult:
     """The update of an atlas (store.Atlas) to a target (fit.targets.Target), noise in m;
@@ -222,9 +225,11 @@ def _update(atlas, target, noise: float, samples: int, keep_inside: bool) -> Upd
         pairs = PointRows(locator(atlas), target.pre, target.measured, target.labels)
         fixed_rows = pairs.rows(modes)
         prior_residual = pairs.errors(atlas.prior_vertex)
+        against = _against_prediction(pairs.measured - pairs.pre, pairs.at(atlas.prior_vertex), noise)
     else:
         surface = _surface(atlas, modes)
         prior_residual = np.abs(surface.distances(_prior_surface(atlas), target.measured))
+        against = None
     _check_near(atlas, prior_residual, point_to_point)
 
     def data_rows(c):
@@ -275,7 +280,8 @@ def _update(atlas, target, noise: float, samples: int, keep_inside: bool) -> Upd
     if atlas.skull_triangles is not None:
         skull_report = {"kept_inside": keep_inside, "nodes_with_rows": int(len(nodes)), "rounds": round_ + 1,
                         "deepest_past_mm": (deepest if skull is not None else _skull(atlas, modes).deepest(c)) * 1e3}
-    warning = _warning(residual, noise, skull_report.get("deepest_past_mm", 0.0) * 1e-3, keep_inside)
+    warning = "; ".join(w for w in (against, _warning(residual, noise, skull_report.get("deepest_past_mm", 0.0) * 1e-3,
+                                                      keep_inside)) if w) or None
     # (cross-validation fits every point at each alpha: the fit's rounds start from its fit at the chosen one;
     # weights_ms: until the weights are known, before leave-one-out and the spread)
     seconds = {"setup_ms": setup_s * 1e3, "fit_ms": fit_s * 1e3, "cross_validation_ms": cv_s * 1e3,
@@ -343,6 +349,21 @@ def _skull(atlas, modes: np.ndarray) -> SkullRows | None:
         nodes = atlas.surface_vertices
         atlas.once["skull_rows"] = SkullRows(skull, atlas.points[nodes], modes[:, nodes, :])
     return atlas.once["skull_rows"]
+
+
+def _against_prediction(measured_shift: np.ndarray, predicted_shift: np.ndarray, noise: float) -> str | None:
+    """The measured shift points against the scene's prediction (cosine of their sums over the
+    points below AGAINST), and is well past the noise: --pre and --target swapped, most likely.
+    Not refused: a swelling brain can rise out of the craniotomy; the fit then says how well
+    the atlas's swelling modes explain it."""
+    dot = float(np.sum(measured_shift * predicted_shift))
+    norms = float(np.sum(np.linalg.norm(measured_shift, axis=1) * np.linalg.norm(predicted_shift, axis=1)))
+    moved = float(np.sqrt(np.mean(np.sum(measured_shift ** 2, axis=1))))
+    if norms == 0 or dot / norms > AGAINST or moved < 2 * noise:
+        return None
+    return (f"the measured points moved against the shift the scene predicts (mean cosine {dot / norms:+.2f}, "
+            f"{moved * 1e3:.3g} mm RMS): are --pre and --target swapped? (the brain sags with gravity; a swelling "
+            f"one may rise)")
 
 
 def _warning(residual: np.ndarray, noise: float, deepest: float, keep_inside: bool) -> str | None:

@@ -15,6 +15,9 @@ from ..outputs.files import check_writable
 from . import store
 from .update import prepare, update
 
+DEFAULT_NOISE_MM = 1.0  # a tracked pointer's error on the cortex
+NEAR_MM = 20.0  # the uncertainty's headline: the nodes this close to a measured point
+
 
 def update_command(args, comm) -> list[str]:
     """`brainshift update` (arguments: arguments.py); returns the report's lines."""
@@ -23,6 +26,9 @@ def update_command(args, comm) -> list[str]:
     start = time.perf_counter()
     out = Path(args.out)
     check_writable(out, comm)
+    _check_no_earlier_update(out, args.replace, comm)
+    noise_stated = args.noise is not None
+    args.noise = args.noise if noise_stated else DEFAULT_NOISE_MM
     if not 0 < args.noise < float("inf"):
         raise InputError(f"--noise must be a finite number of mm > 0 (got {args.noise:g})")
     if not 0 <= args.bootstrap <= 1000:
@@ -37,6 +43,7 @@ def update_command(args, comm) -> list[str]:
     prepare_s = prepare(atlas)  # (once per atlas: a navigation system would keep it loaded)
     result = update(atlas, target, args.noise * 1e-3, args.bootstrap, set_aside=not args.keep_all)
     result.seconds["atlas_prepare_ms"] = prepare_s * 1e3
+    args.noise_stated = noise_stated
     # what can fail is done on every rank before a file is touched
     spread_image = _uncertainty_grid(atlas, result.spread, image) if image is not None else None
     if comm.rank == 0:
@@ -55,7 +62,29 @@ def update_command(args, comm) -> list[str]:
                                           "warning": result.warning}, comm)
     finally:
         lock.release()
-    return _lines(atlas, target, result, out, image is not None)
+    lines = _lines(atlas, target, result, out, image is not None)
+    if not noise_stated:
+        lines.insert(1, f"  noise: {DEFAULT_NOISE_MM:g} mm per coordinate, the default (--noise to state the "
+                        f"measurement's own)")
+    return lines
+
+
+def _check_no_earlier_update(out: Path, replace: bool, comm) -> None:
+    """An update's folder is the record of what guided the operation at that moment: a second
+    update into it is refused unless asked for (--replace)."""
+    earlier = None
+    if comm.rank == 0 and (out / "update.json").is_file():
+        import json
+
+        try:
+            made = json.loads((out / "update.json").read_text())
+            earlier = f"{made.get('points', '?')} points, {made.get('target', '?')}"
+        except (OSError, ValueError):
+            earlier = "its update.json unreadable"
+    earlier = comm.bcast(earlier, root=0)
+    if earlier is not None and not replace:
+        raise InputError(f"--out '{out}' holds an earlier update ({earlier}): give each update its own --out "
+                         f"(out_update_2, ...), or --replace to overwrite it")
 
 
 def _write_outputs(out: Path, atlas, target, result, image, spread_image) -> None:
@@ -119,6 +148,17 @@ def _uncertainty_grid(atlas, spread: np.ndarray, image) -> np.ndarray:
     return data
 
 
+def _spread_near(atlas, target, result) -> float:
+    """The uncertainty where it is read: the mean spread (m) of the nodes within NEAR_MM of a
+    measured point (the craniotomy and the targets), not the whole brain's mean (3-8 times the
+    error near the craniotomy on a prepared patient)."""
+    from scipy.spatial import cKDTree
+
+    where = target.pre if target.pre is not None else target.measured
+    near = cKDTree(where).query(atlas.points, distance_upper_bound=NEAR_MM * 1e-3)[0] < np.inf
+    return float(result.spread[near].mean()) if near.any() else float(result.spread.mean())
+
+
 def _kept(result) -> np.ndarray:
     """The points the fit used (not set aside as outliers)."""
     keep = np.ones(len(result.residual), dtype=bool)
@@ -132,6 +172,7 @@ def _report(atlas, target, result, args, seconds: float) -> dict:
     return {
         "atlas": str(Path(args.atlas).resolve()), "mesh_id": atlas.mesh_id(), "target": str(args.target),
         "kind": target.kind, "points": len(target.measured), "noise_mm": args.noise,
+        "noise_stated": args.noise_stated,
         "alpha": result.alpha, "cross_validation": result.curve,
         "prior_residual_rms_mm": float(np.sqrt(np.mean(result.prior_residual[keep] ** 2))) * mm,
         "residual_rms_mm": float(np.sqrt(np.mean(result.residual[keep] ** 2))) * mm,
@@ -148,7 +189,8 @@ def _report(atlas, target, result, args, seconds: float) -> dict:
         "stiffness_at_bound": result.stiffness_at_bound(atlas),
         "weights": [float(c) for c in result.weights],
         "bootstrap_samples": args.bootstrap,
-        "uncertainty_mm": {"from": result.spread_from, "mean": float(result.spread.mean()) * mm,
+        "uncertainty_mm": {"from": result.spread_from, "near_points": _spread_near(atlas, target, result) * mm,
+                           "near_points_within_mm": NEAR_MM, "mean": float(result.spread.mean()) * mm,
                            "max": float(result.spread.max()) * mm},
         "largest_displacement_mm": float(np.linalg.norm(result.displacement, axis=1).max()) * mm,
         "skull": result.skull, "timings_ms": result.seconds, "command_s": seconds, "warning": result.warning,
@@ -175,8 +217,9 @@ def _lines(atlas, target, result, out: Path, image: bool) -> list[str]:
     if result.skull:
         lines.append(f"  skull: {result.skull['nodes_with_rows']} nodes held inside by the fit's rows, deepest past "
                      f"{result.skull['deepest_past_mm']:.2f} mm")
-    lines.append(f"  uncertainty ({result.spread_from}): mean {result.spread.mean() * 1e3:.2f} mm, largest "
-                 f"{result.spread.max() * 1e3:.2f} mm")
+    lines.append(f"  uncertainty ({result.spread_from}): {_spread_near(atlas, target, result) * 1e3:.2f} mm within "
+                 f"{NEAR_MM:g} mm of the measured points (mean of the nodes there); the whole brain's mean "
+                 f"{result.spread.mean() * 1e3:.2f} mm, largest {result.spread.max() * 1e3:.2f} mm")
     if result.warning:
         lines.append(f"  WARNING: {result.warning}")
     lines.append(f"wrote {out}/displacement.xdmf, update.json" + (", uncertainty.nii.gz" if image else "")

@@ -42,7 +42,7 @@ class ForwardModel:
             self.sim.newton_rtol = newton_rtol
         self.sim.setup()
         self.model = self.sim.model
-        self.t = scene.time.end
+        self.t = scene.settled_time
         self.g0 = np.asarray(scene.gravity.vector, dtype=float)
         self.G0 = scene.material.G
         # the linear material's fixed point starts from the last answer; Newton for finite
@@ -51,7 +51,7 @@ class ForwardModel:
         self.continued = self.model.nonlinear
         self.from_rest = self.sim.contact is not None
         self._last: dict | None = None
-        self._scene_level = scene.fluid.level(scene.time.end) if scene.fluid is not None and scene.fluid.level else 0.0
+        self._scene_level = scene.fluid.level(scene.settled_time) if scene.fluid is not None and scene.fluid.level else 0.0
         self.solves = 0  # settled states computed
         self._located: tuple[np.ndarray, PointEvaluator] | None = None  # the last points and their cells
         fluid = self.model.fluid

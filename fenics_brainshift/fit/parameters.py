@@ -69,8 +69,8 @@ def parameters(scene, names: list[str], heights: tuple[float, float]) -> list[Pa
 
 
 def final_level(scene) -> float:
-    """The scene's level at its end time (m)."""
-    return float(scene.fluid.level(scene.time.end))
+    """The scene's level once drained (m): at its settled time."""
+    return float(scene.fluid.level(scene.settled_time))
 
 
 def rotated_gravity(g0, values: dict[str, float]) -> np.ndarray:

@@ -28,7 +28,7 @@ def measurements(overrides: list[str], truth: dict[str, float], count: int, nois
     scene = true_scene(overrides, truth)
     sim = Simulation(scene, comm)
     sim.setup()
-    sim.solve_to_settled(scene.time.end)
+    sim.solve_to_settled(scene.settled_time)
     surface, _ = gathered_outward_surface(sim.model.fluid.hydro.facets, comm)
     surface = np.unique(surface, axis=0)
     exposed = surface[surface[:, 1] > 0.03]

@@ -1,6 +1,8 @@
-"""overview.png of a prepared patient: the T1 in three planes through the brain's centre, with
-the outline of the brain found and of each carried label (tumour, supports), resampled onto an
-axis-aligned 1 mm grid (a T1 scanned oblique is shown in the head's RAS frame)."""
+"""overview.png of a prepared patient: the T1 in three planes through the tumour's centre (the
+brain's when there is no tumour), with the outline of the brain found and of each carried label
+(tumour, supports), a 50 mm scale bar, resampled onto an axis-aligned 1 mm grid (a T1 scanned
+oblique is shown in the head's RAS frame). Written also when prepare refuses the registration:
+the picture of what was found is how to judge it."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -30,7 +32,9 @@ def write_overview(path: Path, t1: sitk.Image, labels: np.ndarray, names: dict[i
     image = sitk.GetArrayFromImage(sitk.Resample(t1, transform=sitk.Transform(), interpolator=sitk.sitkLinear, **grid))
     moved = sitk.GetArrayFromImage(sitk.Resample(label_image, transform=sitk.Transform(),
                                                  interpolator=sitk.sitkNearestNeighbor, **grid))
-    centre = np.argwhere(moved > 0).mean(axis=0).astype(int)  # [k (S), j (P), i (L)]
+    focus = [v for v, label in names.items() if label == "tumour" and np.any(moved == v)]
+    # [k (S), j (P), i (L)]: through the tumour, so that every plane shows it
+    centre = np.argwhere(moved == focus[0] if focus else moved > 0).mean(axis=0).astype(int)
     lo_v, hi_v = np.percentile(image[moved > 0], [1, 99]) if np.any(moved > 0) else (image.min(), image.max())
     # the arrays are [k, j, i] = [S, P, L] from the grid's LPS corner; in the radiological view
     # (the patient's right on the picture's left), anterior and superior up, anterior to the left
@@ -44,6 +48,7 @@ def write_overview(path: Path, t1: sitk.Image, labels: np.ndarray, names: dict[i
             mask = cut(moved) == value if label != "brain" else cut(moved) > 0
             if mask.any():
                 ax.contour(mask.astype(float), levels=[0.5], colors=COLOURS.get(label, "white"), linewidths=1.2)
+        _scale_bar(ax, cut(image).shape)
         ax.set_title(name, fontsize=13)
         ax.set_xticks([])
         ax.set_yticks([])
@@ -56,3 +61,15 @@ def write_overview(path: Path, t1: sitk.Image, labels: np.ndarray, names: dict[i
     figure.savefig(path, dpi=110)
     plt.close(figure)
     return Path(path)
+
+
+SCALE_MM = 50.0
+
+
+def _scale_bar(ax, shape) -> None:
+    """A SCALE_MM bar in the lower right (the grid is 1 mm)."""
+    rows, cols = shape
+    y, x1 = rows - 0.06 * rows, cols - 0.05 * cols
+    ax.plot([x1 - SCALE_MM, x1], [y, y], color="white", lw=3, solid_capstyle="butt")
+    ax.text(x1 - SCALE_MM / 2, y - 0.02 * rows, f"{SCALE_MM:g} mm", color="white", ha="center", va="bottom",
+            fontsize=10)

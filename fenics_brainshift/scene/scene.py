@@ -93,6 +93,19 @@ class Scene:
         self.surfaces = surfaces
 
 
+    @property
+    def settled_time(self) -> float:
+        """The time whose loads a settled (drained) state of the scene takes, as the atlas and the
+        fit solve it: the end of its level and swelling schedules, or [time] end if later. A
+        quasi-static run solves every breakpoint whatever [time] end says, so a scene that drains
+        over 10 s with the default end of 1 s still ends drained (a prepared patient's)."""
+        times = [self.time.end]
+        if self.fluid is not None and self.fluid.volume is None and self.fluid.level:
+            times += list(self.fluid.level.times)
+        for r in self.swelling:
+            times += list(r.schedule.times)
+        return float(max(times))
+
 def _column_name(name: str, taken: dict) -> str:
     """A probe's or surface's name as probes.csv's columns can hold it: commas, quotes and line
     breaks (a Slicer label "A,1" or with a newline would split the header) become "_", and a
