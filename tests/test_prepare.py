@@ -387,7 +387,7 @@ def _bad_inputs(base: Path, tmp: Path) -> dict:
         "4-D series": ([str(tmp / "echoes")], "4-D"),
         "a mask as T1": ([str(tmp / "mask.nii.gz")], "segmentation"),
         "no such file": ([str(tmp / "nothing.nii.gz")], "no file"),
-        "registration fails": ([str(tmp / "noise.nii.gz")], "failed"),
+        "craniotomy over no tumour": ([dicom, "--craniotomy", "tumour"], "give the tumour's segmentation"),
         "tumour on another grid": ([dicom, "--tumour", str(tmp / "tumour_elsewhere.nii.gz")], "another grid"),
         "DICOM-SEG of another series": ([dicom, "--tumour", str(tmp / "other_series.dcm")], "another grid"),
         "DICOM-SEG of two segments": ([dicom, "--tumour", str(tmp / "two.dcm")], "'tumour', 'oedema'"),
@@ -424,6 +424,104 @@ def test_bad_input_is_one_line_and_writes_nothing(patient, tmp_path, capsys):
         assert word in message, (name, message)
         assert sorted(p.name for p in tmp_path.iterdir()) == before, name  # no folder, no leftover temporary
     assert (tmp_path / "notes" / "a.txt").read_text() == "mine"
+
+
+@pytest.mark.usefixtures("serial_only")
+def test_a_scan_that_is_not_a_head_is_refused_with_its_picture(patient, tmp_path, capsys):
+    """Noise on the T1's grid: one line that says what to try; the folder holds the picture of
+    what was found and prepare.json ("refused"), no scene."""
+    t1 = sitk.ReadImage(str(patient / "P" / "t1.nii.gz"))
+    noise = sitk.GetImageFromArray(np.random.default_rng(1).random(sitk.GetArrayFromImage(t1).shape).astype(np.float32))
+    noise.CopyInformation(t1)
+    sitk.WriteImage(noise, str(tmp_path / "noise.nii.gz"))
+    assert main(["prepare", str(tmp_path / "noise.nii.gz"), "-o", str(tmp_path / "P"), "--affine-only"]) == 2
+    said = capsys.readouterr().err
+    errors = [line for line in said.splitlines() if line.startswith("brainshift: error:")]
+    assert len(errors) == 1 and "Traceback" not in said, said
+    assert "failed" in errors[0] and "overview.png" in errors[0] and "--force" in errors[0]
+    assert sorted(p.name for p in (tmp_path / "P").iterdir()) == ["overview.png", "prepare.json"]
+    record = json.loads((tmp_path / "P" / "prepare.json").read_text())
+    assert record["status"] == "refused" and record["correlation_ratio"] < 0.1
+
+
+@pytest.mark.usefixtures("serial_only")
+def test_a_t2_of_the_same_head_finds_the_same_brain(patient, tmp_path):
+    """The synthetic patient with its contrast turned over inside the head (dark where the T1 is
+    bright: the T2's CSF bright, its white matter dark): the registration (mutual information)
+    and the gate (the correlation ratio) do not need the contrast; the brain found is the T1's
+    within 10 % in volume (Dice >= 0.9), the contrast measured T2-like, the name read."""
+    t1 = sitk.ReadImage(str(patient / "P" / "t1.nii.gz"), sitk.sitkFloat32)
+    values = sitk.GetArrayFromImage(t1)
+    head = values > 0.1 * np.percentile(values, 99)
+    turned = np.where(head, values.max() * 1.05 - values, values)
+    image = sitk.GetImageFromArray(turned.astype(np.float32))
+    image.CopyInformation(t1)
+    sitk.WriteImage(image, str(tmp_path / "head_T2.nii.gz"))
+    assert _prepare([str(tmp_path / "head_T2.nii.gz"), "-o", str(tmp_path / "T2")]) == 0
+    record = json.loads((tmp_path / "T2" / "prepare.json").read_text())
+    t1_record = json.loads((patient / "P" / "prepare.json").read_text())
+    assert record["contrast"] == {"given": "t2", "from": "the name 'head_T2.nii.gz'", "measured": "T2-like"}
+    assert t1_record["contrast"]["measured"] == "T1-like"
+    assert record["correlation"] < -0.2 and record["correlation_ratio"] > 0.35
+    assert record["brain_litres"] == pytest.approx(t1_record["brain_litres"], rel=0.10)
+    found_t2 = sitk.GetArrayFromImage(sitk.ReadImage(str(tmp_path / "T2" / "labels.nii.gz"))) > 0
+    found_t1 = _found_mask(patient)
+    assert 2 * (found_t1 & found_t2).sum() / (found_t1.sum() + found_t2.sum()) > 0.9
+
+
+@pytest.mark.usefixtures("serial_only")
+def test_force_goes_past_the_gate_and_says_so(patient, tmp_path, monkeypatch, capsys):
+    """A gate set out of reach refuses the good synthetic registration; --force writes the scene
+    with the reason in its header and in prepare.json."""
+    from fenics_brainshift.patients import command
+
+    monkeypatch.setattr(command, "MIN_RATIO", 0.999)
+    dicom = str(patient / "dicom")
+    assert main(["prepare", dicom, "-o", str(tmp_path / "P"), "--affine-only"]) == 2
+    assert not (tmp_path / "P" / "scene.toml").exists() and (tmp_path / "P" / "overview.png").is_file()
+    assert main(["prepare", dicom, "-o", str(tmp_path / "P"), "--affine-only", "--force"]) == 0
+    scene = (tmp_path / "P" / "scene.toml").read_text()
+    assert "# WARNING: made with --force: the registration of the template" in scene
+    assert "failed" in json.loads((tmp_path / "P" / "prepare.json").read_text())["forced"]
+    assert "going on as --force asks" in capsys.readouterr().err
+
+
+@pytest.mark.usefixtures("serial_only")
+def test_a_craniotomy_over_the_tumour_and_one_on_the_lower_side(patient, tmp_path, caplog):
+    """--craniotomy tumour: the centre is the brain surface's point nearest the tumour above it
+    as the head lies (supine: up is anterior), checked against a search by hand over the
+    surface of the brain found; a centre on the brain's lower side is warned of."""
+    import logging
+    from fenics_brainshift.patients.carry import index_to_lps
+    from fenics_brainshift.images.frames import LPS_TO_RAS
+
+    spheres = _spheres(patient)
+    tumour = _as_nifti(spheres["tumour"], patient, tmp_path / "tumour.nii.gz")
+    assert _prepare([str(patient / "dicom"), "-o", str(tmp_path / "P"), "--voxel", "8", "--tumour", str(tumour),
+                     "--craniotomy", "tumour", "--affine-only"]) == 0
+    record = json.loads((tmp_path / "P" / "prepare.json").read_text())
+    up = -np.array(record["gravity"]) / 9.81
+    t1 = sitk.ReadImage(str(tmp_path / "P" / "t1.nii.gz"))
+    brain = sitk.GetArrayFromImage(sitk.ReadImage(str(tmp_path / "P" / "labels.nii.gz"))) > 0
+    shell = brain & ~ndimage.binary_erosion(brain)
+    voxels = index_to_lps(t1, np.argwhere(shell)[:, ::-1].astype(float)) @ LPS_TO_RAS
+    centroid = index_to_lps(t1, np.argwhere(spheres["tumour"])[:, ::-1].mean(axis=0)[None, :])[0] @ LPS_TO_RAS
+    above = voxels[voxels @ up >= centroid @ up]
+    expected = above[np.argmin(np.linalg.norm(above - centroid, axis=1))]
+    centre = np.array(record["craniotomy"]["centre_mm"])
+    assert np.linalg.norm(centre - expected) < 2 * max(SPACING)  # (marching cubes against voxel centres)
+    assert record["craniotomy"]["centre_height"] > 0.5 and "craniotomy_on_lower_side" not in record
+    assert record["craniotomy"]["start_above_rim_mm"] > 5.0
+    bottom = voxels[np.argmin(voxels @ up)]
+    logger = logging.getLogger("fenics_brainshift")  # (it does not propagate once the CLI configured it)
+    logger.addHandler(caplog.handler)
+    try:
+        assert _prepare([str(patient / "dicom"), "-o", str(tmp_path / "Q"), "--voxel", "8", "--affine-only",
+                         "--craniotomy", ",".join(f"{v:.1f}" for v in bottom)]) == 0
+    finally:
+        logger.removeHandler(caplog.handler)
+    assert any("lies on the brain's lower side" in r.getMessage() for r in caplog.records)
+    assert json.loads((tmp_path / "Q" / "prepare.json").read_text())["craniotomy_on_lower_side"] is True
 
 
 @pytest.mark.mpi

@@ -58,12 +58,18 @@ def atlas_command(args, comm) -> list[str]:
     comm.barrier()
     family_count = int(atlas.family.sum()) if comm.rank == 0 else 0
     left_out = atlas.info["left_out"] if comm.rank == 0 else []
+    levels = sorted({s["values"]["fluid.level"] for s in atlas.scenarios if "fluid.level" in s.get("values", {})}) \
+        if comm.rank == 0 else []
+    drained = (atlas.info.get("prior") or {}).get("fluid.level") if comm.rank == 0 else None
+    span = ([f"  levels {levels[0]:.4g} to {levels[-1]:.4g} m along up: {(levels[0] - drained) * 1e3:+.0f} to "
+             f"{(levels[-1] - drained) * 1e3:+.0f} mm about the scene's drained level {drained:.4g} m"]
+            if levels and drained is not None else [])
     return [f"atlas: {len(atlas.scenarios) if comm.rank == 0 else 0} modes ({family_count} drain/pose "
             f"scenarios, {len(atlas.scenarios) - family_count if comm.rank == 0 else 0} swelling) of "
             f"'{scene.name}' in {seconds['modes_s']:.1f} s after a {seconds['setup_s']:.1f} s setup; wrote "
             f"{out}/atlas.h5 and atlas.json"] + (
         [f"warning: {len(left_out)} scenario(s) left out, settled neither from the last mode nor from rest "
-         f"(atlas.json \"left_out\"): {', '.join(str(o['values']) for o in left_out[:3])}"] if left_out else [])
+         f"(atlas.json \"left_out\"): {', '.join(str(o['values']) for o in left_out[:3])}"] if left_out else []) + span
 
 
 def build(scene, vary: dict, comm, source: str = "", sets=()) -> tuple[store.Atlas | None, dict]:

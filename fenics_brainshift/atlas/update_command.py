@@ -130,8 +130,10 @@ def _write_outputs(out: Path, atlas, target, result, image, spread_image) -> Non
                       (target.pre + np.einsum("nj,njd->nd", weight, u[index])) * 1e3)
     if image is not None:
         from ..images.volumes import write_like
+        from .update_picture import write_update_picture
 
         write_like(image, spread_image, out / "uncertainty.nii.gz")
+        write_update_picture(out / "update.png", image, atlas, target, result)
 
 
 def _uncertainty_grid(atlas, spread: np.ndarray, image) -> np.ndarray:
@@ -200,7 +202,14 @@ def _report(atlas, target, result, args, seconds: float) -> dict:
 def _lines(atlas, target, result, out: Path, image: bool) -> list[str]:
     rms = lambda r: float(np.sqrt(np.mean(r ** 2))) * 1e3  # noqa: E731
     keep = _kept(result)
-    top = ", ".join(f"{s['weight']:.2f} x " + " ".join(f"{k}={v:g}" for k, v in s.items() if k != "weight")
+    drained = (atlas.info.get("prior") or {}).get("fluid.level")
+
+    def said(k, v):  # a level also in mm about the scene's drained level (the craniotomy rim's, for a patient)
+        if k == "fluid.level" and drained is not None:
+            return f"{k}={v:g} ({(v - drained) * 1e3:+.0f} mm about the scene's drained level)"
+        return f"{k}={v:g}"
+
+    top = ", ".join(f"{s['weight']:.2f} x " + " ".join(said(k, v) for k, v in s.items() if k != "weight")
                     for s in result.family_weights(atlas)[:3])
     lines = [f"update: {target.kind}, {len(target.measured)} points, {len(result.weights)} modes; residual RMS "
              f"{rms(result.prior_residual[keep]):.2f} mm (scene) -> {rms(result.residual[keep]):.2f} mm (updated), "
@@ -222,6 +231,6 @@ def _lines(atlas, target, result, out: Path, image: bool) -> list[str]:
                  f"{result.spread.mean() * 1e3:.2f} mm, largest {result.spread.max() * 1e3:.2f} mm")
     if result.warning:
         lines.append(f"  WARNING: {result.warning}")
-    lines.append(f"wrote {out}/displacement.xdmf, update.json" + (", uncertainty.nii.gz" if image else "")
+    lines.append(f"wrote {out}/displacement.xdmf, update.json" + (", uncertainty.nii.gz, update.png" if image else "")
                  + f" (brainshift warp {out} --image PRE -o INTRA.nii.gz)")
     return lines

@@ -54,11 +54,18 @@ def template_bytes(kinds: list[str], version: str = NILEARN_VERSION) -> dict[str
     return {kind: raw[MEMBER.format(kind)] for kind in kinds}
 
 
+def _part(path: Path) -> Path:
+    """A temporary name beside the cached file, this process's own: two commands fetching the
+    same template at once (two prepares on a fresh machine) each write their own, and the
+    last rename wins with the same bytes (a shared name had one delete the other's)."""
+    return path.with_name(f".part.{os.getpid()}.{path.name}")
+
+
 def _cached(name: str, make, cache: Path | None) -> Path:
     path = (cache or cache_folder()) / name
     if not path.is_file():
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(".part." + path.name)
+        tmp = _part(path)
         tmp.write_bytes(make())
         os.replace(tmp, path)
     return path
@@ -111,7 +118,7 @@ def mni_brain_mask(cache: Path | None = None) -> Path:
         gm, wm = (np.asarray(images[k].dataobj, dtype=np.float32) for k in ("gm", "wm"))
         image = nib.Nifti1Image(brain_from_tissue(gm, wm).astype(np.uint8), images["gm"].affine)
         image.header.set_xyzt_units("mm")
-        tmp = path.with_name(".part." + path.name)
+        tmp = _part(path)
         nib.save(image, str(tmp))
         os.replace(tmp, path)
     return path

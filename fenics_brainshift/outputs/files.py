@@ -45,7 +45,8 @@ def _can_create_in(folder: Path) -> bool:
 RUN_FILES = ("summary.json", "probes.csv", "probes_final.mrk.json", "displacement.xdmf", "displacement.h5",
              "deformed.png", "probes.png", "surface_final.vtk", "surface_final.stl", "skull.stl")
 # the records a fit and an update write beside a run's files (fit/report.py, atlas/update_command.py)
-RECORDS = {"fit": ("fit.json", "fitted.toml"), "update": ("update.json", "uncertainty.nii.gz", "targets_updated.mrk.json")}
+RECORDS = {"fit": ("fit.json", "fitted.toml"),
+           "update": ("update.json", "uncertainty.nii.gz", "targets_updated.mrk.json", "update.png")}
 RUN_SERIES = ("surface_[0-9][0-9][0-9][0-9].vtk", "surface_[0-9][0-9][0-9][0-9].stl")
 
 

@@ -91,7 +91,15 @@ def deformed_picture(out: Path, gravity, level: float | None, path: Path | None 
     axis = next(a for a in np.eye(3) if abs(a @ up) < 0.9)
     side = axis - (axis @ up) * up
     side /= np.linalg.norm(side)
-    across = np.cross(up, side)  # left to right on the screen
+    screen_up = up
+    if anatomical:  # a standard anatomical view: superior at the top (anterior when gravity is along
+        # the head's axis), seen along the axis most across gravity: a supine head from the side,
+        # a head on its side from the front; the sag then runs across the picture
+        screen_up = np.eye(3)[2] if abs(up[2]) < 0.9 else np.eye(3)[1]
+        others = [a for a in np.eye(3) if abs(a @ screen_up) < 0.5]
+        side = min(others, key=lambda a: abs(a @ up))
+        side = side if side @ np.array([1.0, 1.0, 0.0]) >= 0 else -side  # from the right, or the front
+    across = np.cross(screen_up, side)  # left to right on the screen
     if np.linalg.norm(g) > 0:  # gravity: an arrow beside the body
         start = centre + 0.55 * extent * across + 0.3 * extent * up
         plotter.add_mesh(pv.Arrow(start=start, direction=-up, scale=0.25 * extent), color="black")
@@ -122,7 +130,7 @@ def deformed_picture(out: Path, gravity, level: float | None, path: Path | None 
 
         names, where_mm = read_markups(landmarks, "probes_final.mrk.json")
         plotter.add_points(where_mm * 1e-3, color="crimson", point_size=12, render_points_as_spheres=True)
-        if len(names) <= 12:  # more names than that only cover the picture
+        if len(names) <= 12 and not anatomical:  # names cover a patient's picture: in probes_final.mrk.json
             plotter.add_point_labels(where_mm * 1e-3, names, font_size=12, text_color="crimson", shape=None,
                                      show_points=False, always_visible=True)
     if level is not None and np.isfinite(level):
@@ -132,7 +140,9 @@ def deformed_picture(out: Path, gravity, level: float | None, path: Path | None 
         plotter.add_mesh(plane, color="#3a7bd5", opacity=0.25)
     focus = points.mean(axis=0)
     distance = 2.5 * float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
-    plotter.camera_position = [tuple(focus + distance * (0.85 * side + 0.35 * up)), tuple(focus), tuple(up)]
+    lift = 0.1 if anatomical else 0.35  # (a slightly raised viewpoint; a patient's seen almost square on)
+    plotter.camera_position = [tuple(focus + distance * (0.85 * side + lift * screen_up)), tuple(focus),
+                               tuple(screen_up)]
     a = int(np.argmax(np.abs(side)))
     seen = f"seen from {'LRPAIS'[2 * a + (side[a] > 0)]}; " if anatomical else ""
     plotter.add_text(seen + ("fine surface" if fine.is_file() else "deformed body") + " coloured by displacement; "

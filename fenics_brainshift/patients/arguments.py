@@ -22,11 +22,18 @@ def add_prepare(sub) -> None:
     prep.add_argument("--position", default="supine",
                       help="the head on the table: supine, prone, left, right (side down), or angles 'ax,ay,az' "
                            "(degrees, the supine gravity turned about the head's x, y, z)")
-    prep.add_argument("--craniotomy", metavar="X,Y,Z",
-                      help="the craniotomy's centre, RAS mm as 3D Slicer shows it (default: the brain's highest "
+    prep.add_argument("--craniotomy", metavar="X,Y,Z|tumour",
+                      help="the craniotomy's centre, RAS mm as 3D Slicer shows it, or 'tumour': over the tumour "
+                           "(--tumour) on the brain's upper side as the head lies (default: the brain's highest "
                            "point)")
     prep.add_argument("--craniotomy-radius", type=float, default=25.0, help="the craniotomy's radius, mm")
     prep.add_argument("--gap", type=float, default=3.0, help="the CSF layer between brain and inner skull, mm")
     prep.add_argument("--voxel", type=float, default=5.0, help="the mesh's voxel, mm")
+    prep.add_argument("--contrast", choices=["auto", "t1", "t1c", "t2", "flair", "pd"], default="auto",
+                      help="the scan's contrast: t1 (native), t1c (post-contrast), t2, flair, pd; auto: read from "
+                           "the DICOM series description or the file name, and measured (prepare.json)")
+    prep.add_argument("--force", action="store_true",
+                      help="go on when the quality gate refuses the registration (an expert's call, after looking "
+                           "at overview.png): the scene and prepare.json record it")
     prep.add_argument("--affine-only", action="store_true",
                       help="no deformable stage (faster, a coarser brain: for a quick look)")

@@ -8,6 +8,7 @@ moved into place at the end: a failure leaves no half-written folder.
 """
 from __future__ import annotations
 
+import contextlib
 import datetime
 import json
 import logging
@@ -30,8 +31,9 @@ from ..outputs.fine_surface import write_slicer_stl
 from .anatomy import BRAIN_SCENE, template_anatomy
 from .carry import index_to_lps, labels_on_patient, ras_affine
 from .position import G, anatomical_gravity, craniotomy_levels, patient_direction
-from .registration import correlation_in, register, shows_head, stripped_region
-from .series import read_t1
+from .contrast import NAMES as CONTRAST_NAMES, described_contrast, measured_family
+from .registration import fit_measures, register, shows_head, stripped_region
+from .series import read_t1, series_metadata
 from .skull import inner_skull
 from .overview import write_overview
 from .slicer import write_segmentation
@@ -41,8 +43,15 @@ log = logging.getLogger(__name__)
 BRAIN, TUMOUR = 1, 2  # label values; the carried supports follow from 3
 VOLUME_RANGE = (0.6, 2.6)  # litres: a brain found outside this is a failed registration or a unit slip
 PLAUSIBLE = (1.0, 1.7)  # litres: an adult brain; outside it, a warning
-MIN_CORRELATION = 0.5  # the template and the T1 in the brain found: below this the registration failed
+# the template's anatomy must explain this share of the patient's variance in the brain found
+# (the correlation ratio, whatever the contrast): below it the registration failed. Measured
+# (benchmarks/results/prepare_cases.md): registrations judged right by their pictures 0.45-0.76
+# (native T1, post-contrast T1, PD); noise 0.0x; the same registrations moved 10 mm 0.04-0.32,
+# turned 10 degrees 0.14-0.49: a floor against gross failures, not a judge of a few degrees
+# (overview.png is)
+MIN_RATIO = 0.35
 PREPARE_RECORD = "prepare.json"
+DOWN_SIDE = 0.5  # a craniotomy centre below this share of the brain's height as the head lies: a warning
 SUPPORT = "brain_stem"  # the bundled scene's support that a patient scene fixes (the occipital pin gives way to the skull)
 SUPPORT_REACH_MM = 20.0  # a support the brain lost is kept on the brain if it is this close to it,
 SUPPORT_BAND_MM = 10.0  # on the brain's voxels within this of the nearest
@@ -54,7 +63,10 @@ def prepare_command(args) -> int:
     out = Path(args.output)
     _check_output(out)
     position = anatomical_gravity(args.position)
-    centre = _point(args.craniotomy, "--craniotomy") if args.craniotomy else None
+    over_tumour = str(args.craniotomy).strip().lower() in ("tumour", "tumor")
+    if over_tumour and not args.tumour:
+        raise InputError("--craniotomy tumour: give the tumour's segmentation with --tumour (or the centre as X,Y,Z)")
+    centre = _point(args.craniotomy, "--craniotomy") if args.craniotomy and not over_tumour else None
     if not 0.5 <= args.gap <= 10.0:
         raise InputError(f"--gap: {args.gap:g} mm; the CSF layer between brain and skull is 0.5-10 mm (default 3)")
     if not 5.0 <= args.craniotomy_radius <= 60.0:
@@ -112,36 +124,65 @@ def prepare_command(args) -> int:
         names[TUMOUR] = "tumour"
     voxel_ml = float(np.prod(patient.GetSpacing())) * 1e-3
     litres = float(brain.sum()) * voxel_ml * 1e-3
-    correlation = correlation_in(patient, template, registration, brain)
-    report.update(brain_litres=round(litres, 4), correlation=round(correlation, 4))
-    _check_fit(litres, correlation, args.t1)
+    correlation, ratio = fit_measures(patient, template, registration, brain)
+    described, source = (args.contrast, "--contrast") if args.contrast != "auto" else \
+        described_contrast(args.t1, series_metadata(args.t1))
+    report.update(brain_litres=round(litres, 4), correlation=round(correlation, 4), correlation_ratio=round(ratio, 4),
+                  contrast={"given": described, "from": source, "measured": measured_family(correlation)})
+    log.info("prepare: %s (from %s), measured %s; brain %.2f l, the template explains %.0f %% of the scan's "
+             "variance in it (correlation %.2f)", CONTRAST_NAMES.get(described, "contrast not stated"), source,
+             measured_family(correlation), litres, 100 * ratio, correlation)
     present = {v: n for v, n in names.items() if np.any(labels == v)}
+    problem = _fit_problem(litres, ratio, args.t1)
+    if problem and not args.force:
+        _refuse(out, patient, labels, present, args, report, problem)
+    if problem:
+        log.warning("prepare: %s; going on as --force asks (recorded in scene.toml and prepare.json)", problem)
+        report["forced"] = problem
 
     surface_mm = _surface(brain, patient, step=2)[0]
-    levels = craniotomy_levels(surface_mm, -_gravity(position, registration), centre, args.craniotomy_radius)
+    up = -_gravity(position, registration)
+    if over_tumour:
+        centre = over(tumour, patient, surface_mm, up)
+    levels = craniotomy_levels(surface_mm, up, centre, args.craniotomy_radius)
+    if levels["centre_height"] < DOWN_SIDE:
+        log.warning("prepare: the craniotomy at (%s) mm lies on the brain's lower side as the head lies (--position "
+                    "%s; %.0f %% of the way up): the CSF would drain through it entirely and the brain sag away "
+                    "from it; check --position and --craniotomy", ", ".join(f"{v:.0f}" for v in levels["centre_mm"]),
+                    args.position, 100 * levels["centre_height"])
+        report["craniotomy_on_lower_side"] = True
     gravity = _gravity(position, registration) * G
     times["anatomy"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.resolve().parent))
-    try:
-        tmp.chmod(0o755)  # mkdtemp's is the owner's alone; the folder is the user's to share
-        _write_folder(tmp, patient, labels, present, brain, anatomy, registration, args, gravity, levels, tumour)
+    with _written_in_place(out) as tmp:
+        _write_folder(tmp, patient, labels, present, brain, anatomy, registration, args, gravity, levels, tumour,
+                      report.get("forced"))
         times["write"] = time.perf_counter() - t
         report.update(position=args.position, gravity=[round(g, 6) for g in gravity], craniotomy=levels,
                       labels={n: v for v, n in present.items()}, seconds={k: round(v, 2) for k, v in times.items()},
                       total_seconds=round(time.perf_counter() - began, 2),
                       made=datetime.datetime.now().isoformat(timespec="seconds"))
         (tmp / PREPARE_RECORD).write_text(json.dumps(report, indent=2) + "\n")
+    log.info("prepared %s: brain %.2f l, the template explains %.0f %% of the scan's variance in it, %.0f s; run "
+             "it: brainshift run %s", out, litres, 100 * ratio, time.perf_counter() - began, out / "scene.toml")
+    return 0
+
+
+@contextlib.contextmanager
+def _written_in_place(out: Path):
+    """A temporary folder beside OUT, moved into its place when the block ends well (an earlier
+    prepare's folder replaced: _check_output), removed otherwise: never half a folder."""
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.resolve().parent))
+    try:
+        tmp.chmod(0o755)  # mkdtemp's is the owner's alone; the folder is the user's to share
+        yield tmp
         if out.exists():
-            shutil.rmtree(out)  # an earlier prepare's folder (_check_output)
+            shutil.rmtree(out)
         os.replace(tmp, out)
     finally:
         if tmp.exists():
             shutil.rmtree(tmp)
-    log.info("prepared %s: brain %.2f l, correlation %.2f, %.0f s; run it: brainshift run %s", out, litres,
-             correlation, time.perf_counter() - began, out / "scene.toml")
-    return 0
 
 
 def _check_output(out: Path) -> None:
@@ -237,16 +278,59 @@ def _keep_supports(labels: np.ndarray, carried: np.ndarray, brain: np.ndarray, p
     return moved
 
 
-def _check_fit(litres: float, correlation: float, t1: str) -> None:
+def _fit_problem(litres: float, ratio: float, t1: str) -> str | None:
+    """Why the registration is refused, or None: the brain found's volume and how much of the
+    scan's variance in it the template's anatomy explains (the correlation ratio)."""
     low, high = VOLUME_RANGE
-    if not low <= litres <= high or correlation < MIN_CORRELATION:
-        raise InputError(f"prepare: the registration of the template to '{Path(t1).name}' failed: brain "
-                         f"{litres:.2f} l (a brain is {PLAUSIBLE[0]}-{PLAUSIBLE[1]} l), correlation "
-                         f"{correlation:.2f} with the template in it (a fit is above {MIN_CORRELATION}); is it a T1 "
-                         f"of the whole head?")
+    if not low <= litres <= high or ratio < MIN_RATIO:
+        return (f"the registration of the template to '{Path(t1).name}' failed: brain {litres:.2f} l (a brain is "
+                f"{PLAUSIBLE[0]}-{PLAUSIBLE[1]} l), the template's anatomy explains {100 * ratio:.0f} % of the scan's "
+                f"variance in it (a fit explains {100 * MIN_RATIO:.0f} % or more)")
     if not PLAUSIBLE[0] <= litres <= PLAUSIBLE[1]:
         log.warning("prepare: the brain found is %.2f l, outside an adult's %.1f-%.1f l; check it in 3D Slicer "
                     "(anatomy.seg.nrrd over t1.nii.gz)", litres, *PLAUSIBLE)
+    return None
+
+
+def _refuse(out: Path, patient, labels, present, args, report: dict, problem: str) -> None:
+    """The folder gets the picture of what was found and prepare.json (status "refused"), no
+    scene; then the one line that says what to try."""
+    with _written_in_place(out) as tmp:
+        write_overview(tmp / "overview.png", patient, labels, present,
+                       f"{Path(args.t1).name}: REFUSED, the brain found and the carried labels")
+        report.update(status="refused", refused=problem, made=datetime.datetime.now().isoformat(timespec="seconds"))
+        (tmp / PREPARE_RECORD).write_text(json.dumps(report, indent=2) + "\n")
+    raise InputError(f"prepare: {problem}{_hints(patient, labels)}. Look at {out / 'overview.png'}: if the outline is "
+                     f"on the brain, go on with --force; if not, is it an MRI of the whole head (T1, post-contrast T1, "
+                     f"T2, FLAIR or PD)? Give --contrast, or a 3-D scan that shows the whole brain down to the brain "
+                     f"stem")
+
+
+THICK_MM = 3.0  # slices thicker than this: a 2-D series
+
+
+def _hints(patient: sitk.Image, labels: np.ndarray) -> str:
+    """What about the scan may have made the registration fail: thick slices, the brain found
+    running off the scan's edge."""
+    hints = []
+    thickest = max(patient.GetSpacing())
+    if thickest > THICK_MM:
+        hints.append(f"its voxels are {thickest:.1f} mm along one axis (a 2-D series; the 3-D one, 1-1.5 mm, "
+                     f"registers better)")
+    brain = labels > 0
+    if brain.any() and any(np.any(np.take(brain, i, axis=a)) for a in range(3) for i in (0, -1)):
+        hints.append("the brain found runs off the scan's edge (its field of view cuts the head)")
+    return "; " + " and ".join(hints) if hints else ""
+
+
+def over(tumour: np.ndarray, patient: sitk.Image, surface_ras_mm: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """The craniotomy's centre over the tumour: the brain surface's point nearest to the
+    tumour's centroid among those above it as the head lies (RAS mm)."""
+    centroid = index_to_lps(patient, np.argwhere(tumour)[:, ::-1].mean(axis=0)[None, :])[0] @ LPS_TO_RAS
+    heights = surface_ras_mm @ (up / np.linalg.norm(up))
+    above = surface_ras_mm[heights >= centroid @ (up / np.linalg.norm(up))]
+    candidates = above if len(above) else surface_ras_mm
+    return candidates[int(np.argmin(np.linalg.norm(candidates - centroid, axis=1)))]
 
 
 def _gravity(position: np.ndarray, registration) -> np.ndarray:
@@ -265,7 +349,7 @@ def _surface(mask: np.ndarray, grid: sitk.Image, step: int):
 
 
 def _write_folder(folder: Path, patient, labels, present, brain, anatomy, registration, args, gravity, levels,
-                  tumour) -> None:
+                  tumour, forced: str | None) -> None:
     sitk.WriteImage(_stored(patient), str(folder / "t1.nii.gz"))
     label_image = sitk.GetImageFromArray(labels)
     label_image.CopyInformation(patient)
@@ -284,7 +368,7 @@ def _write_folder(folder: Path, patient, labels, present, brain, anatomy, regist
         septa[name] = f"{name}.stl"
     probes = {name: registration.to_patient(p[None, :])[0] @ LPS_TO_RAS for name, p in anatomy.probes.items()}
     probes["craniotomy"] = np.asarray(levels["centre_mm"])
-    (folder / "scene.toml").write_text(scene_text(args, present, gravity, levels, septa, probes))
+    (folder / "scene.toml").write_text(scene_text(args, present, gravity, levels, septa, probes, forced))
     write_overview(folder / "overview.png", patient, labels, present,
                    f"{Path(args.t1).name}: the brain found and the carried labels")
 
@@ -302,7 +386,7 @@ def _grid(image: sitk.Image) -> dict:
             "direction": [round(d, 6) for d in image.GetDirection()]}
 
 
-def scene_text(args, present: dict, gravity, levels: dict, septa: dict, probes: dict) -> str:
+def scene_text(args, present: dict, gravity, levels: dict, septa: dict, probes: dict, forced: str | None = None) -> str:
     """scene.toml, with the reasons beside the values."""
     import tomllib
 
@@ -314,8 +398,10 @@ def scene_text(args, present: dict, gravity, levels: dict, septa: dict, probes: 
     lines = [f"# A patient scene made by `brainshift prepare` from {q(Path(args.t1).name)} "
              f"({datetime.date.today().isoformat()}).",
              "# Frame: the T1's RAS (x right, y anterior, z superior), metres; the files are in mm. See",
-             "# docs/patients.md; prepare.json says how the registration went.",
-             'name = "patient"', "",
+             "# docs/patients.md; prepare.json says how the registration went."]
+    if forced:
+        lines += [f"# WARNING: made with --force: {forced}"]
+    lines += ['name = "patient"', "",
              "[mesh]",
              'file = "anatomy.seg.nrrd"   # brain, tumour and supports, carried from the ICBM152 template',
              'unit = "mm"',
@@ -327,6 +413,9 @@ def scene_text(args, present: dict, gravity, levels: dict, septa: dict, probes: 
              f"[gravity]           # {args.position}, along the head's anatomy",
              f"vector = {vec(gravity)}", "",
              "[fluid]             # CSF from above the brain down to the craniotomy rim's lowest point",
+             f"# levels: m along up in the T1's frame; the start {levels['start_above_rim_mm']:.0f} mm above the rim's "
+             f"lowest point, drained at it (the brain spans {levels['brain_bottom_above_rim_mm']:.0f} to "
+             f"{levels['brain_top_above_rim_mm']:.0f} mm about it)",
              "density = 1000.0",
              f"level = [[0.0, {levels['start_level_m']:.5f}], [10.0, {levels['rim_level_m']:.5f}]]",
              'rule = "consistent"', "follower = true", ""]

@@ -66,5 +66,13 @@ def craniotomy_levels(surface_ras_mm: np.ndarray, up: np.ndarray, centre: np.nda
                          f"brain's surface; give the craniotomy's centre on the head in the T1's RAS frame, mm, as "
                          f"3D Slicer shows it (LPS numbers have x and y negated)")
     rim = distance <= radius
-    return {"centre_mm": surface_ras_mm[int(np.argmin(distance))].tolist(), "rim_level_m": float(heights[rim].min()) * 1e-3,
-            "start_level_m": float(heights.max() + 5.0) * 1e-3, "radius_mm": radius}
+    at = int(np.argmin(distance))
+    rim_level, start_level = float(heights[rim].min()), float(heights.max() + 5.0)
+    # the levels a surgeon reads: mm above the craniotomy rim's lowest point (the drained level);
+    # centre_height: the centre's share of the brain's height as the head lies (0 bottom, 1 top)
+    return {"centre_mm": surface_ras_mm[at].tolist(), "rim_level_m": rim_level * 1e-3,
+            "start_level_m": start_level * 1e-3, "radius_mm": radius,
+            "start_above_rim_mm": round(start_level - rim_level, 2),
+            "brain_top_above_rim_mm": round(float(heights.max()) - rim_level, 2),
+            "brain_bottom_above_rim_mm": round(float(heights.min()) - rim_level, 2),
+            "centre_height": round(float((heights[at] - heights.min()) / max(np.ptp(heights), 1e-9)), 3)}

@@ -124,3 +124,25 @@ def _check_slice_positions(names: list[str], folder: Path, what: str) -> None:
 def _first_line(exc: Exception) -> str:
     lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
     return lines[-1] if lines else type(exc).__name__
+
+
+DESCRIBING_TAGS = ("0008|103e", "0018|1030", "0018|0010")  # series description, protocol name, contrast agent
+
+
+def series_metadata(path: str | Path) -> dict[str, str]:
+    """The tags that say what a DICOM series was taken as (DESCRIBING_TAGS), from the first file
+    of the folder's largest series; {} for a NIfTI or NRRD."""
+    path = Path(path)
+    if not path.is_dir():
+        return {}
+    ids = sitk.ImageSeriesReader.GetGDCMSeriesIDs(str(path))
+    if not ids:
+        return {}
+    names = max((sitk.ImageSeriesReader.GetGDCMSeriesFileNames(str(path), uid) for uid in ids), key=len)
+    reader = sitk.ImageFileReader()
+    reader.SetFileName(names[0])
+    try:
+        reader.ReadImageInformation()
+    except RuntimeError:
+        return {}
+    return {tag: reader.GetMetaData(tag).strip() for tag in DESCRIBING_TAGS if reader.HasMetaDataKey(tag)}

@@ -1,0 +1,227 @@
+"""Real clinical scans through `brainshift prepare`, and on through the default atlas, an update
+from synthetic pointer points, and the warp: success, the brain found, the quality gate's
+numbers and the time of each step, per case, on one core.
+
+The scans are public and not shipped (their sources, paths and commits: CASES below and
+docs/patients.md); put them under DATA as CASES names them. For each prepared case the gate's
+numbers are also measured with the registration deliberately moved (10 mm along each axis in
+turn, and turned 10 degrees about each axis): what a failed registration scores, against which
+prepare's threshold (patients/command.py MIN_RATIO) is set.
+
+    OMP_NUM_THREADS=1 python benchmarks/prepare_cases.py --data DATA [--cases vs001,chris_t1] [--chain]
+
+--chain: also `brainshift run`, the default `brainshift atlas` (5 mm), `brainshift update` from 20
+cortex points near the craniotomy moved by the run's settled state plus 0.5 mm noise, and `brainshift
+warp` of the T1 by the update. Each case writes benchmarks/results/prepare_cases/NAME.json;
+--report merges them into benchmarks/results/prepare_cases.md.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+RESULTS = ROOT / "benchmarks" / "results" / "prepare_cases"
+BRAINSHIFT = [str(Path(sys.executable).with_name("brainshift"))]
+
+# name: (path under DATA, extra prepare arguments, what it is, where it is public)
+CASES = {
+    "vs001_t1c": ("t1gd_tumour/VS-SEG-001_ceT1_dicom", ["--tumour", "SEG"],
+                  "post-contrast 3D T1 (MPRAGE), 512 x 512 x 120 at 0.41 x 0.41 x 1.5 mm, vestibular schwannoma, "
+                  "stereotactic fiducials",
+                  "TCIA Vestibular-Schwannoma-SEG VS-SEG-001 (CC BY 4.0), as niivue/niivue-demo-images dicom/"),
+    "tcga_t1c": ("t1gd_tumour/pyradiomics_brain1_TCGA-02-0003_T1post.nrrd",
+                 ["--tumour", "t1gd_tumour/pyradiomics_brain1_label.nrrd", "--craniotomy", "tumour"],
+                 "post-contrast 2-D axial T1, 256 x 256 x 25 at 0.78 x 0.78 x 6.5 mm, glioblastoma",
+                 "TCIA TCGA-GBM TCGA-02-0003, as AIM-Harvard/pyradiomics data/brain1_image.nrrd, brain1_label.nrrd"),
+    "glioma2_t1c": ("t1gd_tumour/pyradiomics_brain2_T1post.nrrd",
+                    ["--tumour", "t1gd_tumour/pyradiomics_brain2_label.nrrd", "--craniotomy", "tumour"],
+                    "post-contrast 2-D axial T1, 256 x 256 x 23 at 0.78 x 0.78 x 6.5 mm, a small lesion",
+                    "AIM-Harvard/pyradiomics data/brain2_image.nrrd, brain2_label.nrrd"),
+    "trio_t1": ("t1_native/trio_b17_t1_MPRAGEcr_noGRAPPA_19_dicom", [],
+                "native 3D T1 (MPRAGE), 256 x 256 x 176 at 1 mm, sagittal, volunteer",
+                "dcm2nii sample images, as CBICA/NiChart_Project test_data/dicoms/trio_b17/t1_MPRAGEcr_noGRAPPA_19"),
+    "chris_t1": ("t1_native/chris_t1.nii.gz", [],
+                 "native 3D T1, 188 x 256 x 190 at 0.88 mm, volunteer (the head of chris_pd)",
+                 "niivue/niivue-demo-images chris_t1.nii.gz (CC BY-NC 4.0)"),
+    "chris_pd": ("t2_flair_pd/chris_PD.nii.gz", [],
+                 "proton density, 191 x 256 x 54 at 0.86 x 0.86 x 2.4 mm, oblique, vertex to skull base (the head of "
+                 "chris_t1)", "niivue/niivue-demo-images chris_PD.nii.gz (CC BY-NC 4.0)"),
+    "ixi012_t1": ("t1_native/IXI012-HH-1211_T1_2mm.nii.gz", [],
+                  "native T1 at 2 mm, 120 x 120 x 90, IXI volunteer",
+                  "IXI (CC BY-SA 3.0), as CBICA/NiChart_Project test_data/nifti/IXI_Small/t1"),
+    "t2w": ("t2_flair_pd/niivue_register_T2w.nii.gz", [],
+            "2-D T2 (TSE), 224 x 224 x 60 at 1 x 1 x 2 mm, vertex to skull base",
+            "niivue/niivue-demo-images register/T2w.nii.gz"),
+}
+MOVES = [("x", 10.0, 0.0), ("y", 10.0, 0.0), ("z", 10.0, 0.0), ("x", 0.0, 10.0), ("y", 0.0, 10.0), ("z", 0.0, 10.0)]
+
+
+def brainshift(argv: list[str], log: Path) -> tuple[int, float]:
+    began = time.perf_counter()
+    with open(log, "a") as out:
+        out.write(f"$ brainshift {' '.join(argv)}\n")
+        out.flush()
+        code = subprocess.call(BRAINSHIFT + argv, stdout=out, stderr=subprocess.STDOUT, cwd=ROOT,
+                               env={**os.environ, "OMP_NUM_THREADS": "1"})
+    return code, time.perf_counter() - began
+
+
+def gate_when_moved(folder: Path) -> list[dict]:
+    """The correlation ratio and correlation with the found registration moved (MOVES)."""
+    import SimpleITK as sitk
+
+    from fenics_brainshift.data.templates import mni_t1
+    from fenics_brainshift.patients.registration import Registration, correlation_in, correlation_ratio_in
+
+    patient = sitk.ReadImage(str(folder / "t1.nii.gz"), sitk.sitkFloat32)
+    template = sitk.ReadImage(str(mni_t1()), sitk.sitkFloat32)
+    brain = sitk.GetArrayFromImage(sitk.ReadImage(str(folder / "labels.nii.gz"))) > 0
+    found = sitk.ReadTransform(str(folder / "patient_to_template.h5"))
+    centre = patient.TransformContinuousIndexToPhysicalPoint([(n - 1) / 2 for n in patient.GetSize()])
+    out = []
+    for axis, shift, angle in MOVES:
+        move = sitk.Euler3DTransform()
+        move.SetCenter(centre)
+        e = np.eye(3)["xyz".index(axis)]
+        move.SetTranslation((shift * e).tolist())
+        move.SetRotation(*(np.radians(angle) * e).tolist())
+        total = sitk.CompositeTransform([found, move])  # the patient point moved first
+        reg = Registration(total, sitk.AffineTransform(3), patient)
+        out.append({"move": f"{shift:g} mm along {axis}" if shift else f"{angle:g} deg about {axis}",
+                    "correlation_ratio": round(correlation_ratio_in(patient, template, reg, brain), 4),
+                    "correlation": round(correlation_in(patient, template, reg, brain), 4)})
+    return out
+
+
+def cortex_points(run: Path, centre_mm: np.ndarray, count: int = 20, noise_mm: float = 0.5, seed: int = 3):
+    """(pre, intra) mm RAS: fine-surface points within 25 mm of the craniotomy, and where the
+    run's settled state moves them, plus noise."""
+    import meshio
+
+    surface = meshio.read(run / "surface_final.vtk")
+    moved = surface.points * 1e3
+    shift = surface.point_data["displacement"] * 1e3
+    pre = moved - shift
+    near = np.flatnonzero(np.linalg.norm(pre - centre_mm, axis=1) < 25.0)
+    rng = np.random.default_rng(seed)
+    picked = rng.choice(near, min(count, len(near)), replace=False)
+    return pre[picked], moved[picked] + rng.normal(0.0, noise_mm, (len(picked), 3))
+
+
+def one_case(name: str, data: Path, chain: bool, work: Path) -> dict:
+    path, extra, what, source = CASES[name]
+    extra = [str(data / a) if a.startswith("t1gd_tumour/") else a for a in extra]
+    if "SEG" in extra:  # the DICOM-SEG of VS-SEG-001 is not public beside its T1: no tumour then
+        extra = extra[:extra.index("SEG") - 1] + extra[extra.index("SEG") + 1:]
+    folder = work / name
+    log = work / f"{name}.log"
+    log.unlink(missing_ok=True)
+    record = {"case": name, "what": what, "source": source}
+    code, seconds = brainshift(["prepare", str(data / path), "-o", str(folder), *extra], log)
+    prepared = json.loads((folder / "prepare.json").read_text()) if (folder / "prepare.json").is_file() else {}
+    record.update(prepare_exit=code, prepare_s=round(seconds, 1), status=prepared.get("status", "ok" if code == 0
+                                                                                        else "failed"),
+                  brain_litres=prepared.get("brain_litres"), correlation=prepared.get("correlation"),
+                  correlation_ratio=prepared.get("correlation_ratio"), contrast=prepared.get("contrast"),
+                  registration=prepared.get("registration"), tumour=prepared.get("tumour"),
+                  craniotomy=prepared.get("craniotomy"))
+    if code != 0:
+        return record
+    record["gate_when_moved"] = gate_when_moved(folder)
+    if not chain:
+        return record
+    steps = {}
+    code, steps["run_s"] = brainshift(["run", str(folder / "scene.toml"), "--out", str(folder / "run")], log)
+    if code:
+        return {**record, "chain": f"run exit {code}"}
+    code, steps["atlas_s"] = brainshift(["atlas", str(folder / "scene.toml"), "-o", str(folder / "atlas")], log)
+    if code:
+        return {**record, "chain": f"atlas exit {code}", **steps}
+    from fenics_brainshift.images.frames import write_markups
+
+    pre, intra = cortex_points(folder / "run", np.asarray(prepared["craniotomy"]["centre_mm"]))
+    labels = [f"P{i + 1}" for i in range(len(pre))]
+    write_markups(folder / "pre.mrk.json", labels, pre)
+    write_markups(folder / "intra.mrk.json", labels, intra)
+    code, steps["update_s"] = brainshift(["update", str(folder / "atlas"), "--pre", str(folder / "pre.mrk.json"),
+                                          "--target", str(folder / "intra.mrk.json"), "--noise", "0.5", "--out",
+                                          str(folder / "update"), "--image", str(folder / "t1.nii.gz"), "--replace"],
+                                         log)
+    if code:
+        return {**record, "chain": f"update exit {code}", **steps}
+    update = json.loads((folder / "update" / "update.json").read_text())
+    code, steps["warp_s"] = brainshift(["warp", str(folder / "update"), "--image", str(folder / "t1.nii.gz"), "-o",
+                                        str(folder / "t1_intra.nii.gz")], log)
+    record.update({k: round(v, 1) for k, v in steps.items()})
+    record.update(chain="ok" if code == 0 else f"warp exit {code}",
+                  update={k: update[k] for k in ("prior_residual_rms_mm", "residual_rms_mm", "leave_one_out_rms_mm",
+                                                 "uncertainty_mm", "warning")},
+                  update_fit_ms=round(update["timings_ms"]["weights_ms"], 1))
+    return record
+
+
+def report() -> None:
+    from fenics_brainshift.bench import machine_line
+
+    rows = [json.loads(p.read_text()) for p in sorted(RESULTS.glob("*.json"))]
+    lines = ["# Real scans through `brainshift prepare` (and on)", "",
+             f"Machine: {machine_line()}. Command: `OMP_NUM_THREADS=1 python benchmarks/prepare_cases.py --data DATA "
+             f"--chain` then `--report` (one process, one thread a step).", "",
+             "| case | contrast (said / measured) | result | brain l | template explains | correlation | prepare s "
+             "| run s | atlas s | update | warp s |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        c = r.get("contrast") or {}
+        u = r.get("update")
+        lines.append(
+            f"| {r['case']} | {c.get('given') or '-'} / {c.get('measured', '-')} | {r['status']} "
+            f"| {r['brain_litres'] or '-'} | {100 * r['correlation_ratio']:.0f} % | {r['correlation']} "
+            f"| {r['prepare_s']} | {r.get('run_s', '-')} | {r.get('atlas_s', '-')} "
+            f"| {'%.2f -> %.2f mm, %.0f ms' % (u['prior_residual_rms_mm'], u['residual_rms_mm'], r['update_fit_ms']) if u else '-'} "
+            f"| {r.get('warp_s', '-')} |" if r.get("correlation_ratio") is not None else
+            f"| {r['case']} | - | {r['status']} (exit {r['prepare_exit']}) | - | - | - | {r['prepare_s']} | | | | |")
+    lines += ["", "The gate (the share of the scan's variance in the brain found that the template explains, "
+              "the correlation ratio) with each prepared registration moved on purpose:", "",
+              "| case | found | moved 10 mm (x, y, z) | turned 10 degrees (x, y, z) |", "|---|---|---|---|"]
+    for r in rows:
+        moved = r.get("gate_when_moved")
+        if moved:
+            ratios = [f"{100 * m['correlation_ratio']:.0f}" for m in moved]
+            lines.append(f"| {r['case']} | {100 * r['correlation_ratio']:.0f} % | {', '.join(ratios[:3])} % "
+                         f"| {', '.join(ratios[3:])} % |")
+    lines += ["", "Cases: " + "; ".join(f"**{n}** {CASES[n][2]} ({CASES[n][3]})" for n in CASES) + "."]
+    (RESULTS.parent / "prepare_cases.md").write_text("\n".join(lines) + "\n")
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--data", help="the folder holding the scans as CASES names them")
+    p.add_argument("--cases", default=",".join(CASES), help="comma-separated case names")
+    p.add_argument("--chain", action="store_true", help="also run, atlas, update and warp")
+    p.add_argument("--work", default="/tmp/prepare_cases", help="where the prepared folders go")
+    p.add_argument("--report", action="store_true", help="merge the results into prepare_cases.md")
+    args = p.parse_args(argv)
+    if args.report:
+        report()
+        return 0
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    work = Path(args.work)
+    work.mkdir(parents=True, exist_ok=True)
+    for name in args.cases.split(","):
+        record = one_case(name, Path(args.data), args.chain, work)
+        (RESULTS / f"{name}.json").write_text(json.dumps(record, indent=2) + "\n")
+        print(json.dumps({k: record.get(k) for k in ("case", "status", "brain_litres", "correlation_ratio",
+                                                     "prepare_s", "chain")}))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,100 @@
+"""update.png: what an update did, for the person at the navigation screen. Three planes of the
+pre-operative image through the measured points (axial, coronal, sagittal, resampled on the
+head's RAS axes, radiological view), the updated shift's size in colour with its in-plane
+direction as arrows and the uncertainty as contour lines, the measured points near each plane;
+and beside them every point's residual before (the scene's prediction) and after the update."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+HALF_WIDTH_MM = 60.0  # each plane shows this far around the measured points' centre
+STEP_MM = 1.0
+NEAR_PLANE_MM = 5.0  # a measured point this close to a plane is drawn on it
+SPREAD_LINES_MM = (0.5, 1.0, 2.0)
+
+
+def write_update_picture(path: Path, image, atlas, target, result) -> Path:
+    """image: images.volumes.Volume (RAS mm); atlas: store.Atlas; target: fit.targets.Target (m);
+    result: update.UpdateResult."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from scipy.ndimage import map_coordinates
+
+    from .locate import MeshLocator
+
+    points_mm = (target.pre if target.pre is not None else target.measured) * 1e3
+    centre = points_mm.mean(axis=0)
+    n = int(round(2 * HALF_WIDTH_MM / STEP_MM)) + 1
+    offsets = (np.arange(n) - (n - 1) / 2) * STEP_MM
+    # (name, the picture's rightward and upward directions in RAS, the plane's normal, labels):
+    # radiological, the patient's right on the picture's left; superior and anterior up
+    planes = [("axial", (-1, 0, 0), (0, 1, 0), 2, ("R", "L"), ("P", "A")),
+              ("coronal", (-1, 0, 0), (0, 0, 1), 1, ("R", "L"), ("I", "S")),
+              ("sagittal", (0, -1, 0), (0, 0, 1), 0, ("A", "P"), ("I", "S"))]
+    locator = MeshLocator(atlas.points, atlas.tetrahedra)
+    figure, axes = plt.subplots(1, 4, figsize=(19, 5.2), gridspec_kw={"width_ratios": [1, 1, 1, 1.15]})
+    shown = None
+    for ax, (name, right_dir, up_dir, normal, (left, right), (bottom, top)) in zip(axes, planes):
+        right_dir, up_dir = np.array(right_dir, float), np.array(up_dir, float)
+        col, row = np.meshgrid(offsets, offsets[::-1], indexing="xy")  # row 0 at the top
+        ras = centre + col.reshape(-1, 1) * right_dir + row.reshape(-1, 1) * up_dir
+        shape = col.shape
+        ijk = image.ras_to_index(ras)
+        gray = map_coordinates(np.asarray(image.data, dtype=np.float32), ijk.T, order=1, cval=0.0).reshape(shape)
+        index, weight, outside = locator.weights(ras * 1e-3)
+        inside = outside <= 0
+        u = np.einsum("nj,njd->nd", weight, result.displacement[index]) * 1e3
+        spread = np.einsum("nj,nj->n", weight, result.spread[index]) * 1e3
+        size = np.where(inside, np.linalg.norm(u, axis=1), np.nan).reshape(shape)
+        spread = np.where(inside, spread, np.nan).reshape(shape)
+        lo, hi = np.percentile(gray[gray > 0], [1, 99]) if np.any(gray > 0) else (0, 1)
+        extent = (0, shape[1], shape[0], 0)
+        ax.imshow(gray, cmap="gray", vmin=lo, vmax=hi, extent=extent)
+        top_size = float(np.nanmax(size)) if np.any(inside) else 1.0
+        shown = ax.imshow(size, cmap="inferno", alpha=0.55, vmin=0, vmax=max(1.0, top_size), extent=extent)
+        if np.any(np.isfinite(spread)):
+            lines = ax.contour(np.arange(shape[1]) + 0.5, np.arange(shape[0]) + 0.5, spread,
+                               levels=list(SPREAD_LINES_MM), colors="cyan", linewidths=0.8)
+            ax.clabel(lines, fmt="%g mm", fontsize=7)
+        step = 10
+        rows, cols = np.mgrid[step // 2:shape[0]:step, step // 2:shape[1]:step]
+        flat = rows.ravel() * shape[1] + cols.ravel()
+        keep = inside[flat]
+        # (quiver's arrows are drawn in screen directions: up is up whatever the axis's sense)
+        ax.quiver(cols.ravel()[keep] + 0.5, rows.ravel()[keep] + 0.5, u[flat[keep]] @ right_dir,
+                  u[flat[keep]] @ up_dir, color="white", width=0.004, alpha=0.9)
+        near = np.abs((points_mm - centre)[:, normal]) < NEAR_PLANE_MM
+        for p in points_mm[near]:
+            ax.plot((p - centre) @ right_dir / STEP_MM + shape[1] / 2, shape[0] / 2 - (p - centre) @ up_dir / STEP_MM,
+                    "o", ms=6, mfc="none", mec="lime", mew=1.5)
+        ax.plot([shape[1] - 8 - 50 / STEP_MM, shape[1] - 8], [shape[0] - 8] * 2, color="white", lw=3)
+        ax.text(shape[1] - 8 - 25 / STEP_MM, shape[0] - 11, "50 mm", color="white", ha="center", fontsize=9)
+        ax.set_title(f"{name} through the points", fontsize=12)
+        ax.set_xticks([])
+        ax.set_yticks([])
+        ax.set_xlabel(f"{left} ← → {right}")
+        ax.set_ylabel(f"{bottom} ← → {top}")
+    if shown is not None:
+        bar = figure.colorbar(shown, ax=axes[2], fraction=0.046, pad=0.03)
+        bar.set_label("updated shift (mm); cyan lines: uncertainty (mm)")
+    ax = axes[3]
+    order = np.arange(len(result.residual))
+    ax.bar(order - 0.2, result.prior_residual * 1e3, width=0.4, color="#bbbbbb", label="scene's prediction")
+    ax.bar(order + 0.2, result.residual * 1e3, width=0.4, color="#d9480f", label="updated")
+    for i in result.outliers:
+        ax.annotate("set aside", (i + 0.2, result.residual[i] * 1e3), fontsize=7, rotation=90, va="bottom")
+    ax.set_xticks(order)
+    ax.set_xticklabels(target.labels, rotation=90, fontsize=7)
+    ax.set_ylabel("distance from the measured point (mm)")
+    ax.set_title("each point: before and after", fontsize=12)
+    ax.legend(fontsize=9, frameon=False)
+    figure.suptitle(f"update from {len(order)} points: green circles, the measured points within "
+                    f"{NEAR_PLANE_MM:g} mm of a plane", fontsize=12)
+    figure.subplots_adjust(wspace=0.45)
+    figure.savefig(path, dpi=100, bbox_inches="tight")
+    plt.close(figure)
+    return Path(path)
