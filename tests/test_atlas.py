@@ -86,6 +86,14 @@ def test_the_swelling_mode_is_the_change_a_swollen_scene_makes(atlas, tmp_path):
     assert np.abs(atlas.prior_vertex - u_prior).max() < 1e-5 * np.abs(u_prior).max()  # (follower tolerance)
 
 
+def _top(points: np.ndarray) -> np.ndarray:
+    """The exposed cortex, supine (y up): the nodes above the 85th percentile of y. The voxel mesh
+    has a whole plane of nodes at that percentile, whose y differ only by rounding, which changes
+    with the machine's BLAS kernel. That plane is left out, not split by the rounding."""
+    y = points[:, 1]
+    return np.flatnonzero(y > np.percentile(y, 85) + 1e-6)  # (1 um: far above rounding, far below a voxel)
+
+
 def _operation(atlas):
     """A state inside the span: 0.6 x (pose -8, level 30 mm) + 0.4 x (pose 0, level 40 mm),
     the whole brain shrunk by 2 % (the swelling mode's coefficient 0.5)."""
@@ -98,7 +106,7 @@ def test_an_operation_inside_the_span_is_recovered_to_the_noise_from_20_cortex_p
     _, truth = _operation(atlas)
     rng = np.random.default_rng(0)
     points = atlas.points
-    top = np.flatnonzero(points[:, 1] > np.percentile(points[:, 1], 85))  # the exposed cortex, supine (y up)
+    top = _top(points)
     picked = rng.choice(top, 20, replace=False)
     noise = 0.5e-3
     measured = points[picked] + truth[picked] + rng.normal(0.0, noise, (20, 3))
@@ -113,7 +121,8 @@ def test_an_operation_inside_the_span_is_recovered_to_the_noise_from_20_cortex_p
     assert -0.04 <= result.volume_changes(atlas)["brain"] < 0.0
     assert np.sqrt(np.mean(result.leave_one_out ** 2)) < 3 * noise
     # the spread means what it says: the true error is inside twice the reported spread at nearly
-    # every node (94-97 % over six noise draws, both ways), and below the noise of one point
+    # every node (this draw: 0.97 posterior, 0.94 bootstrap; over 12 noise draws at least 0.9 in 11
+    # and 10 of them), and below the noise of one point
     assert 0 < result.spread.mean() < noise and result.spread_from == "posterior"
     assert np.mean(error < 2 * result.spread) > 0.9
     sampled = update(atlas, Target(measured, points[picked], [f"p{i}" for i in range(20)]), noise, samples=30)
@@ -127,7 +136,7 @@ def _cortex_points_one_slipped(atlas, slipped: int):
     _, truth = _operation(atlas)
     rng = np.random.default_rng(0)
     points = atlas.points
-    top = np.flatnonzero(points[:, 1] > np.percentile(points[:, 1], 85))
+    top = _top(points)
     picked = rng.choice(top, 20, replace=False)
     noise = 0.5e-3
     measured = points[picked] + truth[picked] + rng.normal(0.0, noise, (20, 3))
@@ -174,7 +183,7 @@ def test_a_stiffer_brain_is_the_family_scaled_down(atlas):
     c = np.zeros(len(atlas.scenarios))
     c[4] = 0.8  # (level 30 mm, no turn: the scene's own) at G = 1.25 G0
     truth = np.tensordot(c, atlas.vertex_modes.astype(float), axes=1)
-    picked = np.flatnonzero(atlas.points[:, 1] > np.percentile(atlas.points[:, 1], 85))[::7][:20]
+    picked = _top(atlas.points)[::7][:20]
     pre = atlas.points[picked]
     result = update(atlas, Target(pre + truth[picked], pre, [f"p{i}" for i in range(len(pre))]), 0.1e-3)
     G0 = atlas.info["stiffness"]["G"]
@@ -187,7 +196,7 @@ def test_a_stiffer_brain_of_the_full_model_is_found_within_ten_percent(atlas):
     0.8x the sag); 20 exact pairs on the cortex."""
     G0 = atlas.info["stiffness"]["G"]
     _, truth = _settled(load_scene("brain", COARSE + [f"material.G={1.25 * G0}"]))
-    picked = np.flatnonzero(atlas.points[:, 1] > np.percentile(atlas.points[:, 1], 85))[::7][:20]
+    picked = _top(atlas.points)[::7][:20]
     pre = atlas.points[picked]
     result = update(atlas, Target(pre + truth[picked], pre, [f"p{i}" for i in range(len(pre))]), 0.1e-3, 0)
     assert result.stiffness(atlas) == pytest.approx(1.25 * G0, rel=0.10)
@@ -235,7 +244,7 @@ def atlas_folder(atlas, tmp_path_factory):
 def _markups(folder: Path, atlas, count: int = 20, noise: float = 0.0):
     _, truth = _operation(atlas)
     rng = np.random.default_rng(2)
-    top = np.flatnonzero(atlas.points[:, 1] > np.percentile(atlas.points[:, 1], 85))
+    top = _top(atlas.points)
     picked = rng.choice(top, count, replace=False)
     labels = [f"P{i}" for i in range(count)]
     pre = atlas.points[picked]
@@ -610,7 +619,7 @@ def test_the_update_keeps_the_brain_inside_the_skull(skull_atlas):
     c = np.zeros(len(U))
     c[1] = c[5] = 0.8
     truth = np.tensordot(c, U, axes=1)
-    picked = np.flatnonzero(skull_atlas.points[:, 1] > np.percentile(skull_atlas.points[:, 1], 85))[::5][:20]
+    picked = _top(skull_atlas.points)[::5][:20]
     pre = skull_atlas.points[picked]
     target = Target(pre + truth[picked], pre, [f"p{i}" for i in range(len(pre))])
     through = update(skull_atlas, target, 0.3e-3, samples=0, keep_inside=False)
