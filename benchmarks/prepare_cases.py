@@ -10,7 +10,7 @@ prepare's threshold (patients/command.py MIN_RATIO) is set.
 
     OMP_NUM_THREADS=1 python benchmarks/prepare_cases.py --data DATA [--cases vs001,chris_t1] [--chain]
 
---chain: also `brainshift run`, the default `brainshift atlas` (5 mm), `brainshift update` from 20
+--chain: also (after prepare, or on the folder an earlier call prepared) `brainshift run`, the default `brainshift atlas` (5 mm), `brainshift update` from 20
 cortex points near the craniotomy moved by the run's settled state plus 0.5 mm noise, and `brainshift
 warp` of the T1 by the update. Each case writes benchmarks/results/prepare_cases/NAME.json;
 --report merges them into benchmarks/results/prepare_cases.md.
@@ -102,6 +102,31 @@ def gate_when_moved(folder: Path) -> list[dict]:
     return out
 
 
+def carried_both_ways(folder: Path) -> dict:
+    """The template's brain mask carried onto the scan's grid through the registration itself
+    (the B-spline at every voxel) and through its displacement field sampled on 2 mm
+    (Registration.sampled, what prepare uses): times and the voxels that differ."""
+    import SimpleITK as sitk
+
+    from fenics_brainshift.data.templates import mni_brain_mask
+    from fenics_brainshift.patients.registration import Registration
+
+    patient = sitk.ReadImage(str(folder / "t1.nii.gz"), sitk.sitkFloat32)
+    transform = sitk.ReadTransform(str(folder / "patient_to_template.h5"))
+    grid = sitk.Image(patient.GetSize(), sitk.sitkUInt8)
+    grid.CopyInformation(patient)
+    mask = sitk.ReadImage(str(mni_brain_mask()))
+    out = {}
+    for name, through in (("exact", lambda: transform), ("field", lambda: Registration(
+            transform, sitk.AffineTransform(3), grid).sampled())):
+        began = time.perf_counter()
+        moved = sitk.Resample(mask, patient, through(), sitk.sitkLabelLinear, 0, sitk.sitkUInt8)
+        out[f"{name}_s"] = round(time.perf_counter() - began, 2)
+        out[name] = sitk.GetArrayFromImage(moved) > 0
+    exact, field = out.pop("exact"), out.pop("field")
+    return {**out, "voxels_differing": int(np.count_nonzero(exact != field)), "brain_voxels": int(exact.sum())}
+
+
 def cortex_points(run: Path, centre_mm: np.ndarray, count: int = 20, noise_mm: float = 0.5, seed: int = 3):
     """(pre, intra) mm RAS: fine-surface points within 25 mm of the craniotomy, and where the
     run's settled state moves them, plus noise."""
@@ -124,6 +149,9 @@ def one_case(name: str, data: Path, chain: bool, work: Path) -> dict:
         extra = extra[:extra.index("SEG") - 1] + extra[extra.index("SEG") + 1:]
     folder = work / name
     log = work / f"{name}.log"
+    earlier = RESULTS / f"{name}.json"
+    if chain and (folder / "scene.toml").is_file() and earlier.is_file():  # prepared by an earlier call: on from there
+        return chain_steps(json.loads(earlier.read_text()), folder, log)
     log.unlink(missing_ok=True)
     record = {"case": name, "what": what, "source": source}
     code, seconds = brainshift(["prepare", str(data / path), "-o", str(folder), *extra], log)
@@ -131,14 +159,20 @@ def one_case(name: str, data: Path, chain: bool, work: Path) -> dict:
     record.update(prepare_exit=code, prepare_s=round(seconds, 1), status=prepared.get("status", "ok" if code == 0
                                                                                         else "failed"),
                   brain_litres=prepared.get("brain_litres"), correlation=prepared.get("correlation"),
-                  correlation_ratio=prepared.get("correlation_ratio"), contrast=prepared.get("contrast"),
+                  correlation_ratio=prepared.get("correlation_ratio"),
+                  correlation_ratio_moved=prepared.get("correlation_ratio_moved"), contrast=prepared.get("contrast"),
                   registration=prepared.get("registration"), tumour=prepared.get("tumour"),
                   craniotomy=prepared.get("craniotomy"))
     if code != 0:
         return record
     record["gate_when_moved"] = gate_when_moved(folder)
-    if not chain:
-        return record
+    record["labels_carried"] = carried_both_ways(folder)
+    return chain_steps(record, folder, log) if chain else record
+
+
+def chain_steps(record: dict, folder: Path, log: Path) -> dict:
+    """run, the default atlas, an update from synthetic pointer points, the warp."""
+    prepared = json.loads((folder / "prepare.json").read_text())
     steps = {}
     code, steps["run_s"] = brainshift(["run", str(folder / "scene.toml"), "--out", str(folder / "run")], log)
     if code:
@@ -176,14 +210,16 @@ def report() -> None:
     lines = ["# Real scans through `brainshift prepare` (and on)", "",
              f"Machine: {machine_line()}. Command: `OMP_NUM_THREADS=1 python benchmarks/prepare_cases.py --data DATA "
              f"--chain` then `--report` (one process, one thread a step).", "",
-             "| case | contrast (said / measured) | result | brain l | template explains | correlation | prepare s "
-             "| run s | atlas s | update | warp s |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "| case | contrast (said / measured) | result | brain l | template explains (moved 10 mm) | correlation "
+             "| prepare s | run s | atlas s | update: residual, fit | warp s |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         c = r.get("contrast") or {}
         u = r.get("update")
         lines.append(
             f"| {r['case']} | {c.get('given') or '-'} / {c.get('measured', '-')} | {r['status']} "
-            f"| {r['brain_litres'] or '-'} | {100 * r['correlation_ratio']:.0f} % | {r['correlation']} "
+            f"| {r['brain_litres'] or '-'} | {100 * r['correlation_ratio']:.0f} % "
+            f"({100 * (r.get('correlation_ratio_moved') or 0):.0f} %) | {r['correlation']} "
             f"| {r['prepare_s']} | {r.get('run_s', '-')} | {r.get('atlas_s', '-')} "
             f"| {'%.2f -> %.2f mm, %.0f ms' % (u['prior_residual_rms_mm'], u['residual_rms_mm'], r['update_fit_ms']) if u else '-'} "
             f"| {r.get('warp_s', '-')} |" if r.get("correlation_ratio") is not None else
@@ -197,6 +233,14 @@ def report() -> None:
             ratios = [f"{100 * m['correlation_ratio']:.0f}" for m in moved]
             lines.append(f"| {r['case']} | {100 * r['correlation_ratio']:.0f} % | {', '.join(ratios[:3])} % "
                          f"| {', '.join(ratios[3:])} % |")
+    lines += ["", "The labels carried through the registration at every voxel, and through its displacement "
+              "field sampled on 2 mm (what prepare uses):", "",
+              "| case | exact s | field s | voxels differing / brain voxels |", "|---|---|---|---|"]
+    for r in rows:
+        c = r.get("labels_carried")
+        if c:
+            lines.append(f"| {r['case']} | {c['exact_s']} | {c['field_s']} | {c['voxels_differing']} / "
+                         f"{c['brain_voxels']} |")
     lines += ["", "Cases: " + "; ".join(f"**{n}** {CASES[n][2]} ({CASES[n][3]})" for n in CASES) + "."]
     (RESULTS.parent / "prepare_cases.md").write_text("\n".join(lines) + "\n")
 

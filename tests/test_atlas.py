@@ -273,7 +273,10 @@ def test_update_writes_a_run_folder_that_warp_takes(atlas, atlas_folder, tmp_pat
     assert np.linalg.norm(moved * 1e-3 - intra[order], axis=1).max() < 2e-3
     spread = read_volume(out / "uncertainty.nii.gz")
     assert spread.data.max() > 0 and spread.data.shape == read_volume(MASK).data.shape
-    assert (out / "update.png").stat().st_size > 20000  # three planes and the residuals (tests/test_pictures.py)
+    assert (out / "update.png").stat().st_size > 20000  # three planes and the residuals
+    import nibabel
+
+    assert b"mm" in nibabel.load(out / "uncertainty.nii.gz").header["descrip"].tobytes()  # its unit said
     assert main(["warp", str(out), "--image", str(MASK), "-o", str(tmp_path / "intra.nii.gz")]) == 0
     assert (tmp_path / "intra.nii.gz").is_file()
 

@@ -132,7 +132,8 @@ def _write_outputs(out: Path, atlas, target, result, image, spread_image) -> Non
         from ..images.volumes import write_like
         from .update_picture import write_update_picture
 
-        write_like(image, spread_image, out / "uncertainty.nii.gz")
+        write_like(image, spread_image, out / "uncertainty.nii.gz",
+                   f"uncertainty of the updated shift, mm ({result.spread_from} RMS spread)")
         write_update_picture(out / "update.png", image, atlas, target, result)
 
 

@@ -181,9 +181,10 @@ def label_values(volume: Volume, labels, what: str = "labels") -> list[int]:
     return values
 
 
-def write_like(reference: Volume, data: np.ndarray, path: str | Path) -> Path:
+def write_like(reference: Volume, data: np.ndarray, path: str | Path, description: str | None = None) -> Path:
     """``data`` (the reference's shape) on the reference's grid, with its header, to ``path``
-    (NIfTI or NRRD by suffix; a NIfTI reference may be written as NRRD and back)."""
+    (NIfTI or NRRD by suffix; a NIfTI reference may be written as NRRD and back);
+    ``description``: what the values are and their unit (NIfTI's descrip, NRRD's content)."""
     path = Path(path)
     if data.shape != reference.data.shape:
         raise ValueError(f"data of shape {data.shape} on a grid of {reference.data.shape}")
@@ -193,9 +194,9 @@ def write_like(reference: Volume, data: np.ndarray, path: str | Path) -> Path:
     tmp = path.with_name(f".{path.name}.tmp{suffix}")
     try:
         if path.name.lower().endswith(NIFTI_SUFFIXES):
-            _write_nifti(reference, data, tmp)
+            _write_nifti(reference, data, tmp, description)
         else:
-            _write_nrrd(reference, data, tmp)
+            _write_nrrd(reference, data, tmp, description)
         os.replace(tmp, path)
     finally:
         if tmp.exists():
@@ -203,17 +204,19 @@ def write_like(reference: Volume, data: np.ndarray, path: str | Path) -> Path:
     return path
 
 
-def _write_nifti(reference: Volume, data: np.ndarray, path: Path) -> None:
+def _write_nifti(reference: Volume, data: np.ndarray, path: Path, description: str | None = None) -> None:
     import nibabel as nib
 
     header = reference.header.copy() if reference.kind == "nifti" else None
     image = nib.Nifti1Image(data, reference.affine, header)
     if header is not None:
         image.set_data_dtype(data.dtype)
+    if description is not None:
+        image.header["descrip"] = description.encode("ascii", "replace")[:79]
     nib.save(image, str(path))
 
 
-def _write_nrrd(reference: Volume, data: np.ndarray, path: Path) -> None:
+def _write_nrrd(reference: Volume, data: np.ndarray, path: Path, description: str | None = None) -> None:
     import nrrd
 
     if reference.kind == "nrrd" and len(np.asarray(reference.header["space directions"])) == 3:
@@ -223,4 +226,6 @@ def _write_nrrd(reference: Volume, data: np.ndarray, path: Path) -> None:
                   "space directions": (LPS_TO_RAS @ reference.affine[:3, :3]).T,
                   "space origin": LPS_TO_RAS @ reference.affine[:3, 3],
                   "kinds": ["domain"] * 3, "encoding": "gzip"}
+    if description is not None:
+        header = {**header, "content": description}
     nrrd.write(str(path), data, header, index_order="F")

@@ -101,7 +101,9 @@ def deformed_picture(out: Path, gravity, level: float | None, path: Path | None 
         side = side if side @ np.array([1.0, 1.0, 0.0]) >= 0 else -side  # from the right, or the front
     across = np.cross(screen_up, side)  # left to right on the screen
     if np.linalg.norm(g) > 0:  # gravity: an arrow beside the body
-        start = centre + 0.55 * extent * across + 0.3 * extent * up
+        # beside the body, or for a patient's view above it (gravity may run across the screen)
+        start = centre + (0.45 * extent * screen_up + 0.25 * extent * up if anatomical else
+                          0.55 * extent * across + 0.3 * extent * up)
         plotter.add_mesh(pv.Arrow(start=start, direction=-up, scale=0.25 * extent), color="black")
         plotter.add_point_labels([start + 0.04 * extent * up], ["gravity"], font_size=14, text_color="black",
                                  shape=None, show_points=False, always_visible=True)

@@ -15,13 +15,14 @@ def labels_on_patient(template_labels: dict[int, np.ndarray], template: sitk.Ima
     the template's grid, painted in the order given (a later label over an earlier one), in
     one resampling through the registration by ITK's label-linear interpolation: each voxel
     takes the label of the largest linearly interpolated share (the map is costly to evaluate
-    at every voxel of a 1 mm T1: one pass, not one per label)."""
+    at every voxel of a 1 mm T1: one pass, not one per label; and through its sampled
+    displacement field, Registration.sampled)."""
     painted = np.zeros(template_labels[next(iter(template_labels))].shape, dtype=np.uint8)
     for value, mask in template_labels.items():
         painted[mask] = value
     image = sitk.GetImageFromArray(painted)
     image.CopyInformation(template)
-    moved = sitk.Resample(image, patient, registration.transform, sitk.sitkLabelLinear, 0, sitk.sitkUInt8)
+    moved = sitk.Resample(image, patient, registration.sampled(), sitk.sitkLabelLinear, 0, sitk.sitkUInt8)
     return sitk.GetArrayFromImage(moved)
 
 

@@ -43,13 +43,15 @@ log = logging.getLogger(__name__)
 BRAIN, TUMOUR = 1, 2  # label values; the carried supports follow from 3
 VOLUME_RANGE = (0.6, 2.6)  # litres: a brain found outside this is a failed registration or a unit slip
 PLAUSIBLE = (1.0, 1.7)  # litres: an adult brain; outside it, a warning
-# the template's anatomy must explain this share of the patient's variance in the brain found
-# (the correlation ratio, whatever the contrast): below it the registration failed. Measured
-# (benchmarks/results/prepare_cases.md): registrations judged right by their pictures 0.45-0.76
-# (native T1, post-contrast T1, PD); noise 0.0x; the same registrations moved 10 mm 0.04-0.32,
-# turned 10 degrees 0.14-0.49: a floor against gross failures, not a judge of a few degrees
-# (overview.png is)
-MIN_RATIO = 0.35
+# The gate, whatever the contrast: the template's anatomy must explain at least MIN_RATIO of the
+# scan's variance in the brain found (the correlation ratio, in its part deeper than 10 mm), and
+# MIN_PEAK more than with the registration moved 10 mm along any axis (registration.fit_measures).
+# Measured (benchmarks/results/prepare_cases.md): an absolute threshold alone cannot judge (right
+# registrations by their pictures 0.16-0.65 by contrast and sharpness, a T1's moved 10 mm 0.23);
+# the peak is what a right one has: 0.085 (a 2 mm T1) to 0.42 above its surroundings, a 6.5 mm
+# slab whose registration sits off its peak -0.10
+MIN_RATIO = 0.1
+MIN_PEAK = 0.05
 PREPARE_RECORD = "prepare.json"
 DOWN_SIDE = 0.5  # a craniotomy centre below this share of the brain's height as the head lies: a warning
 SUPPORT = "brain_stem"  # the bundled scene's support that a patient scene fixes (the occipital pin gives way to the skull)
@@ -124,16 +126,18 @@ def prepare_command(args) -> int:
         names[TUMOUR] = "tumour"
     voxel_ml = float(np.prod(patient.GetSpacing())) * 1e-3
     litres = float(brain.sum()) * voxel_ml * 1e-3
-    correlation, ratio = fit_measures(patient, template, registration, brain)
+    measures = fit_measures(patient, template, registration, brain)
+    correlation, ratio, moved = measures["correlation"], measures["ratio"], measures["ratio_moved"]
     described, source = (args.contrast, "--contrast") if args.contrast != "auto" else \
         described_contrast(args.t1, series_metadata(args.t1))
     report.update(brain_litres=round(litres, 4), correlation=round(correlation, 4), correlation_ratio=round(ratio, 4),
+                  correlation_ratio_moved=round(moved, 4),
                   contrast={"given": described, "from": source, "measured": measured_family(correlation)})
     log.info("prepare: %s (from %s), measured %s; brain %.2f l, the template explains %.0f %% of the scan's "
              "variance in it (correlation %.2f)", CONTRAST_NAMES.get(described, "contrast not stated"), source,
              measured_family(correlation), litres, 100 * ratio, correlation)
     present = {v: n for v, n in names.items() if np.any(labels == v)}
-    problem = _fit_problem(litres, ratio, args.t1)
+    problem = _fit_problem(litres, ratio, moved, args.t1)
     if problem and not args.force:
         _refuse(out, patient, labels, present, args, report, problem)
     if problem:
@@ -278,14 +282,16 @@ def _keep_supports(labels: np.ndarray, carried: np.ndarray, brain: np.ndarray, p
     return moved
 
 
-def _fit_problem(litres: float, ratio: float, t1: str) -> str | None:
-    """Why the registration is refused, or None: the brain found's volume and how much of the
-    scan's variance in it the template's anatomy explains (the correlation ratio)."""
+def _fit_problem(litres: float, ratio: float, moved: float, t1: str) -> str | None:
+    """Why the registration is refused, or None: the brain found's volume, and how much of the
+    scan's variance in it the template's anatomy explains (the correlation ratio) against what
+    it explains with the registration moved 10 mm (a right registration stands on a peak)."""
     low, high = VOLUME_RANGE
-    if not low <= litres <= high or ratio < MIN_RATIO:
+    if not low <= litres <= high or ratio < MIN_RATIO or ratio - moved < MIN_PEAK:
         return (f"the registration of the template to '{Path(t1).name}' failed: brain {litres:.2f} l (a brain is "
                 f"{PLAUSIBLE[0]}-{PLAUSIBLE[1]} l), the template's anatomy explains {100 * ratio:.0f} % of the scan's "
-                f"variance in it (a fit explains {100 * MIN_RATIO:.0f} % or more)")
+                f"variance in it and {100 * moved:.0f} % moved 10 mm (a fit explains {100 * MIN_RATIO:.0f} % or "
+                f"more, and {100 * MIN_PEAK:.0f} points more than moved)")
     if not PLAUSIBLE[0] <= litres <= PLAUSIBLE[1]:
         log.warning("prepare: the brain found is %.2f l, outside an adult's %.1f-%.1f l; check it in 3D Slicer "
                     "(anatomy.seg.nrrd over t1.nii.gz)", litres, *PLAUSIBLE)
