@@ -21,7 +21,8 @@ _PATTERNS = [
     ("flair", r"flair|\bdark.?fluid"),
     ("pd", r"\bpd\b|pdw|proton"),
     ("t2", r"t2|space.*t2|\bciss\b|\bfiesta\b"),
-    ("t1c", r"t1c|t1.?ce\b|\bce.?t1|\+ ?c\b|gad|\bgd\b|post.?(gd|contrast|con)|contrast|\bkm\b|\bmdc\b"),
+    ("t1c", r"t1c|t1.?ce\b|\bce.?t1|\+ ?c\b|gad|\bgd\b|post.?(gd|contrast|con)|t1.?post|post.?t1|contrast|\bkm\b|"
+            r"\bmdc\b"),
     ("t1", r"t1|mprage|mp.?rage|spgr|bravo|\btfe\b|\bvibe\b"),
 ]
 
