@@ -377,6 +377,9 @@ def _bad_inputs(base: Path, tmp: Path) -> dict:
     write_dicom_seg({"tumour": striped}, base / "dicom", tmp / "thick.dcm")
     whole = (tmp / "drift.dcm").read_bytes()
     (tmp / "cut.dcm").write_bytes(whole[: len(whole) - 500])  # a copy that stopped short
+    corner = np.zeros(sitk.GetArrayFromImage(t1).shape, bool)
+    corner[:3, :3, :3] = True  # in the scan's corner, in the air
+    _as_nifti(corner, base, tmp / "corner.nii.gz")
     (tmp / "notes").mkdir()
     (tmp / "notes" / "a.txt").write_text("mine")
     dicom = str(base / "dicom")
@@ -388,6 +391,8 @@ def _bad_inputs(base: Path, tmp: Path) -> dict:
         "a mask as T1": ([str(tmp / "mask.nii.gz")], "segmentation"),
         "no such file": ([str(tmp / "nothing.nii.gz")], "no file"),
         "craniotomy over no tumour": ([dicom, "--craniotomy", "tumour"], "give the tumour's segmentation"),
+        "tumour off the brain": ([dicom, "--tumour", str(tmp / "corner.nii.gz"), "--craniotomy", "tumour"],
+                                 "none of the tumour lies in the brain found"),
         "tumour on another grid": ([dicom, "--tumour", str(tmp / "tumour_elsewhere.nii.gz")], "another grid"),
         "DICOM-SEG of another series": ([dicom, "--tumour", str(tmp / "other_series.dcm")], "another grid"),
         "DICOM-SEG of two segments": ([dicom, "--tumour", str(tmp / "two.dcm")], "'tumour', 'oedema'"),
@@ -424,6 +429,45 @@ def test_bad_input_is_one_line_and_writes_nothing(patient, tmp_path, capsys):
         assert word in message, (name, message)
         assert sorted(p.name for p in tmp_path.iterdir()) == before, name  # no folder, no leftover temporary
     assert (tmp_path / "notes" / "a.txt").read_text() == "mine"
+
+
+@pytest.mark.parametrize("name, contrast", [
+    ("t1_mpr_tra_gk_v4", "t1"), ("AXIAL-T1-POST-GD", "t1c"), ("T1 SE +C", "t1c"), ("3D_T1_TFE_post", "t1c"),
+    ("brain1_T1post.nrrd", "t1c"), ("T1_MPRAGE_KM", "t1c"), ("t2_space_sag", "t2"), ("T2w.nii.gz", "t2"),
+    ("sample1_FLAIR", "flair"), ("chris_PD.nii.gz", "pd"), ("t1_MPRAGEcr_noGRAPPA_19", "t1"),
+    ("patient12.nii.gz", None), ("T1_MPRAGE_PAT2.nii.gz", "t1"), ("mprage_iPAT2_sag", "t1"), ("scan.nii.gz", None)])
+def test_the_contrast_is_read_from_a_name(name, contrast):
+    """Names as scanners and people write them, labelled by hand: t1/t2 inside a longer word or
+    number ("patient12", Siemens' "iPAT2") name nothing."""
+    from fenics_brainshift.patients.contrast import described_contrast
+
+    assert described_contrast(name)[0] == contrast
+
+
+def test_the_contrast_is_read_from_the_dicom_tags_first():
+    from fenics_brainshift.patients.contrast import described_contrast
+
+    assert described_contrast("x", {"0008|103e": "t1_mprage_sag", "0018|0010": "Gadovist"})[0] == "t1c"
+    assert described_contrast("T1.nii", {"0018|1030": "t2_tse_tra"}) == ("t2", "protocol name 't2_tse_tra'")
+
+
+@pytest.mark.usefixtures("serial_only")
+def test_the_folder_one_is_in_is_not_replaced(patient, tmp_path, monkeypatch, capsys):
+    """-o . from inside an earlier patient's folder (or a link to one) would replace the folder
+    one stands in: refused before any work, the folder as it was."""
+    import shutil
+
+    folder = tmp_path / "P"
+    shutil.copytree(patient / "P", folder)
+    before = sorted(p.name for p in folder.iterdir())
+    (tmp_path / "link").symlink_to(folder)
+    monkeypatch.chdir(folder)
+    assert main(["prepare", str(patient / "dicom"), "-o", "."]) == 2
+    assert "the folder you are in" in capsys.readouterr().err
+    monkeypatch.chdir(tmp_path)
+    assert main(["prepare", str(patient / "dicom"), "-o", "link"]) == 2
+    assert "is a link" in capsys.readouterr().err
+    assert sorted(p.name for p in folder.iterdir()) == before
 
 
 @pytest.mark.usefixtures("serial_only")

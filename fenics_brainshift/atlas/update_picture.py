@@ -36,37 +36,44 @@ def write_update_picture(path: Path, image, atlas, target, result) -> Path:
               ("coronal", (-1, 0, 0), (0, 0, 1), 1, ("R", "L"), ("I", "S")),
               ("sagittal", (0, -1, 0), (0, 0, 1), 0, ("A", "P"), ("I", "S"))]
     locator = MeshLocator(atlas.points, atlas.tetrahedra)
-    figure, axes = plt.subplots(1, 4, figsize=(19, 5.2), gridspec_kw={"width_ratios": [1, 1, 1, 1.15]})
-    shown = None
-    for ax, (name, right_dir, up_dir, normal, (left, right), (bottom, top)) in zip(axes, planes):
+    sampled = []
+    for name, right_dir, up_dir, normal, left_right, bottom_top in planes:
         right_dir, up_dir = np.array(right_dir, float), np.array(up_dir, float)
         col, row = np.meshgrid(offsets, offsets[::-1], indexing="xy")  # row 0 at the top
         ras = centre + col.reshape(-1, 1) * right_dir + row.reshape(-1, 1) * up_dir
         shape = col.shape
-        ijk = image.ras_to_index(ras)
-        gray = map_coordinates(np.asarray(image.data, dtype=np.float32), ijk.T, order=1, cval=0.0).reshape(shape)
+        gray = map_coordinates(np.asarray(image.data, dtype=np.float32), image.ras_to_index(ras).T, order=1,
+                               cval=0.0).reshape(shape)
         index, weight, outside = locator.weights(ras * 1e-3)
         inside = outside <= 0
         u = np.einsum("nj,njd->nd", weight, result.displacement[index]) * 1e3
-        spread = np.einsum("nj,nj->n", weight, result.spread[index]) * 1e3
+        spread = np.where(inside, np.einsum("nj,nj->n", weight, result.spread[index]) * 1e3, np.nan).reshape(shape)
+        sampled.append((name, right_dir, up_dir, normal, left_right, bottom_top, shape, gray, inside, u, spread))
+    # one colour scale and one arrow scale for the three planes (each its own misled)
+    sizes = [np.linalg.norm(s[9][s[8]], axis=1) for s in sampled]
+    top_size = max([1.0] + [float(v.max()) for v in sizes if len(v)])
+    step = 10  # pixels (mm) between arrows
+    arrow_scale = top_size / (0.9 * step)  # mm of shift per pixel of arrow: the largest 0.9 of the arrows' spacing
+    figure, axes = plt.subplots(1, 4, figsize=(19, 5.2), gridspec_kw={"width_ratios": [1, 1, 1, 1.15]})
+    shown = None
+    for ax, (name, right_dir, up_dir, normal, (left, right), (bottom, top), shape, gray, inside, u,
+             spread) in zip(axes, sampled):
         size = np.where(inside, np.linalg.norm(u, axis=1), np.nan).reshape(shape)
-        spread = np.where(inside, spread, np.nan).reshape(shape)
         lo, hi = np.percentile(gray[gray > 0], [1, 99]) if np.any(gray > 0) else (0, 1)
         extent = (0, shape[1], shape[0], 0)
         ax.imshow(gray, cmap="gray", vmin=lo, vmax=hi, extent=extent)
-        top_size = float(np.nanmax(size)) if np.any(inside) else 1.0
-        shown = ax.imshow(size, cmap="inferno", alpha=0.55, vmin=0, vmax=max(1.0, top_size), extent=extent)
+        shown = ax.imshow(size, cmap="inferno", alpha=0.55, vmin=0, vmax=top_size, extent=extent)
         if np.any(np.isfinite(spread)):
             lines = ax.contour(np.arange(shape[1]) + 0.5, np.arange(shape[0]) + 0.5, spread,
                                levels=list(SPREAD_LINES_MM), colors="cyan", linewidths=0.8)
             ax.clabel(lines, fmt="%g mm", fontsize=7)
-        step = 10
         rows, cols = np.mgrid[step // 2:shape[0]:step, step // 2:shape[1]:step]
         flat = rows.ravel() * shape[1] + cols.ravel()
         keep = inside[flat]
-        # (quiver's arrows are drawn in screen directions: up is up whatever the axis's sense)
-        ax.quiver(cols.ravel()[keep] + 0.5, rows.ravel()[keep] + 0.5, u[flat[keep]] @ right_dir,
-                  u[flat[keep]] @ up_dir, color="white", width=0.004, alpha=0.9)
+        if keep.any():  # (quiver's arrows are drawn in screen directions: up is up whatever the axis's sense)
+            ax.quiver(cols.ravel()[keep] + 0.5, rows.ravel()[keep] + 0.5, u[flat[keep]] @ right_dir,
+                      u[flat[keep]] @ up_dir, color="white", width=0.004, alpha=0.9, angles="uv",
+                      scale_units="xy", scale=arrow_scale)
         near = np.abs((points_mm - centre)[:, normal]) < NEAR_PLANE_MM
         for p in points_mm[near]:
             ax.plot((p - centre) @ right_dir / STEP_MM + shape[1] / 2, shape[0] / 2 - (p - centre) @ up_dir / STEP_MM,

@@ -31,7 +31,7 @@ from ..outputs.fine_surface import write_slicer_stl
 from .anatomy import BRAIN_SCENE, template_anatomy
 from .carry import index_to_lps, labels_on_patient, ras_affine
 from .position import G, anatomical_gravity, craniotomy_levels, patient_direction
-from .contrast import NAMES as CONTRAST_NAMES, described_contrast, measured_family
+from .contrast import NAMES as CONTRAST_NAMES, described_contrast, disagrees, measured_family
 from .registration import fit_measures, register, shows_head, stripped_region
 from .series import read_t1, series_metadata
 from .skull import inner_skull
@@ -62,8 +62,8 @@ SUPPORT_KEPT = 0.25  # a support with less than this share of its carried voxels
 
 def prepare_command(args) -> int:
     began = time.perf_counter()
-    out = Path(args.output)
-    _check_output(out)
+    _check_output(Path(args.output))
+    out = Path(args.output).resolve()
     position = anatomical_gravity(args.position)
     over_tumour = str(args.craniotomy).strip().lower() in ("tumour", "tumor")
     if over_tumour and not args.tumour:
@@ -136,6 +136,9 @@ def prepare_command(args) -> int:
     log.info("prepare: %s (from %s), measured %s; brain %.2f l, the template explains %.0f %% of the scan's "
              "variance in it (correlation %.2f)", CONTRAST_NAMES.get(described, "contrast not stated"), source,
              measured_family(correlation), litres, 100 * ratio, correlation)
+    if disagrees(described, measured_family(correlation)):
+        log.warning("prepare: the scan was said to be a %s (%s) but measures %s against the T1 template: check "
+                    "--contrast or the series", CONTRAST_NAMES[described], source, measured_family(correlation))
     present = {v: n for v, n in names.items() if np.any(labels == v)}
     problem = _fit_problem(litres, ratio, moved, args.t1)
     if problem and not args.force:
@@ -144,7 +147,7 @@ def prepare_command(args) -> int:
         log.warning("prepare: %s; going on as --force asks (recorded in scene.toml and prepare.json)", problem)
         report["forced"] = problem
 
-    surface_mm = _surface(brain, patient, step=2)[0]
+    surface_mm = _surface(largest_part(brain), patient, step=2)[0]  # (not a tumour's part off the brain)
     up = -_gravity(position, registration)
     if over_tumour:
         centre = over(tumour, patient, surface_mm, up)
@@ -163,7 +166,7 @@ def prepare_command(args) -> int:
         _write_folder(tmp, patient, labels, present, brain, anatomy, registration, args, gravity, levels, tumour,
                       report.get("forced"))
         times["write"] = time.perf_counter() - t
-        report.update(position=args.position, gravity=[round(g, 6) for g in gravity], craniotomy=levels,
+        report.update(status="ok", position=args.position, gravity=[round(g, 6) for g in gravity], craniotomy=levels,
                       labels={n: v for v, n in present.items()}, seconds={k: round(v, 2) for k, v in times.items()},
                       total_seconds=round(time.perf_counter() - began, 2),
                       made=datetime.datetime.now().isoformat(timespec="seconds"))
@@ -178,18 +181,30 @@ def _written_in_place(out: Path):
     """A temporary folder beside OUT, moved into its place when the block ends well (an earlier
     prepare's folder replaced: _check_output), removed otherwise: never half a folder."""
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.resolve().parent))
+    aside = tmp.with_name(tmp.name + ".earlier")
     try:
         tmp.chmod(0o755)  # mkdtemp's is the owner's alone; the folder is the user's to share
         yield tmp
-        if out.exists():
-            shutil.rmtree(out)
-        os.replace(tmp, out)
+        if out.exists():  # the earlier folder set aside, deleted only once the new one is in place
+            os.replace(out, aside)
+        try:
+            os.replace(tmp, out)
+        except OSError:
+            if aside.exists():
+                os.replace(aside, out)
+            raise
     finally:
-        if tmp.exists():
-            shutil.rmtree(tmp)
+        for left in (tmp, aside):
+            if left.exists():
+                shutil.rmtree(left)
 
 
 def _check_output(out: Path) -> None:
+    if out.is_symlink():
+        raise InputError(f"-o: '{out}' is a link; give the folder itself (or a new one)")
+    if Path.cwd().resolve().is_relative_to(out.resolve()):
+        raise InputError(f"-o: '{out}' is the folder you are in (or holds it): it would be replaced; give a new "
+                         f"folder beside it, or run from elsewhere")
     if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not (out / PREPARE_RECORD).is_file())):
         raise InputError(f"-o: '{out}' exists and is not a folder `brainshift prepare` made; give a new folder")
     if not out.resolve().parent.is_dir():
@@ -251,6 +266,9 @@ def _check_segments(path: str, present: list[str], chosen: list[str] | None) -> 
 
 def _tumour_report(tumour: np.ndarray, brain: np.ndarray, patient: sitk.Image) -> dict:
     inside = float((tumour & brain).sum()) / float(tumour.sum())
+    if inside == 0.0:
+        raise InputError("--tumour: none of the tumour lies in the brain found (a segmentation of another scan or "
+                         "structure, or on a flipped grid?); check it over the T1 in 3D Slicer, and give the tumour's")
     if inside < 0.5:
         log.warning("--tumour: only %.0f %% of the tumour lies in the brain found (an extra-axial lesion, or a "
                     "segmentation of another image?); it is meshed with the brain", 100 * inside)
@@ -287,11 +305,15 @@ def _fit_problem(litres: float, ratio: float, moved: float, t1: str) -> str | No
     scan's variance in it the template's anatomy explains (the correlation ratio) against what
     it explains with the registration moved 10 mm (a right registration stands on a peak)."""
     low, high = VOLUME_RANGE
-    if not low <= litres <= high or ratio < MIN_RATIO or ratio - moved < MIN_PEAK:
-        return (f"the registration of the template to '{Path(t1).name}' failed: brain {litres:.2f} l (a brain is "
-                f"{PLAUSIBLE[0]}-{PLAUSIBLE[1]} l), the template's anatomy explains {100 * ratio:.0f} % of the scan's "
-                f"variance in it and {100 * moved:.0f} % moved 10 mm (a fit explains {100 * MIN_RATIO:.0f} % or "
-                f"more, and {100 * MIN_PEAK:.0f} points more than moved)")
+    failed = []
+    if not low <= litres <= high:
+        failed.append(f"the brain found is {litres:.2f} l (a brain is {PLAUSIBLE[0]}-{PLAUSIBLE[1]} l)")
+    if ratio < MIN_RATIO or ratio - moved < MIN_PEAK:
+        failed.append(f"the template's anatomy explains {100 * ratio:.0f} % of the scan's variance in the brain "
+                      f"found and {100 * moved:.0f} % moved 10 mm (a fit explains {100 * MIN_RATIO:.0f} % or more, "
+                      f"and {100 * MIN_PEAK:.0f} points more than moved)")
+    if failed:
+        return f"the registration of the template to '{Path(t1).name}' failed: " + "; ".join(failed)
     if not PLAUSIBLE[0] <= litres <= PLAUSIBLE[1]:
         log.warning("prepare: the brain found is %.2f l, outside an adult's %.1f-%.1f l; check it in 3D Slicer "
                     "(anatomy.seg.nrrd over t1.nii.gz)", litres, *PLAUSIBLE)
@@ -307,9 +329,8 @@ def _refuse(out: Path, patient, labels, present, args, report: dict, problem: st
         report.update(status="refused", refused=problem, made=datetime.datetime.now().isoformat(timespec="seconds"))
         (tmp / PREPARE_RECORD).write_text(json.dumps(report, indent=2) + "\n")
     raise InputError(f"prepare: {problem}{_hints(patient, labels)}. Look at {out / 'overview.png'}: if the outline is "
-                     f"on the brain, go on with --force; if not, is it an MRI of the whole head (T1, post-contrast T1, "
-                     f"T2, FLAIR or PD)? Give --contrast, or a 3-D scan that shows the whole brain down to the brain "
-                     f"stem")
+                     f"on the brain, go on with --force; if not, give an MRI of the whole head (T1, post-contrast T1, "
+                     f"T2, FLAIR or PD), a 3-D scan that shows the whole brain down to the brain stem")
 
 
 THICK_MM = 3.0  # slices thicker than this: a 2-D series

@@ -17,13 +17,15 @@ T1_LIKE = ("t1", "t1c")
 SIGN = 0.2  # |correlation with the T1 template| below this: the measured contrast is unclear
 
 # word patterns in a series description or a file name, first match wins
+# word patterns in a series description or a file name, first match wins; t1/t2 not inside a
+# longer word or number ("patient12", Siemens' "iPAT2")
 _PATTERNS = [
     ("flair", r"flair|\bdark.?fluid"),
     ("pd", r"\bpd\b|pdw|proton"),
-    ("t2", r"t2|space.*t2|\bciss\b|\bfiesta\b"),
-    ("t1c", r"t1c|t1.?ce\b|\bce.?t1|\+ ?c\b|gad|\bgd\b|post.?(gd|contrast|con)|t1.?post|post.?t1|contrast|\bkm\b|"
-            r"\bmdc\b"),
-    ("t1", r"t1|mprage|mp.?rage|spgr|bravo|\btfe\b|\bvibe\b"),
+    ("t1c", r"(?<![a-z0-9])t1c|(?<![a-z0-9])t1.?ce\b|\bce.?t1|\+ ?c\b|gad|\bgd\b|post.?(gd|contrast|con)|"
+            r"(?<![a-z0-9])t1.?post|\bpost.?t1|(?<![a-z0-9])t1.*\bpost\b|contrast|\bkm\b|\bmdc\b"),
+    ("t2", r"(?<![a-z0-9])t2(?![0-9])|space.*t2|\bciss\b|\bfiesta\b"),
+    ("t1", r"(?<![a-z0-9])t1(?![0-9])|mprage|mp.?rage|spgr|bravo|\btfe\b|\bvibe\b"),
 ]
 
 
@@ -53,6 +55,12 @@ def _match(text: str) -> str | None:
         if re.search(pattern, lowered):
             return contrast
     return None
+
+
+def disagrees(contrast: str | None, measured: str) -> bool:
+    """A contrast said (or read) that the measurement contradicts: a T1 measured T2-like, a T2
+    measured T1-like (PD and FLAIR fall either way)."""
+    return (contrast in T1_LIKE and measured == "T2-like") or (contrast == "t2" and measured == "T1-like")
 
 
 def measured_family(correlation: float) -> str:
