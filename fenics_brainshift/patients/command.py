@@ -268,7 +268,8 @@ def _tumour_report(tumour: np.ndarray, brain: np.ndarray, patient: sitk.Image) -
     inside = float((tumour & brain).sum()) / float(tumour.sum())
     if inside == 0.0:
         raise InputError("--tumour: none of the tumour lies in the brain found (a segmentation of another scan or "
-                         "structure, or on a flipped grid?); check it over the T1 in 3D Slicer, and give the tumour's")
+                         "structure, or on a flipped grid?); check it over the T1 in 3D Slicer and give the "
+                         "segmentation drawn on this scan")
     if inside < 0.5:
         log.warning("--tumour: only %.0f %% of the tumour lies in the brain found (an extra-axial lesion, or a "
                     "segmentation of another image?); it is meshed with the brain", 100 * inside)
