@@ -139,7 +139,7 @@ def deformed_picture(out: Path, gravity, level: float | None, path: Path | None 
         on_level = centre + (level - centre @ up) * up
         size = 1.4 * float(np.linalg.norm(hi - lo))
         plane = pv.Plane(center=on_level, direction=up, i_size=size, j_size=size)
-        plotter.add_mesh(plane, color="#3a7bd5", opacity=0.25)
+        plotter.add_mesh(plane, color="#3a7bd5", opacity=0.25, lighting=False)  # (blue seen edge-on too)
     focus = points.mean(axis=0)
     distance = 2.5 * float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
     lift = 0.1 if anatomical else 0.35  # (a slightly raised viewpoint; a patient's seen almost square on)
