@@ -6,7 +6,7 @@ The scans are public and not shipped (their sources, paths and commits: CASES be
 docs/patients.md); put them under DATA as CASES names them. For each prepared case the gate's
 numbers are also measured with the registration deliberately moved (10 mm along each axis in
 turn, and turned 10 degrees about each axis): what a failed registration scores, against which
-prepare's threshold (patients/command.py MIN_RATIO) is set.
+prepare's thresholds (patients/gate.py MIN_RATIO, MIN_PEAK) are set.
 
     OMP_NUM_THREADS=1 python benchmarks/prepare_cases.py --data DATA [--cases vs001,chris_t1] [--chain]
 

@@ -70,7 +70,7 @@ sys.path.insert(0, str(ROOT))
 from fenics_brainshift.bench import machine_line  # noqa: E402
 from fenics_brainshift.data.templates import largest_part, mni_brain_mask, mni_head, mni_t1  # noqa: E402
 from fenics_brainshift.patients.carry import labels_on_patient  # noqa: E402
-from fenics_brainshift.patients.command import MIN_PEAK, MIN_RATIO, PLAUSIBLE  # noqa: E402
+from fenics_brainshift.patients.gate import MIN_PEAK, MIN_RATIO, PLAUSIBLE  # noqa: E402
 from fenics_brainshift.patients.registration import (coarsened, fit_measures, normalised, register,  # noqa: E402
                                                      shows_head)
 from fenics_brainshift.patients.series import read_t1  # noqa: E402

@@ -517,9 +517,9 @@ def test_a_t2_of_the_same_head_finds_the_same_brain(patient, tmp_path):
 def test_force_goes_past_the_gate_and_says_so(patient, tmp_path, monkeypatch, capsys):
     """A gate set out of reach refuses the good synthetic registration; --force writes the scene
     with the reason in its header and in prepare.json."""
-    from fenics_brainshift.patients import command
+    from fenics_brainshift.patients import gate
 
-    monkeypatch.setattr(command, "MIN_RATIO", 0.999)
+    monkeypatch.setattr(gate, "MIN_RATIO", 0.999)
     dicom = str(patient / "dicom")
     assert main(["prepare", dicom, "-o", str(tmp_path / "P"), "--affine-only"]) == 2
     assert not (tmp_path / "P" / "scene.toml").exists() and (tmp_path / "P" / "overview.png").is_file()

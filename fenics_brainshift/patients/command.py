@@ -25,33 +25,22 @@ from scipy import ndimage
 from ..data.templates import largest_part, mni_brain_mask, mni_head, mni_t1
 from ..errors import InputError
 from ..images.frames import LPS_TO_RAS
-from ..images.dicom_seg import is_dicom_seg_path, read_dicom_seg
-from ..images.volumes import label_mask, read_volume, segment_names
 from ..outputs.fine_surface import write_slicer_stl
 from .anatomy import BRAIN_SCENE, template_anatomy
-from .carry import index_to_lps, labels_on_patient, ras_affine
-from .position import G, anatomical_gravity, craniotomy_levels, patient_direction
+from .carry import index_to_lps, labels_on_patient
+from .gate import fit_problem, hints
+from .position import G, anatomical_gravity, craniotomy_levels, over_tumour_centre, patient_direction
 from .contrast import NAMES as CONTRAST_NAMES, described_contrast, disagrees, measured_family
 from .registration import fit_measures, register, shows_head, stripped_region
 from .series import read_t1, series_metadata
 from .skull import inner_skull
+from .tumour import read_tumour, tumour_report
 from .overview import write_overview
 from .slicer import write_segmentation
 
 log = logging.getLogger(__name__)
 
 BRAIN, TUMOUR = 1, 2  # label values; the carried supports follow from 3
-VOLUME_RANGE = (0.6, 2.6)  # litres: a brain found outside this is a failed registration or a unit slip
-PLAUSIBLE = (1.0, 1.7)  # litres: an adult brain; outside it, a warning
-# The gate, whatever the contrast: the template's anatomy must explain at least MIN_RATIO of the
-# scan's variance in the brain found (the correlation ratio, in its part deeper than 10 mm), and
-# MIN_PEAK more than with the registration moved 10 mm along any axis (registration.fit_measures).
-# Measured (benchmarks/results/prepare_cases.md): an absolute threshold alone cannot judge (right
-# registrations by their pictures 0.16-0.65 by contrast and sharpness, a T1's moved 10 mm 0.23);
-# the peak is what a right one has: 0.085 (a 2 mm T1) to 0.42 above its surroundings, a 6.5 mm
-# slab whose registration sits off its peak -0.10
-MIN_RATIO = 0.1
-MIN_PEAK = 0.05
 PREPARE_RECORD = "prepare.json"
 DOWN_SIDE = 0.5  # a craniotomy centre below this share of the brain's height as the head lies: a warning
 SUPPORT = "brain_stem"  # the bundled scene's support that a patient scene fixes (the occipital pin gives way to the skull)
@@ -79,7 +68,7 @@ def prepare_command(args) -> int:
     times = {}
     t = time.perf_counter()
     patient = read_t1(args.t1)
-    tumour = _tumour(args.tumour, patient, args.tumour_segment) if args.tumour else None
+    tumour = read_tumour(args.tumour, patient, args.tumour_segment) if args.tumour else None
     template = sitk.ReadImage(str(mni_t1()), sitk.sitkFloat32)
     template_brain_image = sitk.ReadImage(str(mni_brain_mask()))
     template_brain = sitk.GetArrayFromImage(template_brain_image) > 0
@@ -120,7 +109,7 @@ def prepare_command(args) -> int:
               "supports_moved_mm": {names[v]: d for v, d in moved_supports.items()},
               "registration": registration.stages}
     if tumour is not None:
-        report["tumour"] = _tumour_report(tumour, brain, patient)
+        report["tumour"] = tumour_report(tumour, brain, patient)
         labels[tumour & (labels <= TUMOUR)] = TUMOUR  # a support keeps its voxels (the scene must be held)
         brain |= tumour
         names[TUMOUR] = "tumour"
@@ -140,7 +129,7 @@ def prepare_command(args) -> int:
         log.warning("prepare: the scan was said to be a %s (%s) but measures %s against the T1 template: check "
                     "--contrast or the series", CONTRAST_NAMES[described], source, measured_family(correlation))
     present = {v: n for v, n in names.items() if np.any(labels == v)}
-    problem = _fit_problem(litres, ratio, moved, args.t1)
+    problem = fit_problem(litres, ratio, moved, args.t1)
     if problem and not args.force:
         _refuse(out, patient, labels, present, args, report, problem)
     if problem:
@@ -150,7 +139,7 @@ def prepare_command(args) -> int:
     surface_mm = _surface(largest_part(brain), patient, step=2)[0]  # (not a tumour's part off the brain)
     up = -_gravity(position, registration)
     if over_tumour:
-        centre = over(tumour, patient, surface_mm, up)
+        centre = over_tumour_centre(tumour, patient, surface_mm, up)
     levels = craniotomy_levels(surface_mm, up, centre, args.craniotomy_radius)
     if levels["centre_height"] < DOWN_SIDE:
         log.warning("prepare: the craniotomy at (%s) mm lies on the brain's lower side as the head lies (--position "
@@ -221,62 +210,6 @@ def _point(text: str, what: str) -> np.ndarray:
     return np.array(values)
 
 
-def _tumour(path: str, patient: sitk.Image, segments: str | None) -> np.ndarray:
-    """The tumour segmentation's voxels ([k, j, i]) on the T1's grid: a DICOM-SEG (placed by its
-    frames' positions), a NIfTI or a (.seg).nrrd; the segments named by ``segments`` (names or
-    label values, comma-separated), needed when the file holds more than one; refused on
-    another grid."""
-    chosen = [s.strip() for s in segments.split(",") if s.strip()] if segments is not None else None
-    if chosen == []:
-        raise InputError(f"--tumour-segment: '{segments}' names no segment; give names or label values, "
-                         f"comma-separated")
-    if is_dicom_seg_path(path):
-        by_name = read_dicom_seg(path, patient, "--tumour")
-        names = list(by_name)
-        _check_segments(path, names, chosen)
-        unknown = [s for s in chosen or [] if s not in by_name]
-        if unknown:
-            raise InputError(f"--tumour-segment: no segment '{unknown[0]}' in '{Path(path).name}'; its segments: "
-                             + ", ".join(f"'{n}'" for n in names))
-        mask = np.logical_or.reduce([by_name[n] for n in (chosen or names)])
-    else:
-        volume = read_volume(path, "--tumour", layered=True)
-        size = tuple(patient.GetSize())
-        if volume.data.shape != size or not np.allclose(volume.affine, ras_affine(patient), atol=1e-3):
-            raise InputError(f"--tumour: '{Path(path).name}' is on another grid than the T1 ({volume.data.shape} "
-                             f"against {size}, or another origin, spacing or orientation); export it from 3D "
-                             f"Slicer with the T1 as reference geometry")
-        present = segment_names(volume) or [str(v) for v in np.unique(volume.data) if v > 0]
-        _check_segments(path, present, chosen)
-        mask = np.transpose(label_mask(volume, chosen, "--tumour-segment"), (2, 1, 0))
-    if not mask.any():
-        raise InputError(f"--tumour: '{Path(path).name}' has no labelled voxel"
-                         + (f" in {', '.join(chosen)}" if chosen else ""))
-    return np.ascontiguousarray(mask)
-
-
-def _check_segments(path: str, present: list[str], chosen: list[str] | None) -> None:
-    """A file with several segments (a tumour's core and oedema, or brain and tumour) is not
-    taken whole: the user says which are the tumour."""
-    if chosen is None and len(present) > 1:
-        raise InputError(f"--tumour: '{Path(path).name}' holds {len(present)} segments ("
-                         + ", ".join(f"'{n}'" for n in present)
-                         + "); say which are the tumour with --tumour-segment NAME[,NAME]")
-
-
-def _tumour_report(tumour: np.ndarray, brain: np.ndarray, patient: sitk.Image) -> dict:
-    inside = float((tumour & brain).sum()) / float(tumour.sum())
-    if inside == 0.0:
-        raise InputError("--tumour: none of the tumour lies in the brain found (a segmentation of another scan or "
-                         "structure, or on a flipped grid?); check it over the T1 in 3D Slicer and give the "
-                         "segmentation drawn on this scan")
-    if inside < 0.5:
-        log.warning("--tumour: only %.0f %% of the tumour lies in the brain found (an extra-axial lesion, or a "
-                    "segmentation of another image?); it is meshed with the brain", 100 * inside)
-    return {"ml": round(float(tumour.sum()) * float(np.prod(patient.GetSpacing())) * 1e-3, 3),
-            "inside_brain": round(inside, 4)}
-
-
 def _keep_supports(labels: np.ndarray, carried: np.ndarray, brain: np.ndarray, patient: sitk.Image,
                    tumour: np.ndarray | None) -> dict:
     """A support the brain found lost (the brain stem below a skull stripping's or a field of
@@ -301,26 +234,6 @@ def _keep_supports(labels: np.ndarray, carried: np.ndarray, brain: np.ndarray, p
     return moved
 
 
-def _fit_problem(litres: float, ratio: float, moved: float, t1: str) -> str | None:
-    """Why the registration is refused, or None: the brain found's volume, and how much of the
-    scan's variance in it the template's anatomy explains (the correlation ratio) against what
-    it explains with the registration moved 10 mm (a right registration stands on a peak)."""
-    low, high = VOLUME_RANGE
-    failed = []
-    if not low <= litres <= high:
-        failed.append(f"the brain found is {litres:.2f} l (a brain is {PLAUSIBLE[0]}-{PLAUSIBLE[1]} l)")
-    if ratio < MIN_RATIO or ratio - moved < MIN_PEAK:
-        failed.append(f"the template's anatomy explains {100 * ratio:.0f} % of the scan's variance in the brain "
-                      f"found and {100 * moved:.0f} % moved 10 mm (a fit explains {100 * MIN_RATIO:.0f} % or more, "
-                      f"and {100 * MIN_PEAK:.0f} points more than moved)")
-    if failed:
-        return f"the registration of the template to '{Path(t1).name}' failed: " + "; ".join(failed)
-    if not PLAUSIBLE[0] <= litres <= PLAUSIBLE[1]:
-        log.warning("prepare: the brain found is %.2f l, outside an adult's %.1f-%.1f l; check it in 3D Slicer "
-                    "(anatomy.seg.nrrd over t1.nii.gz)", litres, *PLAUSIBLE)
-    return None
-
-
 def _refuse(out: Path, patient, labels, present, args, report: dict, problem: str) -> None:
     """The folder gets the picture of what was found and prepare.json (status "refused"), no
     scene; then the one line that says what to try."""
@@ -329,36 +242,9 @@ def _refuse(out: Path, patient, labels, present, args, report: dict, problem: st
                        f"{Path(args.t1).name}: REFUSED, the brain found and the carried labels")
         report.update(status="refused", refused=problem, made=datetime.datetime.now().isoformat(timespec="seconds"))
         (tmp / PREPARE_RECORD).write_text(json.dumps(report, indent=2) + "\n")
-    raise InputError(f"prepare: {problem}{_hints(patient, labels)}. Look at {out / 'overview.png'}: if the outline is "
+    raise InputError(f"prepare: {problem}{hints(patient, labels)}. Look at {out / 'overview.png'}: if the outline is "
                      f"on the brain, go on with --force; if not, give an MRI of the whole head (T1, post-contrast T1, "
                      f"T2, FLAIR or PD), a 3-D scan that shows the whole brain down to the brain stem")
-
-
-THICK_MM = 3.0  # slices thicker than this: a 2-D series
-
-
-def _hints(patient: sitk.Image, labels: np.ndarray) -> str:
-    """What about the scan may have made the registration fail: thick slices, the brain found
-    running off the scan's edge."""
-    hints = []
-    thickest = max(patient.GetSpacing())
-    if thickest > THICK_MM:
-        hints.append(f"its voxels are {thickest:.1f} mm along one axis (a 2-D series; the 3-D one, 1-1.5 mm, "
-                     f"registers better)")
-    brain = labels > 0
-    if brain.any() and any(np.any(np.take(brain, i, axis=a)) for a in range(3) for i in (0, -1)):
-        hints.append("the brain found runs off the scan's edge (its field of view cuts the head)")
-    return "; " + " and ".join(hints) if hints else ""
-
-
-def over(tumour: np.ndarray, patient: sitk.Image, surface_ras_mm: np.ndarray, up: np.ndarray) -> np.ndarray:
-    """The craniotomy's centre over the tumour: the brain surface's point nearest to the
-    tumour's centroid among those above it as the head lies (RAS mm)."""
-    centroid = index_to_lps(patient, np.argwhere(tumour)[:, ::-1].mean(axis=0)[None, :])[0] @ LPS_TO_RAS
-    heights = surface_ras_mm @ (up / np.linalg.norm(up))
-    above = surface_ras_mm[heights >= centroid @ (up / np.linalg.norm(up))]
-    candidates = above if len(above) else surface_ras_mm
-    return candidates[int(np.argmin(np.linalg.norm(candidates - centroid, axis=1)))]
 
 
 def _gravity(position: np.ndarray, registration) -> np.ndarray:

@@ -16,6 +16,7 @@ from scipy.spatial.transform import Rotation
 
 from ..errors import InputError
 from ..images.frames import LPS_TO_RAS
+from .carry import index_to_lps
 
 G = 9.81
 POSITIONS = {"supine": (0.0, -1.0, 0.0), "prone": (0.0, 1.0, 0.0), "left": (-1.0, 0.0, 0.0), "right": (1.0, 0.0, 0.0)}
@@ -76,3 +77,13 @@ def craniotomy_levels(surface_ras_mm: np.ndarray, up: np.ndarray, centre: np.nda
             "brain_top_above_rim_mm": round(float(heights.max()) - rim_level, 2),
             "brain_bottom_above_rim_mm": round(float(heights.min()) - rim_level, 2),
             "centre_height": round(float((heights[at] - heights.min()) / max(np.ptp(heights), 1e-9)), 3)}
+
+
+def over_tumour_centre(tumour: np.ndarray, patient, surface_ras_mm: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """The craniotomy's centre over the tumour: the brain surface's point nearest to the
+    tumour's centroid among those above it as the head lies (RAS mm)."""
+    centroid = index_to_lps(patient, np.argwhere(tumour)[:, ::-1].mean(axis=0)[None, :])[0] @ LPS_TO_RAS
+    heights = surface_ras_mm @ (up / np.linalg.norm(up))
+    above = surface_ras_mm[heights >= centroid @ (up / np.linalg.norm(up))]
+    candidates = above if len(above) else surface_ras_mm
+    return candidates[int(np.argmin(np.linalg.norm(candidates - centroid, axis=1)))]
