@@ -279,7 +279,7 @@ def _bench(args, comm) -> int:
 def _compare(args, comm) -> int:
     from .outputs.compare_command import compare_command
 
-    return compare_command(args, comm)
+    return _report(compare_command(args, comm), comm)
 
 
 def _warp(args, comm) -> int:

@@ -12,12 +12,13 @@ from .files import check_writable
 from .metrics import compare
 
 
-def compare_command(args, comm) -> int:
-    """`brainshift compare` (arguments: cli.py): rank 0 measures, prints and writes."""
+def compare_command(args, comm) -> list[str]:
+    """`brainshift compare` (arguments: cli.py): rank 0 measures and writes; returns the
+    report's lines (the CLI prints them on rank 0)."""
     out = Path(args.output)
     check_writable(out.parent, comm, "folder of -o", "-o")
     if comm.rank != 0:
-        return 0
+        return []
     for name in (args.pre, args.intra, args.sim):
         if not Path(name).is_file():
             raise InputError(f"compare: '{name}' not found")
@@ -34,21 +35,23 @@ def compare_command(args, comm) -> int:
         raise InputError(f"compare: {exc}") from None
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({"units": "m", **result}, indent=1) + "\n")
+    lines = []
     for name in ("A", "B"):
         r = result[name]
         e = ["-" if v is None else f"{v:.0f}" for v in r["error_percent_vs_d_mri"]]
-        print(f"node {name}: d_MRI {np.round(np.array(r['d_mri']) * 1e3, 2)} mm, d_Sim "
-              f"{np.round(np.array(r['d_sim']) * 1e3, 2)} mm, Error % x {e[0]}, y {e[1]}, z {e[2]}, norm {e[3]}")
+        lines.append(f"node {name}: d_MRI {np.round(np.array(r['d_mri']) * 1e3, 2)} mm, d_Sim "
+                     f"{np.round(np.array(r['d_sim']) * 1e3, 2)} mm, Error % x {e[0]}, y {e[1]}, z {e[2]}, "
+                     f"norm {e[3]}")
     if "surface_error" in result:
         se = result["surface_error"]
-        print(f"surface error along {se['height_axis']} ({se['grid_points']} grid points): max {se['max'] * 1e3:.2f}, "
-              f"min {se['min'] * 1e3:.2f}, mean {se['mean'] * 1e3:.2f}, median {se['median'] * 1e3:.2f}, "
-              f"MAE {se['mae'] * 1e3:.2f} mm")
+        lines.append(f"surface error along {se['height_axis']} ({se['grid_points']} grid points): max "
+                     f"{se['max'] * 1e3:.2f}, min {se['min'] * 1e3:.2f}, mean {se['mean'] * 1e3:.2f}, median "
+                     f"{se['median'] * 1e3:.2f}, MAE {se['mae'] * 1e3:.2f} mm")
         from .pictures import surface_error_plot
 
         surface_error_plot(out.with_suffix(".png"), se)
-    print(f"wrote {out}")
-    return 0
+    lines.append(f"wrote {out}")
+    return lines
 
 
 def check_scales(surfaces, scales) -> None:
