@@ -9,7 +9,7 @@ export OMPI_ALLOW_RUN_AS_ROOT_CONFIRM := 1
 # One thread per MPI rank: the solvers are MPI-parallel, BLAS threads only oversubscribe.
 export OMP_NUM_THREADS := 1
 
-.PHONY: install demo test test-serial test-mpi test-debian13 docker bench clean
+.PHONY: install demo test test-serial test-mpi lint format test-debian13 docker bench clean
 
 install:
 	@scripts/install.sh
@@ -25,6 +25,15 @@ test-serial:
 
 test-mpi:
 	mpirun -n 2 --oversubscribe $(PY) -m pytest -q -p no:cacheprovider -m mpi tests
+
+# ruff's lint and format check (rules in pyproject.toml); `make format` rewrites in place.
+lint: install
+	$(PY) -m ruff check .
+	$(PY) -m ruff format --check .
+
+format: install
+	$(PY) -m ruff check --fix --exit-zero --quiet .
+	$(PY) -m ruff format .
 
 # The same suite on DOLFINx 0.9 in a Debian 13 root filesystem (needs root; cached).
 test-debian13:

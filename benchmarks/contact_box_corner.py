@@ -4,12 +4,13 @@ base, gravity tilted by --angles degrees toward +x, inside a 12-triangle box 1 m
 face (tests/test_contact_solvers.py's scene), linear and neo-Hookean. For each lean: whether
 the settled state is found, in what time, and at the state Newton ended in the pressed nodes
 within 0.5 mm of two walls: where they started, how far each is inside the walls it presses
-(negative: past), and the contact pressure vector on it. Until the multiplier became a vector
-(session 27) the linear block stopped at all three angles (this file at commit 797ca56).
+(negative: past), and the contact pressure vector on it. With a scalar multiplier the linear
+block stopped at all three angles (this file at commit 797ca56).
 Writes benchmarks/results/contact_box_corner.md. One rank.
 
     python benchmarks/contact_box_corner.py [--angles 20,46,90] [--models linear,neo-hookean]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -39,8 +40,9 @@ WALLS = ("x = -1 mm", "x = L + 1 mm", "y = -1 mm", "y = L + 1 mm", "z = H + 1 mm
 def box(path: Path) -> str:
     """The closed box GAP around the block (12 triangles, outward normals)."""
     (x0, y0, z0), (x1, y1, z1) = (-GAP, -GAP, -GAP), (L + GAP, L + GAP, H + GAP)
-    P = np.array([[x0, y0, z0], [x1, y0, z0], [x1, y1, z0], [x0, y1, z0],
-                  [x0, y0, z1], [x1, y0, z1], [x1, y1, z1], [x0, y1, z1]])
+    P = np.array(
+        [[x0, y0, z0], [x1, y0, z0], [x1, y1, z0], [x0, y1, z0], [x0, y0, z1], [x1, y0, z1], [x1, y1, z1], [x0, y1, z1]]
+    )
     quads = [[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [2, 3, 7, 6], [1, 2, 6, 5], [0, 4, 7, 3]]
     tris = [[q[0], q[1], q[2]] for q in quads] + [[q[0], q[2], q[3]] for q in quads]
     meshio.write(str(path), meshio.Mesh(P, [("triangle", np.array(tris))]), binary=True)
@@ -49,10 +51,14 @@ def box(path: Path) -> str:
 
 def lean(angle_deg: float, skull: str, model: str) -> dict:
     a = np.radians(angle_deg)
-    data = {"mesh": {"shape": "box", "size": [L, L, H], "cells": [6, 6, 3]},
-            "material": {"E": 729.0, "nu": 0.48, "density": 1048.0, "model": model},
-            "gravity": {"vector": [9.81 * np.sin(a), 0.0, -9.81 * np.cos(a)]},
-            "fixed": [{"where": "z < 1e-9"}], "time": {"mode": "quasi-static"}, "skull": {"file": skull}}
+    data = {
+        "mesh": {"shape": "box", "size": [L, L, H], "cells": [6, 6, 3]},
+        "material": {"E": 729.0, "nu": 0.48, "density": 1048.0, "model": model},
+        "gravity": {"vector": [9.81 * np.sin(a), 0.0, -9.81 * np.cos(a)]},
+        "fixed": [{"where": "z < 1e-9"}],
+        "time": {"mode": "quasi-static"},
+        "skull": {"file": skull},
+    }
     sim = Simulation(scene_from_dict(data), MPI.COMM_WORLD)
     sim.setup()
     t = time.perf_counter()
@@ -71,11 +77,25 @@ def lean(angle_deg: float, skull: str, model: str) -> dict:
     rows = []
     for i in corner:
         two = np.argsort(room[i])[:2]
-        rows.append({"start_mm": contact.X[i] * 1e3, "walls": [WALLS[w] for w in two],
-                     "room_um": room[i, two] * 1e6, "pressure": state.p[i] * normal[i]})
+        rows.append(
+            {
+                "start_mm": contact.X[i] * 1e3,
+                "walls": [WALLS[w] for w in two],
+                "room_um": room[i, two] * 1e6,
+                "pressure": state.p[i] * normal[i],
+            }
+        )
     deepest = contact.penetration(sim.u)
     sim.destroy()
-    return {"model": model, "deepest": deepest, "angle": angle_deg, "outcome": outcome, "seconds": seconds, "pressed": int(pressed.sum()), "corner": rows}
+    return {
+        "model": model,
+        "deepest": deepest,
+        "angle": angle_deg,
+        "outcome": outcome,
+        "seconds": seconds,
+        "pressed": int(pressed.sum()),
+        "corner": rows,
+    }
 
 
 def main() -> None:
@@ -87,24 +107,33 @@ def main() -> None:
     folder = Path(tempfile.mkdtemp(prefix="brainshift-box-"))
     skull = box(folder / "box.stl")
     results = [lean(float(a), skull, m) for m in args.models.split(",") for a in args.angles.split(",")]
-    lines = ["# A cube leaning into a closed box 1 mm around it: nodes pressed by two walls", "",
-             f"{machine_line()}; one rank; `python benchmarks/contact_box_corner.py --angles {args.angles} --models "
-             f"{args.models}`. The paper's gelatin block, fixed at its base, gravity tilted toward +x; the skull a "
-             "12-triangle box 1 mm from every face, [skull] tolerance 1e-5 m. Time: the settled state's solve. "
-             f"Corner nodes: pressed nodes within {NEAR * 1e3:g} mm of two walls at the state Newton ended in; "
-             "room: how far inside each wall (negative: past it); pressure: the contact pressure vector on the "
-             "node (Pa).", ""]
+    lines = [
+        "# A cube leaning into a closed box 1 mm around it: nodes pressed by two walls",
+        "",
+        f"{machine_line()}; one rank; `python benchmarks/contact_box_corner.py --angles {args.angles} --models "
+        f"{args.models}`. The paper's gelatin block, fixed at its base, gravity tilted toward +x; the skull a "
+        "12-triangle box 1 mm from every face, [skull] tolerance 1e-5 m. Time: the settled state's solve. "
+        f"Corner nodes: pressed nodes within {NEAR * 1e3:g} mm of two walls at the state Newton ended in; "
+        "room: how far inside each wall (negative: past it); pressure: the contact pressure vector on the "
+        "node (Pa).",
+        "",
+    ]
     for r in results:
-        lines += [f"## {r['model']}, {r['angle']:g} degrees: {r['outcome']} ({r['seconds']:.2f} s, "
-                  f"{r['pressed']} pressed nodes, deepest {r['deepest'] * 1e6:.2f} um past the skull)", ""]
+        lines += [
+            f"## {r['model']}, {r['angle']:g} degrees: {r['outcome']} ({r['seconds']:.2f} s, "
+            f"{r['pressed']} pressed nodes, deepest {r['deepest'] * 1e6:.2f} um past the skull)",
+            "",
+        ]
         if not r["corner"]:
             lines += ["No pressed node within 0.5 mm of two walls.", ""]
             continue
         lines += ["| start (mm) | walls | room (um) | pressure (Pa) |", "|---|---|---|---|"]
         for c in r["corner"]:
-            lines.append(f"| {', '.join(f'{v:.1f}' for v in c['start_mm'])} | {' and '.join(c['walls'])} | "
-                         f"{', '.join(f'{v:.1f}' for v in c['room_um'])} | "
-                         f"({', '.join(f'{v:.1f}' for v in c['pressure'])}) |")
+            lines.append(
+                f"| {', '.join(f'{v:.1f}' for v in c['start_mm'])} | {' and '.join(c['walls'])} | "
+                f"{', '.join(f'{v:.1f}' for v in c['room_um'])} | "
+                f"({', '.join(f'{v:.1f}' for v in c['pressure'])}) |"
+            )
         lines.append("")
     out = ROOT / "benchmarks" / "results" / "contact_box_corner.md"
     out.write_text("\n".join(lines))

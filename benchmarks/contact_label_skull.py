@@ -6,12 +6,13 @@ here from meshes/mni152_brain_mask_2mm.nii.gz by a distance transform; `[skull] 
 the skull, which holds it over a large area with its staircase of voxels. Settled states at
 the schedule's breakpoints (quasi-static), linear and neo-Hookean: whether each run settles,
 its solve time, the deepest node past the skull, the multiplier updates, the force the skull
-carries and the run's validity (largest strain, rotation). Until the contact's multiplier
-became a vector (session 27) the linear run stopped at t = 10 s (session 20).
+carries and the run's validity (largest strain, rotation). With a scalar contact multiplier
+(not a pressure vector) the linear run stopped at t = 10 s.
 Writes benchmarks/results/contact_label_skull.md. One rank.
 
     python benchmarks/contact_label_skull.py [--models linear,neo-hookean]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -22,7 +23,6 @@ from pathlib import Path
 
 import nibabel as nib
 import numpy as np
-from mpi4py import MPI
 from scipy import ndimage
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -66,12 +66,19 @@ def one(label_file: Path, model: str, out: Path) -> dict:
     seconds = time.perf_counter() - t
     s = result.summary
     contact, validity = s.get("skull_contact", {}), s.get("validity", {})
-    return {"model": model, "status": s["status"], "final_time": s.get("final_time"), "seconds": seconds,
-            "deepest_um": contact.get("max_penetration_m", float("nan")) * 1e6,
-            "updates": contact.get("multiplier_updates"), "force_N": contact.get("force_N", [np.nan] * 3),
-            "strain": validity.get("max_green_lagrange_strain", np.nan),
-            "past": validity.get("volume_past_limit", np.nan), "rotation": validity.get("max_rotation_deg", np.nan),
-            "max_mm": s.get("max_displacement_m", np.nan) * 1e3}
+    return {
+        "model": model,
+        "status": s["status"],
+        "final_time": s.get("final_time"),
+        "seconds": seconds,
+        "deepest_um": contact.get("max_penetration_m", float("nan")) * 1e6,
+        "updates": contact.get("multiplier_updates"),
+        "force_N": contact.get("force_N", [np.nan] * 3),
+        "strain": validity.get("max_green_lagrange_strain", np.nan),
+        "past": validity.get("volume_past_limit", np.nan),
+        "rotation": validity.get("max_rotation_deg", np.nan),
+        "max_mm": s.get("max_displacement_m", np.nan) * 1e3,
+    }
 
 
 def main() -> None:
@@ -82,19 +89,25 @@ def main() -> None:
     folder = Path(tempfile.mkdtemp(prefix="brainshift-label-skull-"))
     label_file = labels(folder)
     rows = [one(label_file, m, folder / m) for m in args.models.split(",")]
-    lines = ["# The bundled brain on a label skull, held at the brain stem alone", "",
-             f"{machine_line()}; one rank; `python benchmarks/contact_label_skull.py --models {args.models}`. "
-             f"The MNI brain at 5 mm voxels, supine, drained from 85 to 30 mm, held at the brain stem only, inside "
-             f"the boundary of the mask and a CSF label {CSF_MM:g} mm around it (`[skull] label = [1, 2]`), "
-             "[skull] tolerance 1e-5 m; settled states at the schedule's breakpoints. Time: the whole run. "
-             "Strain: the largest Green-Lagrange principal strain; past 5 %: the volume's fraction.", "",
-             "| model | status | reached t (s) | time (s) | deepest past the skull (um) | multiplier updates | "
-             "skull's force (N) | max u (mm) | strain | past 5 % | rotation (deg) |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "# The bundled brain on a label skull, held at the brain stem alone",
+        "",
+        f"{machine_line()}; one rank; `python benchmarks/contact_label_skull.py --models {args.models}`. "
+        f"The MNI brain at 5 mm voxels, supine, drained from 85 to 30 mm, held at the brain stem only, inside "
+        f"the boundary of the mask and a CSF label {CSF_MM:g} mm around it (`[skull] label = [1, 2]`), "
+        "[skull] tolerance 1e-5 m; settled states at the schedule's breakpoints. Time: the whole run. "
+        "Strain: the largest Green-Lagrange principal strain; past 5 %: the volume's fraction.",
+        "",
+        "| model | status | reached t (s) | time (s) | deepest past the skull (um) | multiplier updates | "
+        "skull's force (N) | max u (mm) | strain | past 5 % | rotation (deg) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for r in rows:
-        lines.append(f"| {r['model']} | {r['status']} | {r['final_time']} | {r['seconds']:.1f} | {r['deepest_um']:.2f} | "
-                     f"{r['updates']} | ({', '.join(f'{v:.3f}' for v in r['force_N'])}) | {r['max_mm']:.2f} | "
-                     f"{r['strain']:.3f} | {r['past'] * 100:.1f} % | {r['rotation']:.1f} |")
+        lines.append(
+            f"| {r['model']} | {r['status']} | {r['final_time']} | {r['seconds']:.1f} | {r['deepest_um']:.2f} | "
+            f"{r['updates']} | ({', '.join(f'{v:.3f}' for v in r['force_N'])}) | {r['max_mm']:.2f} | "
+            f"{r['strain']:.3f} | {r['past'] * 100:.1f} % | {r['rotation']:.1f} |"
+        )
     out = ROOT / "benchmarks" / "results" / "contact_label_skull.md"
     out.write_text("\n".join(lines) + "\n")
     print(f"wrote {out}")

@@ -12,6 +12,7 @@ benchmarks/results/hyperelastic.{csv,md}.
 
     python benchmarks/hyperelastic.py [--voxels 0.008 0.005]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -34,9 +35,11 @@ from fenics_brainshift.runner import Simulation  # noqa: E402
 from fenics_brainshift.stepping.newton import NewtonStatic  # noqa: E402
 
 CONFIGS = [("linear", "fixed point (Anderson)"), ("linear", "Newton"), ("neo-hookean", "Newton")]
-STEP_CONFIGS = [("linear", "fluid.follower=false", "no follower load (baseline)"),
-                ("linear", "fluid.follower=true", "follower, fixed point"),
-                ("neo-hookean", "fluid.follower=true", "follower, Newton")]
+STEP_CONFIGS = [
+    ("linear", "fluid.follower=false", "no follower load (baseline)"),
+    ("linear", "fluid.follower=true", "follower, fixed point"),
+    ("neo-hookean", "fluid.follower=true", "follower, Newton"),
+]
 STEPS = 15
 TOLERANCES = (1e-6, 1e-5, 1e-4, 1e-3)
 
@@ -52,8 +55,12 @@ def dynamic_step(voxel: float, model: str, follower: str) -> dict:
         t0 = time.perf_counter()
         sim.step()
         times.append(time.perf_counter() - t0)
-    row = {"step_ms": round(1e3 * statistics.median(times), 2), "solves_per_step": (sim.solves.count - solves) / STEPS,
-           "factorisations": sim.solves.factors - factors, "cuts": getattr(sim.dynamic, "cuts", 0)}
+    row = {
+        "step_ms": round(1e3 * statistics.median(times), 2),
+        "solves_per_step": (sim.solves.count - solves) / STEPS,
+        "factorisations": sim.solves.factors - factors,
+        "cuts": getattr(sim.dynamic, "cuts", 0),
+    }
     sim.destroy()
     return row
 
@@ -74,9 +81,15 @@ def follower_tolerance_sweep(voxel: float) -> list[dict]:
             path.append(sim.probe_values()[0].copy())
         path = np.array(path)
         reference = path if reference is None else reference
-        rows.append({"follower_tol": tol, "step_ms": round(1e3 * statistics.median(times), 2),
-                     "solves": sim.solves.count, "pole_deviation_um": float(np.abs(path - reference).max() * 1e6),
-                     "pole_final_mm": float(np.linalg.norm(path[-1]) * 1e3)})
+        rows.append(
+            {
+                "follower_tol": tol,
+                "step_ms": round(1e3 * statistics.median(times), 2),
+                "solves": sim.solves.count,
+                "pole_deviation_um": float(np.abs(path - reference).max() * 1e6),
+                "pole_final_mm": float(np.linalg.norm(path[-1]) * 1e3),
+            }
+        )
         sim.destroy()
     return rows
 
@@ -94,12 +107,20 @@ def measure(voxel: float, model: str, method: str) -> dict:
     sim.solve_to_settled(10.0)  # the drained state, from rest
     solve = time.perf_counter() - t0
     newton = getattr(sim.static, "history", None)
-    row = {"voxel_mm": voxel * 1e3, "nodes": sim.model.sizes()["nodes"], "model": model, "method": method,
-           "setup_s": round(setup, 3), "final_shift_s": round(solve, 3), "linear_solves": sim.solves.count,
-           "factorisations": sim.solves.factors, "krylov_iterations": sum(sim.solves.iterations),
-           "newton_iterations": len(newton) - 1 if newton else "",
-           "max_shift_mm": round(sim.state.max_displacement() * 1e3, 3),
-           "frontal_pole_mm": round(float(np.linalg.norm(sim.probe_values()[0])) * 1e3, 3)}
+    row = {
+        "voxel_mm": voxel * 1e3,
+        "nodes": sim.model.sizes()["nodes"],
+        "model": model,
+        "method": method,
+        "setup_s": round(setup, 3),
+        "final_shift_s": round(solve, 3),
+        "linear_solves": sim.solves.count,
+        "factorisations": sim.solves.factors,
+        "krylov_iterations": sum(sim.solves.iterations),
+        "newton_iterations": len(newton) - 1 if newton else "",
+        "max_shift_mm": round(sim.state.max_displacement() * 1e3, 3),
+        "frontal_pole_mm": round(float(np.linalg.norm(sim.probe_values()[0])) * 1e3, 3),
+    }
     sim.destroy()
     return row
 
@@ -126,8 +147,13 @@ def main(argv=None) -> None:
         base = None
         for model, follower, label in STEP_CONFIGS:
             runs = [dynamic_step(voxel, model, follower) for _ in range(args.repeat)]
-            row = {"voxel_mm": voxel * 1e3, "model": model, "load": label, **runs[-1],
-                   "step_ms": statistics.median(r["step_ms"] for r in runs)}
+            row = {
+                "voxel_mm": voxel * 1e3,
+                "model": model,
+                "load": label,
+                **runs[-1],
+                "step_ms": statistics.median(r["step_ms"] for r in runs),
+            }
             base = base or row["step_ms"]
             row["ratio"] = round(row["step_ms"] / base, 2)
             steps.append(row)
@@ -140,38 +166,50 @@ def main(argv=None) -> None:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
-    lines = ["# Newton, hyperelasticity and the fixed-point iteration on the bundled brain\n",
-             f"{machine_line()}; DOLFINx {DOLFINX_VERSION}; one rank; `python benchmarks/hyperelastic.py`; "
-             f"median of {args.repeat} runs.\n",
-             "## The settled state\n",
-             "Quasi-static, follower CSF load, the settled state after the drain (t = 10 s) solved from rest; "
-             "setup = mesh, forms, the factor of K.\n",
-             "| voxel (mm) | nodes | model | method | setup (s) | final shift (s) | solves | factorisations | "
-             "Krylov its | Newton its | largest shift (mm) | frontal pole (mm) |",
-             "|---:|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    lines = [
+        "# Newton, hyperelasticity and the fixed-point iteration on the bundled brain\n",
+        f"{machine_line()}; DOLFINx {DOLFINX_VERSION}; one rank; `python benchmarks/hyperelastic.py`; "
+        f"median of {args.repeat} runs.\n",
+        "## The settled state\n",
+        "Quasi-static, follower CSF load, the settled state after the drain (t = 10 s) solved from rest; "
+        "setup = mesh, forms, the factor of K.\n",
+        "| voxel (mm) | nodes | model | method | setup (s) | final shift (s) | solves | factorisations | "
+        "Krylov its | Newton its | largest shift (mm) | frontal pole (mm) |",
+        "|---:|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
     for r in rows:
-        lines.append(f"| {r['voxel_mm']:g} | {r['nodes']} | {r['model']} | {r['method']} | {r['setup_s']:.2f} | "
-                     f"{r['final_shift_s']:.2f} | {r['linear_solves']} | {r['factorisations']} | "
-                     f"{r['krylov_iterations']} | {r['newton_iterations']} | {r['max_shift_mm']:.2f} | "
-                     f"{r['frontal_pole_mm']:.2f} |")
-    lines += ["\n## One dynamic step\n",
-              f"The brain demo (Newmark, dt = 0.2 s), the median of its first {STEPS} steps (the drain, when the "
-              f"surface moves most); ratio to the linear step without follower loading at the same voxel size; "
-              f"follower_tol at its default.\n",
-              "| voxel (mm) | model | load | step (ms) | ratio | solves per step | factorisations | steps cut |",
-              "|---:|---|---|---:|---:|---:|---:|---:|"]
+        lines.append(
+            f"| {r['voxel_mm']:g} | {r['nodes']} | {r['model']} | {r['method']} | {r['setup_s']:.2f} | "
+            f"{r['final_shift_s']:.2f} | {r['linear_solves']} | {r['factorisations']} | "
+            f"{r['krylov_iterations']} | {r['newton_iterations']} | {r['max_shift_mm']:.2f} | "
+            f"{r['frontal_pole_mm']:.2f} |"
+        )
+    lines += [
+        "\n## One dynamic step\n",
+        f"The brain demo (Newmark, dt = 0.2 s), the median of its first {STEPS} steps (the drain, when the "
+        f"surface moves most); ratio to the linear step without follower loading at the same voxel size; "
+        f"follower_tol at its default.\n",
+        "| voxel (mm) | model | load | step (ms) | ratio | solves per step | factorisations | steps cut |",
+        "|---:|---|---|---:|---:|---:|---:|---:|",
+    ]
     for r in steps:
-        lines.append(f"| {r['voxel_mm']:g} | {r['model']} | {r['load']} | {r['step_ms']:.1f} | {r['ratio']:.1f} | "
-                     f"{r['solves_per_step']:.1f} | {r['factorisations']} | {r['cuts']} |")
-    lines += ["\n## The follower tolerance\n",
-              f"The linear {args.voxels[0] * 1e3:g} mm brain demo, all 80 steps, at each `[fluid] follower_tol`; "
-              f"deviation: the largest distance between the frontal pole's path and the one at "
-              f"{TOLERANCES[0]:g}, over every step.\n",
-              "| follower_tol | step (ms) | solves | pole deviation (um) | frontal pole at 16 s (mm) |",
-              "|---:|---:|---:|---:|---:|"]
+        lines.append(
+            f"| {r['voxel_mm']:g} | {r['model']} | {r['load']} | {r['step_ms']:.1f} | {r['ratio']:.1f} | "
+            f"{r['solves_per_step']:.1f} | {r['factorisations']} | {r['cuts']} |"
+        )
+    lines += [
+        "\n## The follower tolerance\n",
+        f"The linear {args.voxels[0] * 1e3:g} mm brain demo, all 80 steps, at each `[fluid] follower_tol`; "
+        f"deviation: the largest distance between the frontal pole's path and the one at "
+        f"{TOLERANCES[0]:g}, over every step.\n",
+        "| follower_tol | step (ms) | solves | pole deviation (um) | frontal pole at 16 s (mm) |",
+        "|---:|---:|---:|---:|---:|",
+    ]
     for r in sweep:
-        lines.append(f"| {r['follower_tol']:g} | {r['step_ms']:.1f} | {r['solves']} | {r['pole_deviation_um']:.3f} | "
-                     f"{r['pole_final_mm']:.4f} |")
+        lines.append(
+            f"| {r['follower_tol']:g} | {r['step_ms']:.1f} | {r['solves']} | {r['pole_deviation_um']:.3f} | "
+            f"{r['pole_final_mm']:.4f} |"
+        )
     out.with_suffix(".md").write_text("\n".join(lines) + "\n")
     with open(out.parent / (out.name + "_steps.csv"), "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(steps[0]))

@@ -5,6 +5,7 @@ displacement with P1 against P2, in one run.
 
 The planner warns from LOCKING_NU (runner/plan.py) on: the numbers behind that threshold.
 """
+
 from __future__ import annotations
 
 import platform
@@ -21,18 +22,24 @@ NUS = (0.45, 0.4925, 0.499, 0.4999, 0.4999999)
 
 def top(nu: float, degree: int) -> float:
     """|u| (mm) of the cube's probe, settled."""
-    scene = load_scene("cube", ["time.mode=quasi-static", f"material.nu={nu}", f"element.degree={degree}",
-                                "output.pictures=false"])
+    scene = load_scene(
+        "cube", ["time.mode=quasi-static", f"material.nu={nu}", f"element.degree={degree}", "output.pictures=false"]
+    )
     summary = run(scene, None).summary
     return float(np.linalg.norm(next(iter(summary["probes"].values()))) * 1e3)
 
 
 def main() -> int:
     logs.configure("ERROR")
-    lines = ["# P1 locking: the paper's cube, settled, P1 against P2", "",
-             f"`.venv/bin/python benchmarks/locking.py`; {platform.processor() or platform.machine()}, one rank; "
-             f"the bundled cube scene's probe (|u|, mm), quasi-static.", "",
-             "| nu | P1 (mm) | P2 (mm) | P1 / P2 |", "|---:|---:|---:|---:|"]
+    lines = [
+        "# P1 locking: the paper's cube, settled, P1 against P2",
+        "",
+        f"`.venv/bin/python benchmarks/locking.py`; {platform.processor() or platform.machine()}, one rank; "
+        f"the bundled cube scene's probe (|u|, mm), quasi-static.",
+        "",
+        "| nu | P1 (mm) | P2 (mm) | P1 / P2 |",
+        "|---:|---:|---:|---:|",
+    ]
     for nu in NUS:
         p1, p2 = top(nu, 1), top(nu, 2)
         lines.append(f"| {nu} | {p1:.3f} | {p2:.3f} | {p1 / p2:.3f} |")

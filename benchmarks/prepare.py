@@ -26,6 +26,7 @@ share inside the brain found, and the label map warped with the T1.
     OMP_NUM_THREADS=1 python benchmarks/prepare.py --real t1n.nii.gz --tumour segmentation.nii.gz \
         --tumour-segment 1,3 --name brats                                    # a stripped glioma case
 """
+
 from __future__ import annotations
 
 import argparse
@@ -72,8 +73,12 @@ def main_(argv=None) -> int:
         return real(args.real, args.name, args.tumour, args.tumour_segment)
     template = sitk.ReadImage(str(mni_t1()), sitk.sitkFloat32)
     if not args.stripped:
-        template = with_head(template, sitk.ReadImage(str(mni_head()), sitk.sitkFloat32),
-                             sitk.ReadImage(str(mni_head(brain_mask=True))), sitk.ReadImage(str(mni_brain_mask())))
+        template = with_head(
+            template,
+            sitk.ReadImage(str(mni_head()), sitk.sitkFloat32),
+            sitk.ReadImage(str(mni_head(brain_mask=True))),
+            sitk.ReadImage(str(mni_brain_mask())),
+        )
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         patient = synthetic_patient(template, spacing=args.spacing, size=args.size)
@@ -84,8 +89,16 @@ def main_(argv=None) -> int:
         name = "prepare_stripped" if args.stripped else "prepare"
         (RESULTS / f"{name}_overview.png").write_bytes((tmp / "P" / "overview.png").read_bytes())
         seconds["run"] = timed(["run", str(tmp / "P" / "scene.toml"), "--out", str(tmp / "P" / "run")])
-        seconds["warp"] = timed(["warp", str(tmp / "P" / "run"), "--image", str(tmp / "P" / "t1.nii.gz"),
-                                 "-o", str(tmp / "P" / "t1_intra.nii.gz")])
+        seconds["warp"] = timed(
+            [
+                "warp",
+                str(tmp / "P" / "run"),
+                "--image",
+                str(tmp / "P" / "t1.nii.gz"),
+                "-o",
+                str(tmp / "P" / "t1_intra.nii.gz"),
+            ]
+        )
         summary = json.loads((tmp / "P" / "run" / "summary.json").read_text())
         grid = sitk.ReadImage(str(tmp / "P" / "t1.nii.gz"))
         mask = sitk.Cast(sitk.ReadImage(str(mni_brain_mask())), sitk.sitkFloat32)
@@ -95,20 +108,27 @@ def main_(argv=None) -> int:
         kji = np.argwhere(truth)
         kji = kji[np.random.default_rng(0).choice(len(kji), 2000, replace=False)]
         points = [grid.TransformIndexToPhysicalPoint([int(i), int(j), int(k)]) for k, j, i in kji]
-        error = np.array([np.linalg.norm(np.subtract(patient.known.TransformPoint(q), found_map.TransformPoint(q)))
-                          for q in points])
+        error = np.array(
+            [np.linalg.norm(np.subtract(patient.known.TransformPoint(q), found_map.TransformPoint(q))) for q in points]
+        )
     voxel_ml = float(np.prod(args.spacing)) * 1e-3
     result = {
         "machine": machine_line(),
         "command": "OMP_NUM_THREADS=1 python benchmarks/prepare.py" + (" --stripped" if args.stripped else ""),
         "grid": {"size": args.size, "spacing_mm": args.spacing},
         "seconds": {k: round(v, 1) for k, v in seconds.items()},
-        "prepare_stages": record["seconds"], "registration": record["registration"],
+        "prepare_stages": record["seconds"],
+        "registration": record["registration"],
         "dice": round(float(2 * (truth & found).sum() / (truth.sum() + found.sum())), 4),
-        "volume_truth_ml": round(float(truth.sum()) * voxel_ml, 1), "volume_found_ml": round(float(found.sum()) * voxel_ml, 1),
-        "map_error_mm": {"mean": round(float(error.mean()), 2), "p95": round(float(np.percentile(error, 95)), 2),
-                         "max": round(float(error.max()), 2)},
-        "correlation": record["correlation"], "max_displacement_mm": round(summary["max_displacement_m"] * 1e3, 3),
+        "volume_truth_ml": round(float(truth.sum()) * voxel_ml, 1),
+        "volume_found_ml": round(float(found.sum()) * voxel_ml, 1),
+        "map_error_mm": {
+            "mean": round(float(error.mean()), 2),
+            "p95": round(float(np.percentile(error, 95)), 2),
+            "max": round(float(error.max()), 2),
+        },
+        "correlation": record["correlation"],
+        "max_displacement_mm": round(summary["max_displacement_m"] * 1e3, 3),
     }
     stages = ", ".join(f"{s['stage']} {s['seconds']:.1f} s" for s in record["registration"])
     total = seconds["prepare"] + seconds["run"] + seconds["warp"]
@@ -157,34 +177,70 @@ def real(t1: str, name: str, tumour: str | None, segments: str | None) -> int:
         RESULTS.mkdir(exist_ok=True)
         (RESULTS / f"prepare_{name}_overview.png").write_bytes((tmp / "P" / "overview.png").read_bytes())
         seconds["run"] = timed(["run", str(tmp / "P" / "scene.toml"), "--out", str(tmp / "P" / "run")])
-        seconds["warp"] = timed(["warp", str(tmp / "P" / "run"), "--image", str(tmp / "P" / "t1.nii.gz"),
-                                 "-o", str(tmp / "P" / "t1_intra.nii.gz")])
+        seconds["warp"] = timed(
+            [
+                "warp",
+                str(tmp / "P" / "run"),
+                "--image",
+                str(tmp / "P" / "t1.nii.gz"),
+                "-o",
+                str(tmp / "P" / "t1_intra.nii.gz"),
+            ]
+        )
         summary = json.loads((tmp / "P" / "run" / "summary.json").read_text())
         moved = None
         if tumour:
-            timed(["warp", str(tmp / "P" / "run"), "--image", str(tmp / "P" / "labels.nii.gz"),
-                   "-o", str(tmp / "P" / "labels_intra.nii.gz"), "--labels"])
-            before, after = (sitk.GetArrayFromImage(sitk.ReadImage(str(tmp / "P" / f))) == 2
-                             for f in ("labels.nii.gz", "labels_intra.nii.gz"))
+            timed(
+                [
+                    "warp",
+                    str(tmp / "P" / "run"),
+                    "--image",
+                    str(tmp / "P" / "labels.nii.gz"),
+                    "-o",
+                    str(tmp / "P" / "labels_intra.nii.gz"),
+                    "--labels",
+                ]
+            )
+            before, after = (
+                sitk.GetArrayFromImage(sitk.ReadImage(str(tmp / "P" / f))) == 2
+                for f in ("labels.nii.gz", "labels_intra.nii.gz")
+            )
             spacing = np.array(sitk.ReadImage(str(tmp / "P" / "labels.nii.gz")).GetSpacing())[::-1]
             shift = (np.argwhere(after).mean(axis=0) - np.argwhere(before).mean(axis=0)) * spacing
-            moved = {"voxels_before": int(before.sum()), "voxels_after": int(after.sum()),
-                     "centroid_shift_mm": round(float(np.linalg.norm(shift)), 2)}
-    command = f"OMP_NUM_THREADS=1 python benchmarks/prepare.py --real {t1}" + "".join(f" {a}" for a in extra) \
+            moved = {
+                "voxels_before": int(before.sum()),
+                "voxels_after": int(after.sum()),
+                "centroid_shift_mm": round(float(np.linalg.norm(shift)), 2),
+            }
+    command = (
+        f"OMP_NUM_THREADS=1 python benchmarks/prepare.py --real {t1}"
+        + "".join(f" {a}" for a in extra)
         + (f" --name {name}" if name != "real" else "")
-    result = {"machine": machine_line(), "command": command,
-              "grid": record["grid"], "head_first": record["head_first"],
-              "bounded_by_stripping": record.get("bounded_by_stripping", False),
-              "seconds": {k: round(v, 1) for k, v in seconds.items()}, "registration": record["registration"],
-              "brain_litres": record["brain_litres"], "correlation": record["correlation"],
-              "tumour": record.get("tumour"), "tumour_warped": moved,
-              "max_displacement_mm": round(summary["max_displacement_m"] * 1e3, 3)}
+    )
+    result = {
+        "machine": machine_line(),
+        "command": command,
+        "grid": record["grid"],
+        "head_first": record["head_first"],
+        "bounded_by_stripping": record.get("bounded_by_stripping", False),
+        "seconds": {k: round(v, 1) for k, v in seconds.items()},
+        "registration": record["registration"],
+        "brain_litres": record["brain_litres"],
+        "correlation": record["correlation"],
+        "tumour": record.get("tumour"),
+        "tumour_warped": moved,
+        "max_displacement_mm": round(summary["max_displacement_m"] * 1e3, 3),
+    }
     (RESULTS / f"prepare_{name}.json").write_text(json.dumps(result, indent=2) + "\n")
     stages = ", ".join(f"{s['stage']} {s['seconds']:.1f} s" for s in record["registration"])
     total = sum(seconds.values())
-    kind = ("; the whole head placed first" if record["head_first"] else
-            "; skull-stripped, the brain bounded by the scan's own stripping" if result["bounded_by_stripping"]
-            else "; skull-stripped")
+    kind = (
+        "; the whole head placed first"
+        if record["head_first"]
+        else "; skull-stripped, the brain bounded by the scan's own stripping"
+        if result["bounded_by_stripping"]
+        else "; skull-stripped"
+    )
     lines = [
         "# `brainshift prepare` on a real T1",
         "",
@@ -207,10 +263,13 @@ def real(t1: str, name: str, tumour: str | None, segments: str | None) -> int:
         "",
     ]
     if record.get("tumour"):
-        lines += [f"Tumour ({segments or 'every label'}): {record['tumour']['ml']:.1f} ml, "
-                  f"{record['tumour']['inside_brain']:.1%} of it inside the brain found (the rest is meshed with "
-                  f"the brain); warped with `--labels`: {moved['voxels_before']} voxels before, "
-                  f"{moved['voxels_after']} after, its centroid moved {moved['centroid_shift_mm']:.2f} mm.", ""]
+        lines += [
+            f"Tumour ({segments or 'every label'}): {record['tumour']['ml']:.1f} ml, "
+            f"{record['tumour']['inside_brain']:.1%} of it inside the brain found (the rest is meshed with "
+            f"the brain); warped with `--labels`: {moved['voxels_before']} voxels before, "
+            f"{moved['voxels_after']} after, its centroid moved {moved['centroid_shift_mm']:.2f} mm.",
+            "",
+        ]
     (RESULTS / f"prepare_{name}.md").write_text("\n".join(lines))
     print("\n".join(lines))
     return 0

@@ -14,9 +14,11 @@ prepare's thresholds (patients/gate.py MIN_RATIO, MIN_PEAK) are set.
 synthetic operation (the scene drained 12 mm further, the brain 0.8 times as stiff), the default
 `brainshift atlas` (5 mm), `brainshift update` from 20 cortex points of the operation near the
 craniotomy plus 0.5 mm noise, and `brainshift warp` of the T1 by the update; the update's and
-the scene's error against the operation on the cortex near the craniotomy. Each case writes benchmarks/results/prepare_cases/NAME.json;
+the scene's error against the operation on the cortex near the craniotomy. Each case writes
+benchmarks/results/prepare_cases/NAME.json;
 --report merges them into benchmarks/results/prepare_cases.md.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -36,33 +38,55 @@ BRAINSHIFT = [str(Path(sys.executable).with_name("brainshift"))]
 
 # name: (path under DATA, extra prepare arguments, what it is, where it is public)
 CASES = {
-    "vs001_t1c": ("t1gd_tumour/VS-SEG-001_ceT1_dicom", ["--tumour", "SEG"],
-                  "post-contrast 3D T1 (MPRAGE), 512 x 512 x 120 at 0.41 x 0.41 x 1.5 mm, vestibular schwannoma, "
-                  "stereotactic fiducials",
-                  "TCIA Vestibular-Schwannoma-SEG VS-SEG-001 (CC BY 4.0), as niivue/niivue-demo-images dicom/"),
-    "tcga_t1c": ("t1gd_tumour/pyradiomics_brain1_TCGA-02-0003_T1post.nrrd",
-                 ["--tumour", "t1gd_tumour/pyradiomics_brain1_label.nrrd", "--craniotomy", "tumour"],
-                 "post-contrast 2-D axial T1, 256 x 256 x 25 at 0.78 x 0.78 x 6.5 mm, glioblastoma",
-                 "TCIA TCGA-GBM TCGA-02-0003, as AIM-Harvard/pyradiomics data/brain1_image.nrrd, brain1_label.nrrd"),
-    "glioma2_t1c": ("t1gd_tumour/pyradiomics_brain2_T1post.nrrd",
-                    ["--tumour", "t1gd_tumour/pyradiomics_brain2_label.nrrd", "--craniotomy", "tumour"],
-                    "post-contrast 2-D axial T1, 256 x 256 x 23 at 0.78 x 0.78 x 6.5 mm, a small lesion",
-                    "AIM-Harvard/pyradiomics data/brain2_image.nrrd, brain2_label.nrrd"),
-    "trio_t1": ("t1_native/trio_b17_t1_MPRAGEcr_noGRAPPA_19_dicom", [],
-                "native 3D T1 (MPRAGE), 256 x 256 x 176 at 1 mm, sagittal, volunteer",
-                "dcm2nii sample images, as CBICA/NiChart_Project test_data/dicoms/trio_b17/t1_MPRAGEcr_noGRAPPA_19"),
-    "chris_t1": ("t1_native/chris_t1.nii.gz", [],
-                 "native 3D T1, 188 x 256 x 190 at 0.88 mm, volunteer (the head of chris_pd)",
-                 "niivue/niivue-demo-images chris_t1.nii.gz (CC BY-NC 4.0)"),
-    "chris_pd": ("t2_flair_pd/chris_PD.nii.gz", [],
-                 "proton density, 191 x 256 x 54 at 0.86 x 0.86 x 2.4 mm, oblique, vertex to skull base (the head of "
-                 "chris_t1)", "niivue/niivue-demo-images chris_PD.nii.gz (CC BY-NC 4.0)"),
-    "ixi012_t1": ("t1_native/IXI012-HH-1211_T1_2mm.nii.gz", [],
-                  "native T1 at 2 mm, 120 x 120 x 90, IXI volunteer",
-                  "IXI (CC BY-SA 3.0), as CBICA/NiChart_Project test_data/nifti/IXI_Small/t1"),
-    "t2w": ("t2_flair_pd/niivue_register_T2w.nii.gz", [],
-            "2-D T2 (TSE), 224 x 224 x 60 at 1 x 1 x 2 mm, vertex to skull base",
-            "niivue/niivue-demo-images register/T2w.nii.gz"),
+    "vs001_t1c": (
+        "t1gd_tumour/VS-SEG-001_ceT1_dicom",
+        ["--tumour", "SEG"],
+        "post-contrast 3D T1 (MPRAGE), 512 x 512 x 120 at 0.41 x 0.41 x 1.5 mm, vestibular schwannoma, "
+        "stereotactic fiducials",
+        "TCIA Vestibular-Schwannoma-SEG VS-SEG-001 (CC BY 4.0), as niivue/niivue-demo-images dicom/",
+    ),
+    "tcga_t1c": (
+        "t1gd_tumour/pyradiomics_brain1_TCGA-02-0003_T1post.nrrd",
+        ["--tumour", "t1gd_tumour/pyradiomics_brain1_label.nrrd", "--craniotomy", "tumour"],
+        "post-contrast 2-D axial T1, 256 x 256 x 25 at 0.78 x 0.78 x 6.5 mm, glioblastoma",
+        "TCIA TCGA-GBM TCGA-02-0003, as AIM-Harvard/pyradiomics data/brain1_image.nrrd, brain1_label.nrrd",
+    ),
+    "glioma2_t1c": (
+        "t1gd_tumour/pyradiomics_brain2_T1post.nrrd",
+        ["--tumour", "t1gd_tumour/pyradiomics_brain2_label.nrrd", "--craniotomy", "tumour"],
+        "post-contrast 2-D axial T1, 256 x 256 x 23 at 0.78 x 0.78 x 6.5 mm, a small lesion",
+        "AIM-Harvard/pyradiomics data/brain2_image.nrrd, brain2_label.nrrd",
+    ),
+    "trio_t1": (
+        "t1_native/trio_b17_t1_MPRAGEcr_noGRAPPA_19_dicom",
+        [],
+        "native 3D T1 (MPRAGE), 256 x 256 x 176 at 1 mm, sagittal, volunteer",
+        "dcm2nii sample images, as CBICA/NiChart_Project test_data/dicoms/trio_b17/t1_MPRAGEcr_noGRAPPA_19",
+    ),
+    "chris_t1": (
+        "t1_native/chris_t1.nii.gz",
+        [],
+        "native 3D T1, 188 x 256 x 190 at 0.88 mm, volunteer (the head of chris_pd)",
+        "niivue/niivue-demo-images chris_t1.nii.gz (CC BY-NC 4.0)",
+    ),
+    "chris_pd": (
+        "t2_flair_pd/chris_PD.nii.gz",
+        [],
+        "proton density, 191 x 256 x 54 at 0.86 x 0.86 x 2.4 mm, oblique, vertex to skull base (the head of chris_t1)",
+        "niivue/niivue-demo-images chris_PD.nii.gz (CC BY-NC 4.0)",
+    ),
+    "ixi012_t1": (
+        "t1_native/IXI012-HH-1211_T1_2mm.nii.gz",
+        [],
+        "native T1 at 2 mm, 120 x 120 x 90, IXI volunteer",
+        "IXI (CC BY-SA 3.0), as CBICA/NiChart_Project test_data/nifti/IXI_Small/t1",
+    ),
+    "t2w": (
+        "t2_flair_pd/niivue_register_T2w.nii.gz",
+        [],
+        "2-D T2 (TSE), 224 x 224 x 60 at 1 x 1 x 2 mm, vertex to skull base",
+        "niivue/niivue-demo-images register/T2w.nii.gz",
+    ),
 }
 MOVES = [("x", 10.0, 0.0), ("y", 10.0, 0.0), ("z", 10.0, 0.0), ("x", 0.0, 10.0), ("y", 0.0, 10.0), ("z", 0.0, 10.0)]
 
@@ -72,8 +96,13 @@ def brainshift(argv: list[str], log: Path) -> tuple[int, float]:
     with open(log, "a") as out:
         out.write(f"$ brainshift {' '.join(argv)}\n")
         out.flush()
-        code = subprocess.call(BRAINSHIFT + argv, stdout=out, stderr=subprocess.STDOUT, cwd=ROOT,
-                               env={**os.environ, "OMP_NUM_THREADS": "1"})
+        code = subprocess.call(
+            BRAINSHIFT + argv,
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            cwd=ROOT,
+            env={**os.environ, "OMP_NUM_THREADS": "1"},
+        )
     return code, time.perf_counter() - began
 
 
@@ -90,8 +119,15 @@ def gate_when_moved(folder: Path) -> list[dict]:
     brain = sitk.GetArrayFromImage(sitk.ReadImage(str(folder / "labels.nii.gz"))) > 0
     found = sitk.ReadTransform(str(folder / "patient_to_template.h5"))
     centre = patient.TransformContinuousIndexToPhysicalPoint([(n - 1) / 2 for n in patient.GetSize()])
-    out = [{"move": "none", "correlation_ratio": round(fit_measures(
-        patient, template, Registration(found, sitk.AffineTransform(3), patient), brain)["ratio"], 4)}]
+    out = [
+        {
+            "move": "none",
+            "correlation_ratio": round(
+                fit_measures(patient, template, Registration(found, sitk.AffineTransform(3), patient), brain)["ratio"],
+                4,
+            ),
+        }
+    ]
     for axis, shift, angle in MOVES:
         move = sitk.Euler3DTransform()
         move.SetCenter(centre)
@@ -100,8 +136,12 @@ def gate_when_moved(folder: Path) -> list[dict]:
         move.SetRotation(*(np.radians(angle) * e).tolist())
         total = sitk.CompositeTransform([found, move])  # the patient point moved first
         measures = fit_measures(patient, template, Registration(total, sitk.AffineTransform(3), patient), brain)
-        out.append({"move": f"{shift:g} mm along {axis}" if shift else f"{angle:g} deg about {axis}",
-                    "correlation_ratio": round(measures["ratio"], 4)})
+        out.append(
+            {
+                "move": f"{shift:g} mm along {axis}" if shift else f"{angle:g} deg about {axis}",
+                "correlation_ratio": round(measures["ratio"], 4),
+            }
+        )
     return out
 
 
@@ -120,8 +160,10 @@ def carried_both_ways(folder: Path) -> dict:
     grid.CopyInformation(patient)
     mask = sitk.ReadImage(str(mni_brain_mask()))
     out = {}
-    for name, through in (("exact", lambda: transform), ("field", lambda: Registration(
-            transform, sitk.AffineTransform(3), grid).sampled())):
+    for name, through in (
+        ("exact", lambda: transform),
+        ("field", lambda: Registration(transform, sitk.AffineTransform(3), grid).sampled()),
+    ):
         began = time.perf_counter()
         moved = sitk.Resample(mask, patient, through(), sitk.sitkLabelLinear, 0, sitk.sitkUInt8)
         out[f"{name}_s"] = round(time.perf_counter() - began, 2)
@@ -149,7 +191,7 @@ def one_case(name: str, data: Path, chain: bool, work: Path) -> dict:
     path, extra, what, source = CASES[name]
     extra = [str(data / a) if a.startswith("t1gd_tumour/") else a for a in extra]
     if "SEG" in extra:  # the DICOM-SEG of VS-SEG-001 is not public beside its T1: no tumour then
-        extra = extra[:extra.index("SEG") - 1] + extra[extra.index("SEG") + 1:]
+        extra = extra[: extra.index("SEG") - 1] + extra[extra.index("SEG") + 1 :]
     folder = work / name
     log = work / f"{name}.log"
     earlier = RESULTS / f"{name}.json"
@@ -159,13 +201,19 @@ def one_case(name: str, data: Path, chain: bool, work: Path) -> dict:
     record = {"case": name, "what": what, "source": source}
     code, seconds = brainshift(["prepare", str(data / path), "-o", str(folder), *extra], log)
     prepared = json.loads((folder / "prepare.json").read_text()) if (folder / "prepare.json").is_file() else {}
-    record.update(prepare_exit=code, prepare_s=round(seconds, 1), status=prepared.get("status", "ok" if code == 0
-                                                                                        else "failed"),
-                  brain_litres=prepared.get("brain_litres"), correlation=prepared.get("correlation"),
-                  correlation_ratio=prepared.get("correlation_ratio"),
-                  correlation_ratio_moved=prepared.get("correlation_ratio_moved"), contrast=prepared.get("contrast"),
-                  registration=prepared.get("registration"), tumour=prepared.get("tumour"),
-                  craniotomy=prepared.get("craniotomy"))
+    record.update(
+        prepare_exit=code,
+        prepare_s=round(seconds, 1),
+        status=prepared.get("status", "ok" if code == 0 else "failed"),
+        brain_litres=prepared.get("brain_litres"),
+        correlation=prepared.get("correlation"),
+        correlation_ratio=prepared.get("correlation_ratio"),
+        correlation_ratio_moved=prepared.get("correlation_ratio_moved"),
+        contrast=prepared.get("contrast"),
+        registration=prepared.get("registration"),
+        tumour=prepared.get("tumour"),
+        craniotomy=prepared.get("craniotomy"),
+    )
     if code != 0:
         return record
     record["gate_when_moved"] = gate_when_moved(folder)
@@ -188,11 +236,21 @@ def chain_steps(record: dict, folder: Path, log: Path) -> dict:
     prepared = json.loads((folder / "prepare.json").read_text())
     cut = prepared["craniotomy"]
     scene = tomllib.loads((folder / "scene.toml").read_text())
-    truth_sets = [f"fluid.level=[[0.0, {cut['start_level_m']:.5f}], [10.0, {cut['rim_level_m'] - TRUTH_BELOW_RIM_M:.5f}]]",
-                  f"material.G={scene['material']['G'] * TRUTH_SOFTER:g}"]
+    truth_sets = [
+        f"fluid.level=[[0.0, {cut['start_level_m']:.5f}], [10.0, {cut['rim_level_m'] - TRUTH_BELOW_RIM_M:.5f}]]",
+        f"material.G={scene['material']['G'] * TRUTH_SOFTER:g}",
+    ]
     steps = {}
-    code, steps["run_s"] = brainshift(["run", str(folder / "scene.toml"), "--out", str(folder / "operation"),
-                                       *[a for t in truth_sets for a in ("--set", t)]], log)
+    code, steps["run_s"] = brainshift(
+        [
+            "run",
+            str(folder / "scene.toml"),
+            "--out",
+            str(folder / "operation"),
+            *[a for t in truth_sets for a in ("--set", t)],
+        ],
+        log,
+    )
     if code:
         return {**record, "chain": f"run exit {code}"}
     if (folder / "atlas" / "atlas.json").is_file() and record.get("atlas_s"):
@@ -208,21 +266,41 @@ def chain_steps(record: dict, folder: Path, log: Path) -> dict:
     labels = [f"P{i + 1}" for i in range(len(pre))]
     write_markups(folder / "pre.mrk.json", labels, pre)
     write_markups(folder / "intra.mrk.json", labels, intra)
-    code, steps["update_s"] = brainshift(["update", str(folder / "atlas"), "--pre", str(folder / "pre.mrk.json"),
-                                          "--target", str(folder / "intra.mrk.json"), "--noise", "0.5", "--out",
-                                          str(folder / "update"), "--image", str(folder / "t1.nii.gz"), "--replace"],
-                                         log)
+    code, steps["update_s"] = brainshift(
+        [
+            "update",
+            str(folder / "atlas"),
+            "--pre",
+            str(folder / "pre.mrk.json"),
+            "--target",
+            str(folder / "intra.mrk.json"),
+            "--noise",
+            "0.5",
+            "--out",
+            str(folder / "update"),
+            "--image",
+            str(folder / "t1.nii.gz"),
+            "--replace",
+        ],
+        log,
+    )
     if code:
         return {**record, "chain": f"update exit {code}", **steps}
     update = json.loads((folder / "update" / "update.json").read_text())
-    code, steps["warp_s"] = brainshift(["warp", str(folder / "update"), "--image", str(folder / "t1.nii.gz"), "-o",
-                                        str(folder / "t1_intra.nii.gz")], log)
+    code, steps["warp_s"] = brainshift(
+        ["warp", str(folder / "update"), "--image", str(folder / "t1.nii.gz"), "-o", str(folder / "t1_intra.nii.gz")],
+        log,
+    )
     record.update({k: round(v, 1) for k, v in steps.items()})
-    record.update(chain="ok" if code == 0 else f"warp exit {code}",
-                  update={k: update[k] for k in ("prior_residual_rms_mm", "residual_rms_mm", "leave_one_out_rms_mm",
-                                                 "uncertainty_mm", "warning")},
-                  update_fit_ms=round(update["timings_ms"]["weights_ms"], 1),
-                  error_near_craniotomy_mm=near_craniotomy_error(folder, centre))
+    record.update(
+        chain="ok" if code == 0 else f"warp exit {code}",
+        update={
+            k: update[k]
+            for k in ("prior_residual_rms_mm", "residual_rms_mm", "leave_one_out_rms_mm", "uncertainty_mm", "warning")
+        },
+        update_fit_ms=round(update["timings_ms"]["weights_ms"], 1),
+        error_near_craniotomy_mm=near_craniotomy_error(folder, centre),
+    )
     return record
 
 
@@ -240,20 +318,34 @@ def near_craniotomy_error(folder: Path, centre_mm: np.ndarray) -> dict:
     near = np.linalg.norm(pre - centre_mm, axis=1) < 25.0
     rms = lambda d: round(float(np.sqrt(np.mean(np.sum(d[near] ** 2, axis=1)))) * 1e3, 3)  # noqa: E731
     true_u = np.asarray(truth.point_data["displacement"], dtype=float)
-    return {"update": rms(np.asarray(updated.point_data["displacement"], dtype=float) - true_u),
-            "scene": rms(prior - true_u), "points": int(near.sum())}
+    return {
+        "update": rms(np.asarray(updated.point_data["displacement"], dtype=float) - true_u),
+        "scene": rms(prior - true_u),
+        "points": int(near.sum()),
+    }
+
+
+def _update_cell(u: dict | None, r: dict) -> str:
+    """The table's update cell: residual before -> after, and the fit's time."""
+    if not u:
+        return "-"
+    return f"{u['prior_residual_rms_mm']:.2f} -> {u['residual_rms_mm']:.2f} mm, {r['update_fit_ms']:.0f} ms"
 
 
 def report() -> None:
     from fenics_brainshift.bench import machine_line
 
     rows = [json.loads(p.read_text()) for p in sorted(RESULTS.glob("*.json"))]
-    lines = ["# Real scans through `brainshift prepare` (and on)", "",
-             f"Machine: {machine_line()}. Command: `OMP_NUM_THREADS=1 python benchmarks/prepare_cases.py --data DATA "
-             f"--chain` then `--report` (one process, one thread a step).", "",
-             "| case | contrast (said / measured) | result | brain l | template explains (moved 10 mm) | correlation "
-             "| prepare s | run s | atlas s | update: residual, fit | warp s |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "# Real scans through `brainshift prepare` (and on)",
+        "",
+        f"Machine: {machine_line()}. Command: `OMP_NUM_THREADS=1 python benchmarks/prepare_cases.py --data DATA "
+        f"--chain` then `--report` (one process, one thread a step).",
+        "",
+        "| case | contrast (said / measured) | result | brain l | template explains (moved 10 mm) | correlation "
+        "| prepare s | run s | atlas s | update: residual, fit | warp s |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for r in rows:
         c = r.get("contrast") or {}
         u = r.get("update")
@@ -262,26 +354,40 @@ def report() -> None:
             f"| {r['brain_litres'] or '-'} | {100 * r['correlation_ratio']:.0f} % "
             f"({100 * (r.get('correlation_ratio_moved') or 0):.0f} %) | {r['correlation']} "
             f"| {r['prepare_s']} | {r.get('run_s', '-')} | {r.get('atlas_s', '-')} "
-            f"| {'%.2f -> %.2f mm, %.0f ms' % (u['prior_residual_rms_mm'], u['residual_rms_mm'], r['update_fit_ms']) if u else '-'} "
-            f"| {r.get('warp_s', '-')} |" if r.get("correlation_ratio") is not None else
-            f"| {r['case']} | - | {r['status']} (exit {r['prepare_exit']}) | - | - | - | {r['prepare_s']} | | | | |")
-    lines += ["", "The gate's measure (the share of the scan's variance in the deep brain found that the template "
-              "explains, the correlation ratio) with each prepared registration moved on purpose (the patient point "
-              "moved first; turned about the scan's centre):", "",
-              "| case | found | moved 10 mm (x, y, z) | turned 10 degrees (x, y, z) |", "|---|---|---|---|"]
+            f"| {_update_cell(u, r)} "
+            f"| {r.get('warp_s', '-')} |"
+            if r.get("correlation_ratio") is not None
+            else f"| {r['case']} | - | {r['status']} (exit {r['prepare_exit']}) | - | - | - "
+            f"| {r['prepare_s']} | | | | |"
+        )
+    lines += [
+        "",
+        "The gate's measure (the share of the scan's variance in the deep brain found that the template "
+        "explains, the correlation ratio) with each prepared registration moved on purpose (the patient point "
+        "moved first; turned about the scan's centre):",
+        "",
+        "| case | found | moved 10 mm (x, y, z) | turned 10 degrees (x, y, z) |",
+        "|---|---|---|---|",
+    ]
     for r in rows:
         moved = r.get("gate_when_moved")
         if moved:
             ratios = [f"{100 * m['correlation_ratio']:.0f}" for m in moved]
             lines.append(f"| {r['case']} | {ratios[0]} % | {', '.join(ratios[1:4])} % | {', '.join(ratios[4:])} % |")
-    lines += ["", "The labels carried through the registration at every voxel, and through its displacement "
-              "field sampled on 2 mm (what prepare uses):", "",
-              "| case | exact s | field s | voxels differing / brain voxels |", "|---|---|---|---|"]
+    lines += [
+        "",
+        "The labels carried through the registration at every voxel, and through its displacement "
+        "field sampled on 2 mm (what prepare uses):",
+        "",
+        "| case | exact s | field s | voxels differing / brain voxels |",
+        "|---|---|---|---|",
+    ]
     for r in rows:
         c = r.get("labels_carried")
         if c:
-            lines.append(f"| {r['case']} | {c['exact_s']} | {c['field_s']} | {c['voxels_differing']} / "
-                         f"{c['brain_voxels']} |")
+            lines.append(
+                f"| {r['case']} | {c['exact_s']} | {c['field_s']} | {c['voxels_differing']} / {c['brain_voxels']} |"
+            )
     lines += ["", "Cases: " + "; ".join(f"**{n}** {CASES[n][2]} ({CASES[n][3]})" for n in CASES) + "."]
     (RESULTS.parent / "prepare_cases.md").write_text("\n".join(lines) + "\n")
 
@@ -293,9 +399,12 @@ def main(argv=None) -> int:
     p.add_argument("--chain", action="store_true", help="also run, atlas, update and warp")
     p.add_argument("--work", default="/tmp/prepare_cases", help="where the prepared folders go")
     p.add_argument("--report", action="store_true", help="merge the results into prepare_cases.md")
-    p.add_argument("--regate", action="store_true",
-                   help="measure the gate with the registration moved again, and the contrast said, on the folders "
-                        "an earlier call prepared (their results files updated)")
+    p.add_argument(
+        "--regate",
+        action="store_true",
+        help="measure the gate with the registration moved again, and the contrast said, on the folders "
+        "an earlier call prepared (their results files updated)",
+    )
     args = p.parse_args(argv)
     if args.report:
         report()
@@ -320,8 +429,14 @@ def main(argv=None) -> int:
     for name in args.cases.split(","):
         record = one_case(name, Path(args.data), args.chain, work)
         (RESULTS / f"{name}.json").write_text(json.dumps(record, indent=2) + "\n")
-        print(json.dumps({k: record.get(k) for k in ("case", "status", "brain_litres", "correlation_ratio",
-                                                     "prepare_s", "chain")}))
+        print(
+            json.dumps(
+                {
+                    k: record.get(k)
+                    for k in ("case", "status", "brain_litres", "correlation_ratio", "prepare_s", "chain")
+                }
+            )
+        )
     return 0
 
 

@@ -1,6 +1,6 @@
 """Template-to-patient registration: the project's SimpleITK method against ANTs (antspyx), on
-real head scans and on a synthetic head with a known truth, for the issue "compare on real cases
-for success, brain accuracy and time, keep what wins, write down why".
+real head scans and on a synthetic head with a known truth: success, brain accuracy and time
+on real cases, to keep what wins and say why (docs/patients.md).
 
 Methods (both register the template, moving, to the patient, fixed, on one thread):
 
@@ -39,12 +39,14 @@ with the project on PYTHONPATH (not installed into that venv):
     echo numpy==1.24.2 > /tmp/c.txt
     /tmp/antsvenv/bin/pip install -c /tmp/c.txt antspyx SimpleITK==2.5.7
     cd /work/main && ITK_GLOBAL_DEFAULT_NUMBER_OF_THREADS=1 OMP_NUM_THREADS=1 ANTS_RANDOM_SEED=1 \\
-        PYTHONPATH=/work/main /tmp/antsvenv/bin/python benchmarks/registration_methods.py [--cases a,b] [--data /work/data]
+        PYTHONPATH=/work/main /tmp/antsvenv/bin/python benchmarks/registration_methods.py \\
+        [--cases a,b] [--data /work/data]
 
 Each finished case is kept in --store (default /tmp/registration_methods.json) as it ends (a later
 run with --cases adds to it); benchmarks/results/registration_methods.md is rewritten from it
 after every case.
 """
+
 from __future__ import annotations
 
 import os
@@ -71,8 +73,7 @@ from fenics_brainshift.bench import machine_line  # noqa: E402
 from fenics_brainshift.data.templates import largest_part, mni_brain_mask, mni_head, mni_t1  # noqa: E402
 from fenics_brainshift.patients.carry import labels_on_patient  # noqa: E402
 from fenics_brainshift.patients.gate import MIN_PEAK, MIN_RATIO, PLAUSIBLE  # noqa: E402
-from fenics_brainshift.patients.registration import (coarsened, fit_measures, normalised, register,  # noqa: E402
-                                                     shows_head)
+from fenics_brainshift.patients.registration import coarsened, fit_measures, normalised, register, shows_head  # noqa: E402
 from fenics_brainshift.patients.series import read_t1  # noqa: E402
 from fenics_brainshift.patients.synthetic import synthetic_patient, with_head  # noqa: E402
 
@@ -104,12 +105,17 @@ def templates() -> dict:
     brain = sitk.ReadImage(str(mni_brain_mask()))
     head = sitk.ReadImage(str(mni_head()), sitk.sitkFloat32)
     head_brain = sitk.ReadImage(str(mni_head(brain_mask=True)))
-    return {"t1": t1, "brain": brain, "brain_array": sitk.GetArrayFromImage(brain) > 0, "head": head,
-            "t1_head": with_head(t1, head, head_brain, brain)}
+    return {
+        "t1": t1,
+        "brain": brain,
+        "brain_array": sitk.GetArrayFromImage(brain) > 0,
+        "head": head,
+        "t1_head": with_head(t1, head, head_brain, brain),
+    }
 
 
 def cleaned(labels: np.ndarray) -> np.ndarray:
-    """prepare's clean-up of the carried brain (command.py): largest part, holes filled."""
+    """prepare's clean-up of the carried brain (patients/prepare.py): largest part, holes filled."""
     return ndimage.binary_fill_holes(largest_part(labels > 0))
 
 
@@ -121,10 +127,16 @@ def run_sitk(patient: sitk.Image, tpl: dict) -> dict:
     began = time.perf_counter()
     brain = cleaned(labels_on_patient({1: tpl["brain_array"]}, tpl["brain"], patient, registration))
     carry = time.perf_counter() - began
-    return {"brain": brain, "transform": registration.transform, "seconds": seconds, "carry_seconds": carry,
-            "head_first": head is not None,
-            "stages": [f"{s['stage']} {s['seconds']:.0f} s{'' if s['accepted'] else ' (rejected)'}"
-                       for s in registration.stages]}
+    return {
+        "brain": brain,
+        "transform": registration.transform,
+        "seconds": seconds,
+        "carry_seconds": carry,
+        "head_first": head is not None,
+        "stages": [
+            f"{s['stage']} {s['seconds']:.0f} s{'' if s['accepted'] else ' (rejected)'}" for s in registration.stages
+        ],
+    }
 
 
 def run_ants(patient: sitk.Image, tpl: dict, tmp: Path) -> dict:
@@ -134,19 +146,30 @@ def run_ants(patient: sitk.Image, tpl: dict, tmp: Path) -> dict:
     began = time.perf_counter()
     fixed = ants.from_sitk(normalised(coarsened(patient, ANTS_SPACING)))
     moving = ants.from_sitk(normalised(tpl["t1_head"]))
-    out = ants.registration(fixed=fixed, moving=moving, type_of_transform=ANTS_TYPE,
-                            outprefix=str(tmp / "ants_"), write_composite_transform=True)
+    out = ants.registration(
+        fixed=fixed,
+        moving=moving,
+        type_of_transform=ANTS_TYPE,
+        outprefix=str(tmp / "ants_"),
+        write_composite_transform=True,
+    )
     seconds = time.perf_counter() - began
     began = time.perf_counter()
     mask = ants.from_sitk(sitk.Cast(tpl["brain"], sitk.sitkFloat32))
-    carried = ants.apply_transforms(fixed=ants.from_sitk(patient), moving=mask, transformlist=out["fwdtransforms"],
-                                    interpolator="genericLabel")
+    carried = ants.apply_transforms(
+        fixed=ants.from_sitk(patient), moving=mask, transformlist=out["fwdtransforms"], interpolator="genericLabel"
+    )
     labels = sitk.GetArrayFromImage(ants.to_sitk(carried))
     carry = time.perf_counter() - began
     # the forward composite (patient point -> template point), as SimpleITK reads it
     transform = sitk.ReadTransform(str(out["fwdtransforms"]))
-    return {"brain": cleaned(labels > 0.5), "transform": transform, "seconds": seconds, "carry_seconds": carry,
-            "check": transform_check(tpl, patient, transform, out["fwdtransforms"])}
+    return {
+        "brain": cleaned(labels > 0.5),
+        "transform": transform,
+        "seconds": seconds,
+        "carry_seconds": carry,
+        "check": transform_check(tpl, patient, transform, out["fwdtransforms"]),
+    }
 
 
 def transform_check(tpl, patient, transform, fwd) -> dict:
@@ -159,8 +182,10 @@ def transform_check(tpl, patient, transform, fwd) -> dict:
     by_ants = ants.apply_transforms(fixed=ants.from_sitk(grid), moving=ants.from_sitk(tpl["t1"]), transformlist=fwd)
     by_ants = sitk.GetArrayFromImage(ants.to_sitk(by_ants))
     scale = float(np.percentile(by_sitk[by_sitk > 0], 99)) if np.any(by_sitk > 0) else 1.0
-    return {"mean_abs_diff_rel": round(float(np.abs(by_sitk - by_ants).mean()) / scale, 5),
-            "correlation": round(float(np.corrcoef(by_sitk.ravel(), by_ants.ravel())[0, 1]), 5)}
+    return {
+        "mean_abs_diff_rel": round(float(np.abs(by_sitk - by_ants).mean()) / scale, 5),
+        "correlation": round(float(np.corrcoef(by_sitk.ravel(), by_ants.ravel())[0, 1]), 5),
+    }
 
 
 def judged(patient: sitk.Image, tpl: dict, run: dict) -> dict:
@@ -169,10 +194,18 @@ def judged(patient: sitk.Image, tpl: dict, run: dict) -> dict:
     m = fit_measures(patient, tpl["t1"], Carried(run["transform"]), run["brain"])
     plausible = PLAUSIBLE[0] <= litres <= PLAUSIBLE[1]
     gate = m["ratio"] >= MIN_RATIO and m["ratio"] - m["ratio_moved"] >= MIN_PEAK
-    return {"litres": round(litres, 4), "correlation": round(m["correlation"], 4), "ratio": round(m["ratio"], 4),
-            "ratio_moved": round(m["ratio_moved"], 4), "peak": round(m["ratio"] - m["ratio_moved"], 4),
-            "plausible": plausible, "gate": gate, "success": plausible and gate,
-            "seconds": round(run["seconds"], 1), "carry_seconds": round(run["carry_seconds"], 1)}
+    return {
+        "litres": round(litres, 4),
+        "correlation": round(m["correlation"], 4),
+        "ratio": round(m["ratio"], 4),
+        "ratio_moved": round(m["ratio_moved"], 4),
+        "peak": round(m["ratio"] - m["ratio_moved"], 4),
+        "plausible": plausible,
+        "gate": gate,
+        "success": plausible and gate,
+        "seconds": round(run["seconds"], 1),
+        "carry_seconds": round(run["carry_seconds"], 1),
+    }
 
 
 def dice(a: np.ndarray, b: np.ndarray) -> float:
@@ -189,8 +222,14 @@ def one_case(name: str, data: Path, tpl: dict, order: list[str]) -> dict:
         truth = sitk.GetArrayFromImage(sitk.Resample(mask, patient, synthetic.known, sitk.sitkLinear, 0.0)) >= 0.5
     else:
         patient = read_t1(data / path)
-    record = {"case": name, "what": what, "size": list(patient.GetSize()),
-              "spacing_mm": [round(s, 4) for s in patient.GetSpacing()], "order": order, "methods": {}}
+    record = {
+        "case": name,
+        "what": what,
+        "size": list(patient.GetSize()),
+        "spacing_mm": [round(s, 4) for s in patient.GetSpacing()],
+        "order": order,
+        "methods": {},
+    }
     runs = {}
     with tempfile.TemporaryDirectory() as tmp:
         for method in order:
@@ -242,10 +281,12 @@ def write_markdown(records: dict, command: str, machine: str) -> str:
         r = records[name]
         for method in ("sitk", "ants"):
             m = r["methods"][method]
-            truth = (f"{m['dice_truth']:.3f} | {m['volume_error']:+.1%}" if "dice_truth" in m else "- | -")
-            lines.append(f"| {name} | {method} | {yes[m['success']]} | {m['litres']:.3f} | {m['ratio']:.3f} "
-                         f"| {m['peak']:+.3f} | {m['correlation']:+.3f} | {r['dice_between']:.3f} | {truth} "
-                         f"| {m['seconds']:.0f} ({m['carry_seconds']:.0f}) |")
+            truth = f"{m['dice_truth']:.3f} | {m['volume_error']:+.1%}" if "dice_truth" in m else "- | -"
+            lines.append(
+                f"| {name} | {method} | {yes[m['success']]} | {m['litres']:.3f} | {m['ratio']:.3f} "
+                f"| {m['peak']:+.3f} | {m['correlation']:+.3f} | {r['dice_between']:.3f} | {truth} "
+                f"| {m['seconds']:.0f} ({m['carry_seconds']:.0f}) |"
+            )
     lines.append("")
     if "synthetic" in records:
         lines.append(f"Synthetic truth: {records['synthetic']['truth_litres']:.3f} l.")
@@ -254,22 +295,33 @@ def write_markdown(records: dict, command: str, machine: str) -> str:
         for method in ("sitk", "ants"):
             a, b = records["chris_t1"]["methods"][method]["litres"], records["chris_pd"]["methods"][method]["litres"]
             parts.append(f"{method} {a:.3f} l (T1) against {b:.3f} l (PD), {b / a - 1:+.1%}")
-        lines.append("Same head, two scans (chris_t1 / chris_pd): " + "; ".join(parts) + ". The PD covers vertex to "
-                     "skull base only (130 mm), so part of the difference is the field of view.")
-    checks = [f"{n} {records[n]['methods']['ants']['check']['correlation']:.4f}" for n in CASES
-              if n in records and "check" in records[n]["methods"]["ants"]]
+        lines.append(
+            "Same head, two scans (chris_t1 / chris_pd): " + "; ".join(parts) + ". The PD covers vertex to "
+            "skull base only (130 mm), so part of the difference is the field of view."
+        )
+    checks = [
+        f"{n} {records[n]['methods']['ants']['check']['correlation']:.4f}"
+        for n in CASES
+        if n in records and "check" in records[n]["methods"]["ants"]
+    ]
     if checks:
         lines.append("")
-        lines.append("ANTs' forward composite read by SimpleITK (used for the gate) against antspyx's own "
-                     "apply_transforms, correlation of the template resampled both ways: " + ", ".join(checks) + ".")
+        lines.append(
+            "ANTs' forward composite read by SimpleITK (used for the gate) against antspyx's own "
+            "apply_transforms, correlation of the template resampled both ways: " + ", ".join(checks) + "."
+        )
     missing = [n for n in CASES if n not in records]
     if missing:
         lines.append("")
         lines.append("Not run: " + ", ".join(missing) + ".")
     totals = {m: sum(records[n]["methods"][m]["seconds"] for n in records) for m in ("sitk", "ants")}
     wins = {m: sum(records[n]["methods"][m]["success"] for n in records) for m in ("sitk", "ants")}
-    lines += ["", f"Successes: sitk {wins['sitk']}/{len(records)}, ants {wins['ants']}/{len(records)}; registration "
-                  f"seconds summed: sitk {totals['sitk']:.0f}, ants {totals['ants']:.0f}.", ""]
+    lines += [
+        "",
+        f"Successes: sitk {wins['sitk']}/{len(records)}, ants {wins['ants']}/{len(records)}; registration "
+        f"seconds summed: sitk {totals['sitk']:.0f}, ants {totals['ants']:.0f}.",
+        "",
+    ]
     return "\n".join(lines)
 
 
@@ -278,10 +330,17 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--cases", default=",".join(CASES), help="comma-separated, of " + ", ".join(CASES))
     p.add_argument("--data", default="/work/data")
-    p.add_argument("--ants-spacing", type=float, default=ANTS_SPACING,
-                   help="mm: the patient's grid ANTs registers on (default %(default)s)")
-    p.add_argument("--store", default="/tmp/registration_methods.json",
-                   help="the finished cases, kept as each ends (a later run adds to it)")
+    p.add_argument(
+        "--ants-spacing",
+        type=float,
+        default=ANTS_SPACING,
+        help="mm: the patient's grid ANTs registers on (default %(default)s)",
+    )
+    p.add_argument(
+        "--store",
+        default="/tmp/registration_methods.json",
+        help="the finished cases, kept as each ends (a later run adds to it)",
+    )
     p.add_argument("--fresh", action="store_true", help="forget the cases kept from earlier runs")
     args = p.parse_args(argv)
     sitk.ProcessObject.SetGlobalDefaultNumberOfThreads(1)
@@ -293,10 +352,12 @@ def main(argv=None) -> int:
     store = Path(args.store)
     kept = {} if args.fresh or not store.is_file() else json.loads(store.read_text())
     records = kept.get("cases", {})
-    command = ("ITK_GLOBAL_DEFAULT_NUMBER_OF_THREADS=1 OMP_NUM_THREADS=1 ANTS_RANDOM_SEED=1 PYTHONPATH=/work/main "
-               "/tmp/antsvenv/bin/python benchmarks/registration_methods.py"
-               + ("" if names == list(CASES) else f" --cases {','.join(names)}")
-               + ("" if ANTS_SPACING == 2.0 else f" --ants-spacing {ANTS_SPACING:g}"))
+    command = (
+        "ITK_GLOBAL_DEFAULT_NUMBER_OF_THREADS=1 OMP_NUM_THREADS=1 ANTS_RANDOM_SEED=1 PYTHONPATH=/work/main "
+        "/tmp/antsvenv/bin/python benchmarks/registration_methods.py"
+        + ("" if names == list(CASES) else f" --cases {','.join(names)}")
+        + ("" if ANTS_SPACING == 2.0 else f" --ants-spacing {ANTS_SPACING:g}")
+    )
     machine = machine_line()
     tpl = templates()
     for i, name in enumerate(names):

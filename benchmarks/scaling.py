@@ -8,6 +8,7 @@ solve) on structured grids from about 10^4 to 10^6 dofs, a few Newmark steps eac
     .venv/bin/python benchmarks/scaling.py --max-n 54      # stop at ~3e5 dofs
     .venv/bin/python benchmarks/scaling.py --kind cg-hypre # the same with hypre's BoomerAMG
 """
+
 from __future__ import annotations
 
 import argparse
@@ -21,7 +22,7 @@ import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-CASE = r'''
+CASE = r"""
 import json, resource, statistics, sys, time
 from mpi4py import MPI
 from fenics_brainshift import logs
@@ -51,7 +52,7 @@ if comm.rank == 0:
     print(json.dumps({"n": n, "dofs": sim.model.sizes()["dofs"], "ranks": comm.size, "setup_s": setup,
                       "step_s": statistics.median(times), "iterations": statistics.median(its),
                       "peak_memory_MB": peak / 1024}))
-'''
+"""
 
 
 def main(argv=None) -> int:
@@ -75,7 +76,16 @@ def main(argv=None) -> int:
         for n in (16, 24, 36, 54, 86):
             if n > args.max_n:
                 break
-            cmd = [shutil.which("mpirun"), "-n", str(args.ranks), sys.executable, str(script), str(n), str(args.steps), args.kind]
+            cmd = [
+                shutil.which("mpirun"),
+                "-n",
+                str(args.ranks),
+                sys.executable,
+                str(script),
+                str(n),
+                str(args.steps),
+                args.kind,
+            ]
             proc = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=ROOT)
             if proc.returncode != 0:
                 print(f"n={n}: failed\n{proc.stderr[-2000:]}", file=sys.stderr)
@@ -90,13 +100,19 @@ def main(argv=None) -> int:
         writer.writeheader()
         writer.writerows(rows)
     title = {"cg-gamg": "CG + GAMG", "cg-hypre": "CG + BoomerAMG (hypre)"}[args.kind]
-    lines = [f"# Per-step time against size, {title}\n",
-             f"{machine()}; `python benchmarks/scaling.py --ranks {args.ranks} --kind {args.kind}`; median of {args.steps} Newmark steps, "
-             f"rtol 1e-8, nu = 0.48; peak memory summed over ranks.\n",
-             "| grid n | dofs | ranks | setup (s) | step (s) | us per dof per step | CG iterations | peak memory (MB) |",
-             "|---:|---:|---:|---:|---:|---:|---:|---:|"]
-    lines += [f"| {r['n']} | {r['dofs']} | {r['ranks']} | {r['setup_s']:.1f} | {r['step_s']:.2f} | "
-              f"{r['step_s'] / r['dofs'] * 1e6:.1f} | {r['iterations']:.0f} | {r['peak_memory_MB']:.0f} |" for r in rows]
+    lines = [
+        f"# Per-step time against size, {title}\n",
+        f"{machine()}; `python benchmarks/scaling.py --ranks {args.ranks} --kind {args.kind}`; "
+        f"median of {args.steps} Newmark steps, "
+        f"rtol 1e-8, nu = 0.48; peak memory summed over ranks.\n",
+        "| grid n | dofs | ranks | setup (s) | step (s) | us per dof per step | CG iterations | peak memory (MB) |",
+        "|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    lines += [
+        f"| {r['n']} | {r['dofs']} | {r['ranks']} | {r['setup_s']:.1f} | {r['step_s']:.2f} | "
+        f"{r['step_s'] / r['dofs'] * 1e6:.1f} | {r['iterations']:.0f} | {r['peak_memory_MB']:.0f} |"
+        for r in rows
+    ]
     stem.with_suffix(".md").write_text("\n".join(lines) + "\n")
     import matplotlib
 

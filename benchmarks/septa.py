@@ -9,6 +9,7 @@ drug). Each: setup (mesh, model with the septa's nodes and projector, factor) an
 state at the end of the drain, the median of REPEATS runs taken in turn with the others; the
 ratios are against the same model without either.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -18,6 +19,7 @@ import sys
 from pathlib import Path
 
 import swelling  # its settled state, timed (this folder is on the path when run as a script)
+
 from fenics_brainshift import logs
 from fenics_brainshift.scene import Swelling
 
@@ -43,19 +45,25 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     logs.configure("WARNING")
     cases, runs = swelling.timed_runs(REGIONS, settle, args.voxel, 0.015)
-    lines = [f"# What the dural septa cost a settled state: the bundled brain, {args.voxel * 1e3:g} mm voxels", "",
-             f"`.venv/bin/python benchmarks/septa.py --voxel {args.voxel:g}`; {platform.processor() or platform.machine()}, "
-             f"one rank; the settled state after the drain (follower CSF load); medians of {REPEATS} runs taken in turn; "
-             f"ratios against the same model without septa or swelling. Setup: mesh, model (the septa's nodes and "
-             f"projector), the factor of K.", "",
-             "| model | case | setup (s) | settled state (s) | settled against none | setup + settled against none "
-             "| linear solves | frontal pole (mm) |",
-             "|---|---|---:|---:|---:|---:|---:|---:|"]
+    lines = [
+        f"# What the dural septa cost a settled state: the bundled brain, {args.voxel * 1e3:g} mm voxels",
+        "",
+        f"`.venv/bin/python benchmarks/septa.py --voxel {args.voxel:g}`; {platform.processor() or platform.machine()}, "
+        f"one rank; the settled state after the drain (follower CSF load); medians of {REPEATS} runs taken in turn; "
+        f"ratios against the same model without septa or swelling. Setup: mesh, model (the septa's nodes and "
+        f"projector), the factor of K.",
+        "",
+        "| model | case | setup (s) | settled state (s) | settled against none | setup + settled against none "
+        "| linear solves | frontal pole (mm) |",
+        "|---|---|---:|---:|---:|---:|---:|---:|",
+    ]
     for model, region in cases:
         setup, solve, solves, pole = (statistics.median(v) for v in zip(*runs[(model, region)]))
         base = [statistics.median(r[i] for r in runs[(model, "none")]) for i in (0, 1)]
-        lines.append(f"| {model} | {region} | {setup:.2f} | {solve:.2f} | {solve / base[1]:.2f}x | "
-                     f"{(setup + solve) / sum(base):.2f}x | {solves:.0f} | {pole:.2f} |")
+        lines.append(
+            f"| {model} | {region} | {setup:.2f} | {solve:.2f} | {solve / base[1]:.2f}x | "
+            f"{(setup + solve) / sum(base):.2f}x | {solves:.0f} | {pole:.2f} |"
+        )
         print(lines[-1], flush=True)
     out = ROOT / "benchmarks" / "results" / "septa.md"
     out.write_text("\n".join(lines) + "\n")

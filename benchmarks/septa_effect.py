@@ -9,6 +9,7 @@ falx, the corpus callosum and the thalamus (deep), the occipital lobe above the 
 the cerebellum below it. The picture: a coronal slice (y = -20 mm) of |u| with and without
 the septa, lying on the right side (MNI +x), where the falx carries the upper hemisphere.
 """
+
 from __future__ import annotations
 
 import platform
@@ -36,7 +37,10 @@ POINTS = {  # MNI, m
 }
 POSES = {  # gravity, and the drain along its up
     "supine": [],
-    "lying on the right side": ["gravity.vector=[9.81, 0.0, 0.0]", "fluid.level=[[0.0, 0.08], [10.0, 0.02], [16.0, 0.02]]"],
+    "lying on the right side": [
+        "gravity.vector=[9.81, 0.0, 0.0]",
+        "fluid.level=[[0.0, 0.08], [10.0, 0.02], [16.0, 0.02]]",
+    ],
 }
 SLICE_Y = -0.02
 
@@ -71,13 +75,19 @@ def main() -> int:
             sim.destroy()
         for i, name in enumerate(POINTS):
             a, b = shifts[False][i], shifts[True][i]
-            rows.append(f"| {pose} | {name} | {np.linalg.norm(a):.2f} | {np.linalg.norm(b):.2f} | "
-                        f"{np.linalg.norm(b - a):.2f} |")
-    lines = ["# What the falx and the tentorium change: the bundled brain's settled shift after the drain", "",
-             f"`.venv/bin/python benchmarks/septa_effect.py`; {platform.processor() or platform.machine()}, one rank; "
-             f"5 mm voxels, linear, follower CSF load; |u| in mm at each point without and with the septa "
-             f"(docs/physics.md), and the size of the difference.", "",
-             "| pose | point | without septa | with falx + tentorium | difference |", "|---|---|---:|---:|---:|"]
+            rows.append(
+                f"| {pose} | {name} | {np.linalg.norm(a):.2f} | {np.linalg.norm(b):.2f} | {np.linalg.norm(b - a):.2f} |"
+            )
+    lines = [
+        "# What the falx and the tentorium change: the bundled brain's settled shift after the drain",
+        "",
+        f"`.venv/bin/python benchmarks/septa_effect.py`; {platform.processor() or platform.machine()}, one rank; "
+        f"5 mm voxels, linear, follower CSF load; |u| in mm at each point without and with the septa "
+        f"(docs/physics.md), and the size of the difference.",
+        "",
+        "| pose | point | without septa | with falx + tentorium | difference |",
+        "|---|---|---:|---:|---:|",
+    ]
     lines += rows
     out = ROOT / "benchmarks" / "results" / "septa_effect.md"
     out.write_text("\n".join(lines) + "\n")

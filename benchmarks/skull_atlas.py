@@ -7,9 +7,9 @@
    residual build.MODE_RTOL, the exact contact preconditioner on K's one factor:
    stepping/exact_contact.py; Newton's first solve looser, newton.FIRST_LOOSER); the same with
    each level from the last state alone; with the first solve to the target at once; residual
-   1e-6; session 24's atlas (levels ascending, refilled); the former preconditioner (a factor
-   of K and the pressed nodes rebuilt as they move, residual 1e-9); the atlas's with the scene's
-   tighter contact tolerance. How far their modes are apart.
+   1e-6; the levels ascending (refilled); a refactored preconditioner (a factor of K and the
+   pressed nodes rebuilt as they move, residual 1e-9); the atlas's with the scene's tighter
+   contact tolerance. How far their modes are apart.
 2. The whole brain shrunk by 4 % at the scene's own level and pose, solved twice: from rest
    (loads grown from zero) and from the prior state (as the atlas does); how far apart the two
    contact states are, and how far each is past the skull. Where the skull's inner surface is
@@ -19,6 +19,7 @@ Writes benchmarks/results/skull_atlas.md. One process, one rank.
 
     python benchmarks/skull_atlas.py [--voxel 0.005] [--gap 0.003] [--levels 13]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -47,7 +48,11 @@ from fenics_brainshift.stepping.newton import NewtonStatic  # noqa: E402
 from fenics_brainshift.stepping.solves import Solves  # noqa: E402
 
 SHRINK = -0.04
-LOWEST, HIGHEST, ANGLE = -0.015, 0.045, -12.0  # the levels' range (m; the default atlas's at the brain's 30 mm) and the pose
+LOWEST, HIGHEST, ANGLE = (
+    -0.015,
+    0.045,
+    -12.0,
+)  # the levels' range (m; the default atlas's at the brain's 30 mm) and the pose
 
 
 class Counted:
@@ -63,6 +68,7 @@ class Counted:
             converged, history = counter._iterate(*args, **kwargs)
             counter.newton += len(history) - 1
             return converged, history
+
         newton_module.newton_iterate = iterate
 
         def record(solves, its, seconds, x, t):  # every solve, whichever Krylov method made it
@@ -81,18 +87,32 @@ class Counted:
         newton_module.newton_iterate = self._iterate
 
 
-def atlas_cost(scene, levels: int, mode_tolerance: float | None = None, exact: bool = True, rtol: float | None = None,
-               predict: bool = True, draining: bool = True, loose_first: bool = True) -> dict:
+def atlas_cost(
+    scene,
+    levels: int,
+    mode_tolerance: float | None = None,
+    exact: bool = True,
+    rtol: float | None = None,
+    predict: bool = True,
+    draining: bool = True,
+    loose_first: bool = True,
+) -> dict:
     """The atlas's cost; mode_tolerance: the modes' contact tolerance (None: the atlas's own,
     build.MODE_TOLERANCE; the scene's [skull] tolerance for the baseline); exact: False for
-    the former preconditioner (a factor of K and the pressed nodes, rebuilt); rtol: Newton's
+    the refactored preconditioner (a factor of K and the pressed nodes, rebuilt); rtol: Newton's
     relative residual (None: build.MODE_RTOL); predict: False to start each level from the last
     state alone; draining: False for the levels in ascending order (the first from rest at the
-    lowest, then refilled: session 24's atlas); loose_first: False for Newton's first solve
+    lowest, then refilled); loose_first: False for Newton's first solve
     with the skull to the tight target at once (newton.FIRST_LOOSER = 1)."""
     vary = parse_vary([f"fluid.level={LOWEST}:{HIGHEST}:{levels}", f"gravity.angle_z={ANGLE}"])
-    saved = (building.MODE_TOLERANCE, NewtonStatic._exact_possible, building.MODE_RTOL, building.predict_start,
-             building.family, newton_module.FIRST_LOOSER)
+    saved = (
+        building.MODE_TOLERANCE,
+        NewtonStatic._exact_possible,
+        building.MODE_RTOL,
+        building.predict_start,
+        building.family,
+        newton_module.FIRST_LOOSER,
+    )
     if not loose_first:
         newton_module.FIRST_LOOSER = 1.0
     building.MODE_TOLERANCE = saved[0] if mode_tolerance is None else mode_tolerance
@@ -107,26 +127,46 @@ def atlas_cost(scene, levels: int, mode_tolerance: float | None = None, exact: b
         with Counted() as counted:
             atlas, seconds = build(scene, vary, MPI.COMM_WORLD)
     finally:
-        (building.MODE_TOLERANCE, NewtonStatic._exact_possible, building.MODE_RTOL, building.predict_start,
-         building.family, newton_module.FIRST_LOOSER) = saved
+        (
+            building.MODE_TOLERANCE,
+            NewtonStatic._exact_possible,
+            building.MODE_RTOL,
+            building.predict_start,
+            building.family,
+            newton_module.FIRST_LOOSER,
+        ) = saved
     states = atlas.info["settled_states"]
     modes = {_key(s): u for s, u in zip(atlas.scenarios, atlas.vertex_modes)}
-    return {"count": len(atlas.scenarios), "states": states, "modes_s": seconds["modes_s"],
-            "per_state_s": seconds["modes_s"] / states, "gmres_per_state": counted.iterations / states,
-            "newton_per_state": counted.newton / states,
-            "factors": counted.factors, "tolerance_mm": 1e3 * atlas.info["contact_tolerance_m"], "modes": modes}
+    return {
+        "count": len(atlas.scenarios),
+        "states": states,
+        "modes_s": seconds["modes_s"],
+        "per_state_s": seconds["modes_s"] / states,
+        "gmres_per_state": counted.iterations / states,
+        "newton_per_state": counted.newton / states,
+        "factors": counted.factors,
+        "tolerance_mm": 1e3 * atlas.info["contact_tolerance_m"],
+        "modes": modes,
+    }
 
 
 def _key(scenario: dict) -> tuple:
-    return ("swelling", scenario["region"]) if scenario["kind"] == "swelling" else tuple(sorted(scenario["values"].items()))
+    return (
+        ("swelling", scenario["region"])
+        if scenario["kind"] == "swelling"
+        else tuple(sorted(scenario["values"].items()))
+    )
 
 
 def modes_apart(a: dict, b: dict) -> dict:
     """How far two atlases' modes of the same scenarios are apart (mm): the largest, the mean
     over nodes and modes, and the nodes more than 1 mm apart in any mode."""
     distance = np.array([np.linalg.norm(a[k] - b[k], axis=1) for k in a])  # (modes, nodes)
-    return {"max_mm": 1e3 * distance.max(), "mean_mm": 1e3 * distance.mean(),
-            "nodes_1mm": int((distance.max(axis=0) > 1e-3).sum())}
+    return {
+        "max_mm": 1e3 * distance.max(),
+        "mean_mm": 1e3 * distance.mean(),
+        "nodes_1mm": int((distance.max(axis=0) > 1e-3).sum()),
+    }
 
 
 def shrink_two_ways(scene) -> dict:
@@ -156,10 +196,17 @@ def shrink_two_ways(scene) -> dict:
     forward.destroy()
     apart = np.linalg.norm(from_rest - from_prior, axis=1)
     shift = np.linalg.norm(from_prior, axis=1)
-    return {"apart_max_mm": 1e3 * apart.max(), "apart_mean_mm": 1e3 * apart.mean(),
-            "nodes_1mm_apart": int((apart > 1e-3).sum()), "nodes": len(apart),
-            "shift_max_mm": 1e3 * shift.max(), "past_rest_mm": 1e3 * past_rest, "past_prior_mm": 1e3 * past_prior,
-            "from_rest_s": from_rest_s, "from_prior_s": from_prior_s}
+    return {
+        "apart_max_mm": 1e3 * apart.max(),
+        "apart_mean_mm": 1e3 * apart.mean(),
+        "nodes_1mm_apart": int((apart > 1e-3).sum()),
+        "nodes": len(apart),
+        "shift_max_mm": 1e3 * shift.max(),
+        "past_rest_mm": 1e3 * past_rest,
+        "past_prior_mm": 1e3 * past_prior,
+        "from_rest_s": from_rest_s,
+        "from_prior_s": from_prior_s,
+    }
 
 
 def main() -> None:
@@ -174,7 +221,7 @@ def main() -> None:
     cost = atlas_cost(scene, args.levels)
     unpredicted = atlas_cost(scene, args.levels, predict=False)  # each level from the last state alone
     tight_first = atlas_cost(scene, args.levels, loose_first=False)  # Newton's first solve to the target at once
-    plain = atlas_cost(scene, args.levels, rtol=1e-6, predict=False, loose_first=False)  # session 24's Newton
+    plain = atlas_cost(scene, args.levels, rtol=1e-6, predict=False, loose_first=False)  # residual 1e-6, the last state
     refilled = atlas_cost(scene, args.levels, rtol=1e-6, predict=False, draining=False, loose_first=False)
     former = atlas_cost(scene, args.levels, exact=False, rtol=1e-9, predict=False, draining=False, loose_first=False)
     tight = atlas_cost(scene, args.levels, mode_tolerance=scene.skull.tolerance)
@@ -189,16 +236,27 @@ def main() -> None:
     shrink = shrink_two_ways(scene)
     print(shrink, flush=True)
     inside = max(shrink["past_rest_mm"], shrink["past_prior_mm"]) <= 1e3 * scene.skull.tolerance
-    verdict = ("The two starts reach the same state." if shrink["apart_max_mm"] <= 0.1 else
-               "Both are settled" + (" and inside the skull (to its tolerance): two equilibria of one scene."
-                                     if inside else "; one is past the skull by more than its tolerance."))
+    verdict = (
+        "The two starts reach the same state."
+        if shrink["apart_max_mm"] <= 0.1
+        else "Both are settled"
+        + (
+            " and inside the skull (to its tolerance): two equilibria of one scene."
+            if inside
+            else "; one is past the skull by more than its tolerance."
+        )
+    )
+
     def row(order, start, rtol, loose, preconditioner, run, bold=False, note=""):
         seconds = f"**{run['per_state_s']:.2f}**" if bold else f"{run['per_state_s']:.2f}"
-        return (f"| {order} | {start} | {rtol:g} | {loose} | {preconditioner} | {run['tolerance_mm']:g} mm{note} | "
-                f"{seconds} | {run['newton_per_state']:.1f} | {run['gmres_per_state']:.0f} | {run['factors']} |")
+        return (
+            f"| {order} | {start} | {rtol:g} | {loose} | {preconditioner} | {run['tolerance_mm']:g} mm{note} | "
+            f"{seconds} | {run['newton_per_state']:.1f} | {run['gmres_per_state']:.0f} | {run['factors']} |"
+        )
 
     command = "python benchmarks/skull_atlas.py" + "".join(
-        f" --{k} {v}" for k, v in (("voxel", args.voxel), ("gap", args.gap), ("levels", args.levels)))
+        f" --{k} {v}" for k, v in (("voxel", args.voxel), ("gap", args.gap), ("levels", args.levels))
+    )
     text = f"""# An atlas with the skull: its cost, and the swelling mode's start
 
 {machine_line()}; one rank; `{command}`; the bundled brain at {args.voxel * 1e3:g} mm, a skull {args.gap * 1e3:g} mm
@@ -207,8 +265,8 @@ out, the scene's [skull] tolerance {scene.skull.tolerance * 1e3:g} mm (the shrun
 ## The cost of a mode
 
 {args.levels} levels ({LOWEST * 1e3:g} to {HIGHEST * 1e3:g} mm) at one pose (turned {ANGLE:g} degrees about z) and the
-whole-brain swelling mode, {cost['count']} modes, {cost['states']} settled states (the scene's own prior included);
-issue 28 asks for 1.5 s a mode. Each row is one `build` of the same scenarios in this run:
+whole-brain swelling mode, {cost["count"]} modes, {cost["states"]} settled states (the scene's own prior included);
+the goal is 1.5 s a mode. Each row is one `build` of the same scenarios in this run:
 
 | levels in order | a level's start | Newton's residual | first solve looser | preconditioner | contact tolerance | s a settled state | Newton iterations a state | GMRES iterations a state | factorisations |
 |---|---|---|---|---|---|---|---|---|---|
@@ -216,24 +274,24 @@ issue 28 asks for 1.5 s a mode. Each row is one `build` of the same scenarios in
 {row("draining", "the last", building.MODE_RTOL, "yes", "exact", unpredicted)}
 {row("draining", "the last two extrapolated", building.MODE_RTOL, "no", "exact", tight_first)}
 {row("draining", "the last", 1e-6, "no", "exact", plain)}
-{row("refilling (session 24's atlas)", "the last", 1e-6, "no", "exact", refilled)}
-{row("refilling", "the last", 1e-9, "no", "refactored (the former)", former)}
+{row("refilling (levels ascending)", "the last", 1e-6, "no", "exact", refilled)}
+{row("refilling", "the last", 1e-9, "no", "refactored", former)}
 {row("draining", "the last two extrapolated", building.MODE_RTOL, "yes", "exact", tight, note=" (the scene's)")}
 
 Draining: each pose's first state, solved from rest, is at its highest level, where the fluid
-bears the brain and it presses the skull least; the next ones follow the drain. Refilling (the
-order before): the first at the lowest level, where from rest most nodes press, each Newton
+bears the brain and it presses the skull least; the next ones follow the drain. Refilling
+(levels ascending): the first at the lowest level, where from rest most nodes press, each Newton
 step held back to the first node's contact. Every settled state is an equilibrium inside the
 skull to its contact tolerance; how far the rows' modes are apart (mm):
 
 | | largest | mean over nodes and modes | nodes more than 1 mm apart |
 |---|---|---|---|
-| extrapolated starts / the last state (residual {building.MODE_RTOL:g}) | {predicted_apart['max_mm']:.3f} | {predicted_apart['mean_mm']:.4f} | {predicted_apart['nodes_1mm']} |
-| the first solve looser / not | {loose_apart['max_mm']:.3f} | {loose_apart['mean_mm']:.4f} | {loose_apart['nodes_1mm']} |
-| residual {building.MODE_RTOL:g} / 1e-6 (each from the last state) | {residual_apart['max_mm']:.1e} | {residual_apart['mean_mm']:.1e} | {residual_apart['nodes_1mm']} |
-| draining / refilling (the path) | {path_apart['max_mm']:.3f} | {path_apart['mean_mm']:.4f} | {path_apart['nodes_1mm']} |
-| refilling exact / refactored (residual 1e-6 / 1e-9) | {preconditioner_apart['max_mm']:.1e} | {preconditioner_apart['mean_mm']:.1e} | {preconditioner_apart['nodes_1mm']} |
-| contact tolerance {cost['tolerance_mm']:g} / {tight['tolerance_mm']:g} mm | {tolerance_apart['max_mm']:.3f} | {tolerance_apart['mean_mm']:.4f} | {tolerance_apart['nodes_1mm']} |
+| extrapolated starts / the last state (residual {building.MODE_RTOL:g}) | {predicted_apart["max_mm"]:.3f} | {predicted_apart["mean_mm"]:.4f} | {predicted_apart["nodes_1mm"]} |
+| the first solve looser / not | {loose_apart["max_mm"]:.3f} | {loose_apart["mean_mm"]:.4f} | {loose_apart["nodes_1mm"]} |
+| residual {building.MODE_RTOL:g} / 1e-6 (each from the last state) | {residual_apart["max_mm"]:.1e} | {residual_apart["mean_mm"]:.1e} | {residual_apart["nodes_1mm"]} |
+| draining / refilling (the path) | {path_apart["max_mm"]:.3f} | {path_apart["mean_mm"]:.4f} | {path_apart["nodes_1mm"]} |
+| refilling exact / refactored (residual 1e-6 / 1e-9) | {preconditioner_apart["max_mm"]:.1e} | {preconditioner_apart["mean_mm"]:.1e} | {preconditioner_apart["nodes_1mm"]} |
+| contact tolerance {cost["tolerance_mm"]:g} / {tight["tolerance_mm"]:g} mm | {tolerance_apart["max_mm"]:.3f} | {tolerance_apart["mean_mm"]:.4f} | {tolerance_apart["nodes_1mm"]} |
 
 A start changes which equilibrium a contact state settles in where the skull's inner surface is
 concave, and two states each within the contact tolerance of the skull may be that far apart
@@ -247,11 +305,11 @@ compliance solved once; GMRES is left the follower load's tangent.
 
 | | |
 |---|---|
-| the two contact states apart, largest | {shrink['apart_max_mm']:.2f} mm |
-| ... on average over the {shrink['nodes']} nodes | {shrink['apart_mean_mm']:.3f} mm |
-| nodes more than 1 mm apart | {shrink['nodes_1mm_apart']} |
-| past the skull: from rest / from the prior | {shrink['past_rest_mm']:.4f} / {shrink['past_prior_mm']:.4f} mm |
-| seconds: from rest / from the prior | {shrink['from_rest_s']:.1f} / {shrink['from_prior_s']:.1f} |
+| the two contact states apart, largest | {shrink["apart_max_mm"]:.2f} mm |
+| ... on average over the {shrink["nodes"]} nodes | {shrink["apart_mean_mm"]:.3f} mm |
+| nodes more than 1 mm apart | {shrink["nodes_1mm_apart"]} |
+| past the skull: from rest / from the prior | {shrink["past_rest_mm"]:.4f} / {shrink["past_prior_mm"]:.4f} mm |
+| seconds: from rest / from the prior | {shrink["from_rest_s"]:.1f} / {shrink["from_prior_s"]:.1f} |
 
 {verdict} The atlas takes the state reached from the prior: its swelling mode is the change the
 swelling makes there.

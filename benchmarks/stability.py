@@ -8,6 +8,7 @@ machine and this command:
     .venv/bin/python benchmarks/stability.py            # everything (a few minutes)
     .venv/bin/python benchmarks/stability.py --quick    # shorter sweeps
 """
+
 from __future__ import annotations
 
 import argparse
@@ -29,13 +30,16 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from cube_sizes import machine  # noqa: E402
 
 from fenics_brainshift import compat, logs  # noqa: E402
-from fenics_brainshift.physics import HydrostaticLoad  # noqa: E402
 from fenics_brainshift.data import scene_path  # noqa: E402
-from fenics_brainshift.runner.build import mesh_from_spec as build_mesh  # noqa: E402
-from fenics_brainshift.runner import build_model  # noqa: E402
-from fenics_brainshift.scene import MeshSpec, load_scene, scene_from_dict  # noqa: E402
-from fenics_brainshift.runner import Simulation, run  # noqa: E402
 from fenics_brainshift.errors import SolverError  # noqa: E402
+from fenics_brainshift.physics import HydrostaticLoad  # noqa: E402
+from fenics_brainshift.runner import (  # noqa: E402
+    Simulation,
+    build_model,  # noqa: E402
+    run,
+)
+from fenics_brainshift.runner.build import mesh_from_spec as build_mesh  # noqa: E402
+from fenics_brainshift.scene import MeshSpec, load_scene, scene_from_dict  # noqa: E402
 
 COMM = MPI.COMM_SELF
 ROWS: list[dict] = []
@@ -96,8 +100,12 @@ def time_steps(steps: int) -> None:
             ok = outcome == "ok" and peak <= 2.0 * u_static * (1 + 1e-8) and np.isfinite(peak)
             ok = ok and (drift < 1e-10 if newmark else True)
             balance = "energy balance error" if newmark else "energy dissipated by the scheme"
-            record("time step (sudden gravity)", f"{name}, dt={dt:g} s, {steps} steps", "ok" if ok else "FAIL",
-                   f"peak |u|_K / static = {peak / u_static:.3f} (bound 2); {balance} {drift:.1e} of E")
+            record(
+                "time step (sudden gravity)",
+                f"{name}, dt={dt:g} s, {steps} steps",
+                "ok" if ok else "FAIL",
+                f"peak |u|_K / static = {peak / u_static:.3f} (bound 2); {balance} {drift:.1e} of E",
+            )
 
 
 def high_mode_damping() -> None:
@@ -112,6 +120,7 @@ def high_mode_damping() -> None:
         n = sim.state.n_owned
         sim.u.x.array[:n] = rng.normal(size=n) * 1e-4
         from dolfinx.fem.petsc import set_bc
+
         set_bc(compat.petsc_vec(sim.u), sim.model.bcs)
         sim.u.x.scatter_forward()
         sim.setup()
@@ -126,8 +135,12 @@ def high_mode_damping() -> None:
         jordan = (n - span) / n if rho < 1.0 else 1.0  # rho_inf = 1: two distinct eigenvalues on the unit circle
         ratio = ((amplitude[-1] / amplitude[-1 - span]) * jordan) ** (1 / span) if amplitude[-1 - span] > 0 else 0.0
         ok = abs(ratio - rho) < 0.05
-        record("high-mode damping", f"gen-alpha rho_inf={rho:g}, dt=10 s", "ok" if ok else "FAIL",
-               f"amplitude ratio per step {ratio:.3f} (rho_inf {rho:g})")
+        record(
+            "high-mode damping",
+            f"gen-alpha rho_inf={rho:g}, dt=10 s",
+            "ok" if ok else "FAIL",
+            f"amplitude ratio per step {ratio:.3f} (rho_inf {rho:g})",
+        )
 
 
 # ------------------------------------------------------------------ near incompressibility
@@ -149,8 +162,12 @@ def poisson_ratios() -> None:
                     its[solver] = "diverged"
             finite = np.isfinite(static.u.x.array).all()
             locking = f"; P1/P2 sag {sag / sag_p2[nu]:.2f}" if degree == 1 else ""
-            record("near incompressible", f"P{degree}, nu={nu:g}", "ok" if finite else "FAIL",
-                   f"sag {sag * 1e3:.3f} mm{locking}; CG iterations: GAMG {its['cg-gamg']}, Jacobi {its['cg-jacobi']}")
+            record(
+                "near incompressible",
+                f"P{degree}, nu={nu:g}",
+                "ok" if finite else "FAIL",
+                f"sag {sag * 1e3:.3f} mm{locking}; CG iterations: GAMG {its['cg-gamg']}, Jacobi {its['cg-jacobi']}",
+            )
 
 
 # ------------------------------------------------------------------ long runs
@@ -172,16 +189,24 @@ def long_runs(steps: int) -> None:
     for _ in range(steps):
         sim.step()
     drift = np.abs(sim.u.x.array - static.u.x.array).max() / np.abs(static.u.x.array).max()
-    record("long run, body at rest", f"{steps} undamped Newmark steps", "ok" if drift < 1e-9 else "FAIL",
-           f"drift |u - u_static| / |u_static| = {drift:.1e} ({time.perf_counter() - t0:.1f} s)")
+    record(
+        "long run, body at rest",
+        f"{steps} undamped Newmark steps",
+        "ok" if drift < 1e-9 else "FAIL",
+        f"drift |u - u_static| / |u_static| = {drift:.1e} ({time.perf_counter() - t0:.1f} s)",
+    )
     sim = Simulation(scene, COMM, model)
     sim.setup()
     for _ in range(steps):
         sim.step()
     t, ek, es, w = np.array(sim.dynamic.energy.history).T
     balance = np.abs(ek + es - w).max() / (ek + es).max()
-    record("long run, free vibration", f"{steps} undamped steps after sudden gravity", "ok" if balance < 1e-8 else "FAIL",
-           f"max |E - W| / max E = {balance:.1e}; E stays in [{(ek + es).min():.2e}, {(ek + es).max():.2e}] J")
+    record(
+        "long run, free vibration",
+        f"{steps} undamped steps after sudden gravity",
+        "ok" if balance < 1e-8 else "FAIL",
+        f"max |E - W| / max E = {balance:.1e}; E stays in [{(ek + es).min():.2e}, {(ek + es).max():.2e}] J",
+    )
 
 
 # ------------------------------------------------------------------ hydrostatics
@@ -229,13 +254,21 @@ def hydrostatics_cases() -> None:
             up = -direction
             heights = x @ up
             load = HydrostaticLoad(V, RHO, G * direction, "consistent")
-            for level in (heights.min() - 0.01, heights.max() + 0.01, float(np.sort(heights)[len(heights) // 2]),
-                          float(np.sort(heights)[len(heights) // 3])):
+            for level in (
+                heights.min() - 0.01,
+                heights.max() + 0.01,
+                float(np.sort(heights)[len(heights) // 2]),
+                float(np.sort(heights)[len(heights) // 3]),
+            ):
                 load.assemble(level)
                 expected = RHO * G * volume_below(x, geo, up, level) * up
                 worst = max(worst, np.abs(load.force - expected).max() / (RHO * G * volume))
-        record("water line", f"{name}: dry/submerged/through vertices", "ok" if worst < 1e-6 else "FAIL",
-               f"worst relative error of the resultant {worst:.1e} (3 gravity directions)")
+        record(
+            "water line",
+            f"{name}: dry/submerged/through vertices",
+            "ok" if worst < 1e-6 else "FAIL",
+            f"worst relative error of the resultant {worst:.1e} (3 gravity directions)",
+        )
 
 
 # ------------------------------------------------------------------ follower, large shift
@@ -245,17 +278,23 @@ def follower_brain(voxel: float) -> None:
     balance the pressure's load stiffness, so below some G the fixed point of a fully
     submerged soft brain does not exist; the run must then stop with a clear message."""
     for G in (1200.0, 500.0):
-        overrides = [f"mesh.voxel={voxel}", "time.mode=quasi-static", f"material.G={G}",
-                     "fluid.level=[[0.0, 0.085], [1.0, 0.0]]"]
+        overrides = [
+            f"mesh.voxel={voxel}",
+            "time.mode=quasi-static",
+            f"material.G={G}",
+            "fluid.level=[[0.0, 0.085], [1.0, 0.0]]",
+        ]
         scene = load_scene(scene_path("brain"), overrides)
         scene.mesh.surface = None
         with tempfile.TemporaryDirectory() as tmp:
             try:
                 summary = run(scene, Path(tmp) / "out", COMM).summary
                 outcome = "ok" if summary["status"] == "ok" else "FAIL"
-                measure = (f"max |u| {summary['max_displacement_m'] * 1e3:.1f} mm, frontal pole "
-                           f"{np.linalg.norm(summary['probes']['frontal_pole']) * 1e3:.1f} mm; "
-                           f"{summary['linear_solves']} solves for 2 levels")
+                measure = (
+                    f"max |u| {summary['max_displacement_m'] * 1e3:.1f} mm, frontal pole "
+                    f"{np.linalg.norm(summary['probes']['frontal_pole']) * 1e3:.1f} mm; "
+                    f"{summary['linear_solves']} solves for 2 levels"
+                )
             except SolverError as exc:
                 outcome, measure = "limit", str(exc).split(" (stopped")[0]
         record("follower, large shift", f"brain {voxel * 1e3:g} mm, G = {G:g} Pa, CSF 85 -> 0 mm", outcome, measure)
@@ -268,16 +307,36 @@ def ranks() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         for n in (1, 2, 4):
             out = Path(tmp) / f"r{n}"
-            cmd = [shutil.which("mpirun"), "-n", str(n), "--oversubscribe", sys.executable, "-m", "fenics_brainshift.cli",
-                   "--log-level", "WARNING", "run", str(scene_path("cube")), "--out", str(out),
-                   "--set", "mesh.cells=[12, 12, 6]", "--set", "time.end=1.0"]
+            cmd = [
+                shutil.which("mpirun"),
+                "-n",
+                str(n),
+                "--oversubscribe",
+                sys.executable,
+                "-m",
+                "fenics_brainshift.cli",
+                "--log-level",
+                "WARNING",
+                "run",
+                str(scene_path("cube")),
+                "--out",
+                str(out),
+                "--set",
+                "mesh.cells=[12, 12, 6]",
+                "--set",
+                "time.end=1.0",
+            ]
             subprocess.run(cmd, check=True, env=env, cwd=ROOT, capture_output=True)
             summary = json.loads((out / "summary.json").read_text())
             probes[n] = np.array(summary["probes"]["top_centre"])
     diff = max(np.abs(probes[n] - probes[1]).max() for n in (2, 4)) / np.abs(probes[1]).max()
     # each step's follower iteration stops within 1e-6 of |u|; rank counts stop at different iterates
-    record("ranks", "cube 12x12x6, 1 / 2 / 4 ranks", "ok" if diff < 1e-6 else "FAIL",
-           f"largest probe difference {diff:.1e} of |u| (follower tolerance 1e-6)")
+    record(
+        "ranks",
+        "cube 12x12x6, 1 / 2 / 4 ranks",
+        "ok" if diff < 1e-6 else "FAIL",
+        f"largest probe difference {diff:.1e} of |u| (follower tolerance 1e-6)",
+    )
 
 
 # ------------------------------------------------------------------ resection
@@ -290,16 +349,22 @@ def resection() -> None:
         "time": {"mode": "dynamic", "dt": 0.005, "end": 0.3},
         "damping": {"a": 5.0},
         "solver": {"kind": "cg-gamg"},
-        "remove": [{"at": 0.03, "where": "(x - 0.01)**2 + (y - 0.01)**2 + (z - 0.06)**2 < 0.008**2"},
-                   {"at": 0.05, "where": "x > 0.014 and z > 0.03"},
-                   {"at": 0.08, "where": "y < 0.006 and z < 0.045"},
-                   {"at": 0.1, "where": "0.02 < z < 0.025"}],
+        "remove": [
+            {"at": 0.03, "where": "(x - 0.01)**2 + (y - 0.01)**2 + (z - 0.06)**2 < 0.008**2"},
+            {"at": 0.05, "where": "x > 0.014 and z > 0.03"},
+            {"at": 0.08, "where": "y < 0.006 and z < 0.045"},
+            {"at": 0.1, "where": "0.02 < z < 0.025"},
+        ],
     }
     with tempfile.TemporaryDirectory() as tmp:
         summary = run(scene_from_dict(data), Path(tmp) / "out", COMM).summary
-    record("resection", "block, 4 cuts, the last frees the top", "ok" if summary["status"] == "ok" else "FAIL",
-           f"{summary['removed_fraction']:.0%} removed; max |u| {summary['max_displacement_m'] * 1e3:.1f} mm "
-           f"(the freed piece sinks); {summary['steps']} steps")
+    record(
+        "resection",
+        "block, 4 cuts, the last frees the top",
+        "ok" if summary["status"] == "ok" else "FAIL",
+        f"{summary['removed_fraction']:.0%} removed; max |u| {summary['max_displacement_m'] * 1e3:.1f} mm "
+        f"(the freed piece sinks); {summary['steps']} steps",
+    )
 
 
 def main(argv=None) -> int:
@@ -325,9 +390,14 @@ def main(argv=None) -> int:
         writer.writeheader()
         writer.writerows(ROWS)
     command = "python benchmarks/stability.py" + (" --quick" if args.quick else "")
-    lines = ["# Stability under stress\n", "Outcome: ok (within the stated bound), FAIL, or limit (the run stopped "
-             "with its one-line message: a known limit of linear elasticity with follower loads).\n", f"Machine: {machine()}; DOLFINx {compat.DOLFINX_VERSION}; "
-             f"`{command}`, {elapsed:.0f} s.\n", "| case | setting | outcome | measure |", "|---|---|---|---|"]
+    lines = [
+        "# Stability under stress\n",
+        "Outcome: ok (within the stated bound), FAIL, or limit (the run stopped "
+        "with its one-line message: a known limit of linear elasticity with follower loads).\n",
+        f"Machine: {machine()}; DOLFINx {compat.DOLFINX_VERSION}; `{command}`, {elapsed:.0f} s.\n",
+        "| case | setting | outcome | measure |",
+        "|---|---|---|---|",
+    ]
     lines += [f"| {r['case']} | {r['setting']} | {r['outcome']} | {r['measure']} |" for r in ROWS]
     stem.with_suffix(".md").write_text("\n".join(lines) + "\n")
     failed = [r for r in ROWS if r["outcome"] == "FAIL"]

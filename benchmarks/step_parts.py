@@ -19,6 +19,7 @@ that the ratios are fair on a noisy machine (median of N repetitions):
 
 writes step_parts.csv and step_parts.md.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -38,12 +39,11 @@ sys.path.insert(0, str(ROOT))
 from fenics_brainshift.bench import machine_line  # noqa: E402
 from fenics_brainshift.bench.sweep import NaiveStepper  # noqa: E402
 from fenics_brainshift.data import scene_path  # noqa: E402
+from fenics_brainshift.linalg import PairProduct  # noqa: E402
 from fenics_brainshift.physics.hydrostatic import _scatter_add  # noqa: E402
 from fenics_brainshift.physics.wet_facets import consistent_loads, split_wet  # noqa: E402
-from fenics_brainshift.linalg import PairProduct  # noqa: E402
-from fenics_brainshift.runner import build  # noqa: E402
+from fenics_brainshift.runner import Simulation, build  # noqa: E402
 from fenics_brainshift.scene import load_scene  # noqa: E402
-from fenics_brainshift.runner import Simulation  # noqa: E402
 
 OVERRIDES = ["mesh.voxel=0.008", "fluid.follower=false", "output.pictures=false"]
 
@@ -78,8 +78,9 @@ def timed_steps(naive: bool, scene, count: int):
     every step) and the wall time of each of its first count steps."""
     sim = Simulation(scene, MPI.COMM_SELF)
     if naive:
-        sim.dynamic = NaiveStepper(sim.model, sim.state, build.integrator(scene), (scene.damping.a, scene.damping.b),
-                                   sim.solves)
+        sim.dynamic = NaiveStepper(
+            sim.model, sim.state, build.integrator(scene), (scene.damping.a, scene.damping.b), sim.solves
+        )
         sim.dynamic.setup()
     sim.setup()
     seconds = []
@@ -177,18 +178,31 @@ def main(argv=None) -> None:
     # step, UFL quadrature load): the goal is at least 10x
     naive_scene = load_scene(scene_path("brain"), OVERRIDES + ["fluid.rule=quadrature"])
     _, naive_steps = timed_steps(True, naive_scene, 20)
-    record("dynamic step", "naive loop (rebuilt every step, quadrature load)", naive_steps,
-           f"{median_ms(naive_steps) / median_ms(steps[:20]):.0f}x the same 20 steps above")
+    record(
+        "dynamic step",
+        "naive loop (rebuilt every step, quadrature load)",
+        naive_steps,
+        f"{median_ms(naive_steps) / median_ms(steps[:20]):.0f}x the same 20 steps above",
+    )
     # with follower loading (the demo's setting)
     follower_scene = load_scene(scene_path("brain"), OVERRIDES[:1] + ["output.pictures=false"])
     follower, follower_steps = timed_steps(False, follower_scene, follower_scene.time.steps)
-    record("dynamic step", "follower loading (Anderson)", follower_steps,
-           f"{follower.solves.count / len(follower_steps):.1f} solves per step")
+    record(
+        "dynamic step",
+        "follower loading (Anderson)",
+        follower_steps,
+        f"{follower.solves.count / len(follower_steps):.1f} solves per step",
+    )
 
     # the settled state after the drain, quasi-static, at the paper's 5 mm voxels
     for follow in ("false", "true"):
-        overrides = ["mesh.voxel=0.005", "time.mode=quasi-static", "fluid.level=0.03", f"fluid.follower={follow}",
-                     "output.pictures=false"]
+        overrides = [
+            "mesh.voxel=0.005",
+            "time.mode=quasi-static",
+            "fluid.level=0.03",
+            f"fluid.follower={follow}",
+            "output.pictures=false",
+        ]
         t0 = time.perf_counter()
         static = Simulation(load_scene(scene_path("brain"), overrides), MPI.COMM_SELF)
         static.setup()
@@ -198,21 +212,31 @@ def main(argv=None) -> None:
         shift = time.perf_counter() - t0
         nodes = static.model.sizes()["nodes"]
         label = "with" if follow == "true" else "without"
-        rows.append({"part": "quasi-static final shift, 5 mm", "variant": f"{label} follower loading",
-                     "median_ms": round(shift * 1e3, 3),
-                     "note": f"{nodes:,} nodes; setup (mesh, forms, factor) {setup:.2f} s; "
-                             f"{static.solves.count} solves"})
+        rows.append(
+            {
+                "part": "quasi-static final shift, 5 mm",
+                "variant": f"{label} follower loading",
+                "median_ms": round(shift * 1e3, 3),
+                "note": f"{nodes:,} nodes; setup (mesh, forms, factor) {setup:.2f} s; {static.solves.count} solves",
+            }
+        )
 
     args.out.mkdir(parents=True, exist_ok=True)
     with open(args.out / "step_parts.csv", "w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
-    lines = [f"# Parts of a dynamic brain step ({sizes['nodes']:,} nodes, {sizes['dofs']:,} dofs, P1, one rank)", "",
-             f"Machine: {machine_line()}  ",
-             "Command: `.venv/bin/python benchmarks/step_parts.py` "
-             f"(median of {args.repeat} interleaved repetitions; steps: median over the run; the quasi-static rows are single runs)", "",
-             "| part | variant | median (ms) | note |", "|---|---|---:|---|"]
+    lines = [
+        f"# Parts of a dynamic brain step ({sizes['nodes']:,} nodes, {sizes['dofs']:,} dofs, P1, one rank)",
+        "",
+        f"Machine: {machine_line()}  ",
+        "Command: `.venv/bin/python benchmarks/step_parts.py` "
+        f"(median of {args.repeat} interleaved repetitions; steps: median over the run; "
+        "the quasi-static rows are single runs)",
+        "",
+        "| part | variant | median (ms) | note |",
+        "|---|---|---:|---|",
+    ]
     lines += [f"| {r['part']} | {r['variant']} | {r['median_ms']:.3f} | {r['note']} |" for r in rows]
     (args.out / "step_parts.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))

@@ -8,6 +8,7 @@ sphere of 20 mm around a point of the right frontal lobe. Each case: setup (mesh
 factor) and the settled state at the end of the drain, the median of REPEATS runs taken in
 turn with the others; the ratio is against the same model without swelling.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -29,16 +30,25 @@ REPEATS = 3
 REGIONS = {
     "none": (),
     "whole brain -2 %": (Swelling(volume_change=-0.02, where="x > -1"),),
-    "oedema +5 %, 20 mm sphere": (Swelling(volume_change=0.05,
-                                           where="(x - 0.03)**2 + (y - 0.03)**2 + (z - 0.02)**2 < 0.02**2"),),
+    "oedema +5 %, 20 mm sphere": (
+        Swelling(volume_change=0.05, where="(x - 0.03)**2 + (y - 0.03)**2 + (z - 0.02)**2 < 0.02**2"),
+    ),
 }
 
 
 def settle(voxel: float, model: str, regions, overrides=()) -> tuple[float, float, int, float]:
     """(setup s, settled-state s, linear solves, frontal pole |u| mm) of the brain with these
     [[swelling]] regions and scene overrides (benchmarks/septa.py uses it too)."""
-    scene = load_scene("brain", [f"mesh.voxel={voxel}", "time.mode=quasi-static", f"material.model={model}",
-                                 "output.pictures=false", *overrides])
+    scene = load_scene(
+        "brain",
+        [
+            f"mesh.voxel={voxel}",
+            "time.mode=quasi-static",
+            f"material.model={model}",
+            "output.pictures=false",
+            *overrides,
+        ],
+    )
     scene.swelling = regions
     t0 = time.perf_counter()
     sim = Simulation(scene, MPI.COMM_WORLD)
@@ -71,17 +81,24 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     logs.configure("WARNING")
     cases, runs = timed_runs(REGIONS, settle, args.voxel, 0.03)
-    lines = [f"# What a [[swelling]] costs a settled state: the bundled brain, {args.voxel * 1e3:g} mm voxels", "",
-             f"`.venv/bin/python benchmarks/swelling.py --voxel {args.voxel:g}`; {platform.processor() or platform.machine()}, "
-             f"one rank; the settled state after the drain (follower CSF load); medians of {REPEATS} runs taken in turn. "
-             f"Linear solves: the step solver's (a shrinking or swelling neo-Hookean body's Newton starts from the "
-             f"linear answer, a CG solve on the factor of K it already has, not counted).", "",
-             "| model | swelling | setup (s) | settled state (s) | against none | linear solves | frontal pole (mm) |",
-             "|---|---|---:|---:|---:|---:|---:|"]
+    lines = [
+        f"# What a [[swelling]] costs a settled state: the bundled brain, {args.voxel * 1e3:g} mm voxels",
+        "",
+        f"`.venv/bin/python benchmarks/swelling.py --voxel {args.voxel:g}`; "
+        f"{platform.processor() or platform.machine()}, "
+        f"one rank; the settled state after the drain (follower CSF load); medians of {REPEATS} runs taken in turn. "
+        f"Linear solves: the step solver's (a shrinking or swelling neo-Hookean body's Newton starts from the "
+        f"linear answer, a CG solve on the factor of K it already has, not counted).",
+        "",
+        "| model | swelling | setup (s) | settled state (s) | against none | linear solves | frontal pole (mm) |",
+        "|---|---|---:|---:|---:|---:|---:|",
+    ]
     for model, region in cases:
         setup, solve, solves, pole = (statistics.median(v) for v in zip(*runs[(model, region)]))
         base = statistics.median(r[1] for r in runs[(model, "none")])
-        lines.append(f"| {model} | {region} | {setup:.2f} | {solve:.2f} | {solve / base:.2f}x | {solves:.0f} | {pole:.2f} |")
+        lines.append(
+            f"| {model} | {region} | {setup:.2f} | {solve:.2f} | {solve / base:.2f}x | {solves:.0f} | {pole:.2f} |"
+        )
         print(lines[-1], flush=True)
     out = ROOT / "benchmarks" / "results" / "swelling.md"
     out.write_text("\n".join(lines) + "\n")

@@ -6,6 +6,7 @@ Writes benchmarks/results/tangent_storage.md.
 
     python benchmarks/tangent_storage.py [--voxel 0.005]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -44,12 +45,13 @@ def main(argv=None) -> None:
     p.add_argument("--voxel", type=float, default=0.005)
     args = p.parse_args(argv)
     logs.configure("WARNING")
-    model = build_model(load_scene("brain", [f"mesh.voxel={args.voxel}", "material.model=neo-hookean"]),
-                        MPI.COMM_SELF)
+    model = build_model(load_scene("brain", [f"mesh.voxel={args.voxel}", "material.model=neo-hookean"]), MPI.COMM_SELF)
     V = model.V
     u, v, du = fem.Function(V), ufl.TestFunction(V), ufl.TrialFunction(V)
-    forms = {"linear stiffness": fem.form(model.material.tangent(u, du, v)),
-             "neo-Hookean tangent": fem.form(model.hyperelastic.tangent(u, du, v))}
+    forms = {
+        "linear stiffness": fem.form(model.material.tangent(u, du, v)),
+        "neo-Hookean tangent": fem.form(model.hyperelastic.tangent(u, du, v)),
+    }
     rows = []
     for name, form in forms.items():
         row = {"form": name}
@@ -60,21 +62,26 @@ def main(argv=None) -> None:
                 A.zeroEntries()
                 assemble_matrix(A, form)
                 A.assemble()
+
             assemble()
             x, y = A.createVecRight(), A.createVecLeft()
             x.set(1.0)
             row[storage] = (_median(assemble), _median(lambda: A.mult(x, y)))
             A.destroy()
         rows.append(row)
-    lines = ["# The Newton tangent: scalar (AIJ) against 3x3-block (BAIJ) storage\n",
-             f"{machine_line()}; DOLFINx {DOLFINX_VERSION}; one rank; bundled brain, {args.voxel * 1e3:g} mm voxels, "
-             f"{model.sizes()['nodes']} nodes; `python benchmarks/tangent_storage.py`; median of {REPEAT}.\n",
-             "| form | assembly AIJ (ms) | assembly BAIJ (ms) | ratio | product AIJ (ms) | product BAIJ (ms) | ratio |",
-             "|---|---:|---:|---:|---:|---:|---:|"]
+    lines = [
+        "# The Newton tangent: scalar (AIJ) against 3x3-block (BAIJ) storage\n",
+        f"{machine_line()}; DOLFINx {DOLFINX_VERSION}; one rank; bundled brain, {args.voxel * 1e3:g} mm voxels, "
+        f"{model.sizes()['nodes']} nodes; `python benchmarks/tangent_storage.py`; median of {REPEAT}.\n",
+        "| form | assembly AIJ (ms) | assembly BAIJ (ms) | ratio | product AIJ (ms) | product BAIJ (ms) | ratio |",
+        "|---|---:|---:|---:|---:|---:|---:|",
+    ]
     for r in rows:
         (a_asm, a_mul), (b_asm, b_mul) = r["aij"], r["baij"]
-        lines.append(f"| {r['form']} | {1e3 * a_asm:.1f} | {1e3 * b_asm:.1f} | {a_asm / b_asm:.1f} | "
-                     f"{1e3 * a_mul:.2f} | {1e3 * b_mul:.2f} | {a_mul / b_mul:.1f} |")
+        lines.append(
+            f"| {r['form']} | {1e3 * a_asm:.1f} | {1e3 * b_asm:.1f} | {a_asm / b_asm:.1f} | "
+            f"{1e3 * a_mul:.2f} | {1e3 * b_mul:.2f} | {a_mul / b_mul:.1f} |"
+        )
     out = ROOT / "benchmarks" / "results" / "tangent_storage.md"
     out.write_text("\n".join(lines) + "\n")
     print("\n".join(lines))

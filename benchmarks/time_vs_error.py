@@ -3,8 +3,9 @@
     .venv/bin/python benchmarks/time_vs_error.py            # both scenes, full sweeps
     .venv/bin/python benchmarks/time_vs_error.py --quick    # coarse, about a minute each
 
-The same sweep as `brainshift bench --scene cube|brain` (fenics_brainshift/bench.py).
+The same sweep as `brainshift bench --scene cube|brain` (fenics_brainshift/bench/sweep.py).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -12,7 +13,7 @@ import sys
 from pathlib import Path
 
 from fenics_brainshift import logs
-from fenics_brainshift.bench import sweep
+from fenics_brainshift.bench import run_sweep
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -24,5 +25,5 @@ if __name__ == "__main__":
     args = p.parse_args()
     logs.configure("INFO")
     for scene in args.scenes:
-        sweep(scene, "quick" if args.quick else "full", ROOT / "benchmarks" / "results", only=args.only)
+        run_sweep(scene, "quick" if args.quick else "full", ROOT / "benchmarks" / "results", only=args.only)
     sys.exit(0)

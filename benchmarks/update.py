@@ -21,6 +21,7 @@ instead of built (its build's time is the one reported, from its atlas.json).
 
     python benchmarks/update.py [--voxel 0.005] [--skull 0.003] [--atlas FOLDER]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -43,7 +44,7 @@ from fenics_brainshift.atlas.update import prepare, update  # noqa: E402
 from fenics_brainshift.atlas.vertices import GlobalVertices  # noqa: E402
 from fenics_brainshift.bench import machine_line  # noqa: E402
 from fenics_brainshift.data import scene_path  # noqa: E402
-from fenics_brainshift.fit import ForwardModel, Target, fit, parameters  # noqa: E402
+from fenics_brainshift.fit import ForwardModel, Target, fit, fit_parameters  # noqa: E402
 from fenics_brainshift.fit.parameters import rotated_gravity  # noqa: E402
 from fenics_brainshift.runner import Simulation  # noqa: E402
 
@@ -119,7 +120,7 @@ def main() -> None:
     deep = np.flatnonzero(~boundary & (np.linalg.norm(points - centre, axis=1) < DEEP))
     forward = ForwardModel(load_scene("brain", base))
     names = ["fluid.level", "material.G", "gravity.angle_z"]
-    params = parameters(forward.scene, names, forward.heights())
+    params = fit_parameters(forward.scene, names, forward.heights())
     fit_vertices = GlobalVertices(forward.model.mesh)
     rows = []
     for seed, (name, (overrides, values, extra)) in enumerate(OPERATIONS.items()):
@@ -136,8 +137,10 @@ def main() -> None:
         combine.WARM_START = False  # the baseline in the same run: every refit by NNLS from scratch
         scratch = [update(atlas, target, NOISE) for _ in range(3)]
         combine.WARM_START = True
-        same = max(float(np.abs(scratch[-1].weights - result.weights).max()),
-                   float(np.abs(scratch[-1].spread - result.spread).max()) / max(float(result.spread.max()), 1e-300))
+        same = max(
+            float(np.abs(scratch[-1].weights - result.weights).max()),
+            float(np.abs(scratch[-1].spread - result.spread).max()) / max(float(result.spread.max()), 1e-300),
+        )
         t = time.perf_counter()
         fitted = fit(forward, target, params, NOISE)
         fit_s = time.perf_counter() - t
@@ -148,26 +151,41 @@ def main() -> None:
             return float(e[deep].mean()), float(e.mean()), float(e[picked].mean())
 
         prior, updated, fitted_e = errors(atlas.prior_vertex), errors(result.displacement), errors(u_fit)
-        rows.append({
-            "operation": name, "truth_shift_max_mm": float(np.linalg.norm(truth, axis=1).max() * 1e3),
-            "prior_deep_mm": prior[0], "fit_deep_mm": fitted_e[0], "update_deep_mm": updated[0],
-            "prior_all_mm": prior[1], "fit_all_mm": fitted_e[1], "update_all_mm": updated[1],
-            "update_points_mm": updated[2], "update_loo_rms_mm": float(np.sqrt(np.mean(result.leave_one_out ** 2)) * 1e3),
-            "update_spread_deep_mm": float(result.spread[deep].mean() * 1e3),
-            "bootstrap_spread_deep_mm": float(bootstrapped[-1].spread[deep].mean() * 1e3),
-            # the spread's meaning: how often the true error at a deep node is inside twice the spread
-            "posterior_covers_deep": float(np.mean(np.linalg.norm(result.displacement - truth, axis=1)[deep]
-                                                   < 2 * result.spread[deep])),
-            "bootstrap_covers_deep": float(np.mean(np.linalg.norm(bootstrapped[-1].displacement - truth, axis=1)[deep]
-                                                   < 2 * bootstrapped[-1].spread[deep])),
-            "update_total_bootstrap_ms": float(np.median([r.seconds["total_ms"] for r in bootstrapped])),
-            "update_fit_ms": float(np.median([r.seconds["fit_ms"] for r in updates])),
-            "update_total_ms": float(np.median([r.seconds["total_ms"] for r in updates])),
-            "update_total_scratch_ms": float(np.median([r.seconds["total_ms"] for r in scratch])),
-            "warm_against_scratch": same,
-            "fit_s": fit_s, "fit_solves": fitted.solves, "truth_solve_s": truth_s,
-            "skull_rows": int(result.skull.get("nodes_with_rows", 0)),
-        })
+        rows.append(
+            {
+                "operation": name,
+                "truth_shift_max_mm": float(np.linalg.norm(truth, axis=1).max() * 1e3),
+                "prior_deep_mm": prior[0],
+                "fit_deep_mm": fitted_e[0],
+                "update_deep_mm": updated[0],
+                "prior_all_mm": prior[1],
+                "fit_all_mm": fitted_e[1],
+                "update_all_mm": updated[1],
+                "update_points_mm": updated[2],
+                "update_loo_rms_mm": float(np.sqrt(np.mean(result.leave_one_out**2)) * 1e3),
+                "update_spread_deep_mm": float(result.spread[deep].mean() * 1e3),
+                "bootstrap_spread_deep_mm": float(bootstrapped[-1].spread[deep].mean() * 1e3),
+                # the spread's meaning: how often the true error at a deep node is inside twice the spread
+                "posterior_covers_deep": float(
+                    np.mean(np.linalg.norm(result.displacement - truth, axis=1)[deep] < 2 * result.spread[deep])
+                ),
+                "bootstrap_covers_deep": float(
+                    np.mean(
+                        np.linalg.norm(bootstrapped[-1].displacement - truth, axis=1)[deep]
+                        < 2 * bootstrapped[-1].spread[deep]
+                    )
+                ),
+                "update_total_bootstrap_ms": float(np.median([r.seconds["total_ms"] for r in bootstrapped])),
+                "update_fit_ms": float(np.median([r.seconds["fit_ms"] for r in updates])),
+                "update_total_ms": float(np.median([r.seconds["total_ms"] for r in updates])),
+                "update_total_scratch_ms": float(np.median([r.seconds["total_ms"] for r in scratch])),
+                "warm_against_scratch": same,
+                "fit_s": fit_s,
+                "fit_solves": fitted.solves,
+                "truth_solve_s": truth_s,
+                "skull_rows": int(result.skull.get("nodes_with_rows", 0)),
+            }
+        )
         print(rows[-1], flush=True)
     forward.destroy()
     out = Path(args.out)
@@ -182,10 +200,19 @@ def main() -> None:
         f"{machine_line()}; one rank; `python benchmarks/update.py --voxel {args.voxel:g}"
         f"{'' if args.skull is None else f' --skull {args.skull:g}'}"
         f"{'' if args.atlas is None else ' --atlas ATLAS'}`"
-        f"{'' if args.atlas is None else ' (ATLAS: `brainshift atlas brain` with the same --set, its build timed by itself)'}; the "
+        + (
+            ""
+            if args.atlas is None
+            else " (ATLAS: `brainshift atlas brain` with the same --set, its build timed by itself)"
+        )
+        + "; the "
         f"{args.voxel * 1e3:g} mm brain ({len(points)} nodes)"
-        f"{'' if args.skull is None else f', a rigid skull {args.skull * 1e3:g} mm out in the atlas, every operation and the fit'}"
-        f". Atlas: {len(atlas.scenarios)} modes "
+        + (
+            ""
+            if args.skull is None
+            else f", a rigid skull {args.skull * 1e3:g} mm out in the atlas, every operation and the fit"
+        )
+        + f". Atlas: {len(atlas.scenarios)} modes "
         f"({int(atlas.family.sum())} drain/pose states + {len(atlas.scenarios) - int(atlas.family.sum())} swelling) "
         f"in {atlas_s:.1f} s ({seconds['setup_s']:.1f} s setup, {seconds['modes_s']:.1f} s modes, "
         f"{atlas.info['settled_states']} settled states). {POINTS} points on the exposed cortex, "
@@ -198,27 +225,36 @@ def main() -> None:
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows + [dict(mean, operation="**mean**")]:
-        lines.append(f"| {r['operation']} | {r['truth_shift_max_mm']:.1f} | {r['prior_deep_mm']:.2f} | "
-                     f"{r['fit_deep_mm']:.2f} | **{r['update_deep_mm']:.2f}** | {r['prior_all_mm']:.2f} | "
-                     f"{r['fit_all_mm']:.2f} | {r['update_all_mm']:.2f} | {r['update_loo_rms_mm']:.2f} | "
-                     f"{r['update_spread_deep_mm']:.2f} / {r['bootstrap_spread_deep_mm']:.2f} | "
-                     f"{r['posterior_covers_deep']:.0%} / {r['bootstrap_covers_deep']:.0%} | "
-                     f"{r['update_fit_ms']:.1f} / {r['update_total_ms']:.0f} | {r['update_total_bootstrap_ms']:.0f} | "
-                     f"{r['update_total_scratch_ms']:.0f} | {r['fit_s']:.1f} |")
-    lines += ["", "update fit / total: the fit's rounds after cross-validation (which fits every point at each "
-              "alpha: the rounds start from its fit at the chosen one, and re-linearise the skull's rows) / the "
-              "whole update, with cross-validation, "
-              "leave-one-out and the spread from the weights' posterior (the default; median of 5), the atlas "
-              f"prepared once on loading it ({prepare_s * 1e3:.0f} ms: atlas/update.py prepare); with bootstrap: the "
-              f"same with the spread from a {BOOTSTRAP}-sample bootstrap (`--bootstrap {BOOTSTRAP}`, median of 3); "
-              "error < 2 spread: the deep nodes whose true error is inside twice the reported spread; total "
-              "from scratch: the whole update with every refit solved by NNLS "
-              "from scratch (atlas/combine.py WARM_START = False; median of 3), the baseline of the warm-started "
-              f"refits (the same weights and spread to {max(r['warm_against_scratch'] for r in rows):.1e}). "
-              "fit s: `brainshift fit`'s calibration (3 parameters) on the same points, in the same run."
-              + ("" if args.skull is None else " Skull rows: the boundary nodes near the skull whose room the "
-                 f"update keeps as a constraint, {min(r['skull_rows'] for r in rows)}-"
-                 f"{max(r['skull_rows'] for r in rows)} in these operations.")]
+        lines.append(
+            f"| {r['operation']} | {r['truth_shift_max_mm']:.1f} | {r['prior_deep_mm']:.2f} | "
+            f"{r['fit_deep_mm']:.2f} | **{r['update_deep_mm']:.2f}** | {r['prior_all_mm']:.2f} | "
+            f"{r['fit_all_mm']:.2f} | {r['update_all_mm']:.2f} | {r['update_loo_rms_mm']:.2f} | "
+            f"{r['update_spread_deep_mm']:.2f} / {r['bootstrap_spread_deep_mm']:.2f} | "
+            f"{r['posterior_covers_deep']:.0%} / {r['bootstrap_covers_deep']:.0%} | "
+            f"{r['update_fit_ms']:.1f} / {r['update_total_ms']:.0f} | {r['update_total_bootstrap_ms']:.0f} | "
+            f"{r['update_total_scratch_ms']:.0f} | {r['fit_s']:.1f} |"
+        )
+    lines += [
+        "",
+        "update fit / total: the fit's rounds after cross-validation (which fits every point at each "
+        "alpha: the rounds start from its fit at the chosen one, and re-linearise the skull's rows) / the "
+        "whole update, with cross-validation, "
+        "leave-one-out and the spread from the weights' posterior (the default; median of 5), the atlas "
+        f"prepared once on loading it ({prepare_s * 1e3:.0f} ms: atlas/update.py prepare); with bootstrap: the "
+        f"same with the spread from a {BOOTSTRAP}-sample bootstrap (`--bootstrap {BOOTSTRAP}`, median of 3); "
+        "error < 2 spread: the deep nodes whose true error is inside twice the reported spread; total "
+        "from scratch: the whole update with every refit solved by NNLS "
+        "from scratch (atlas/combine.py WARM_START = False; median of 3), the baseline of the warm-started "
+        f"refits (the same weights and spread to {max(r['warm_against_scratch'] for r in rows):.1e}). "
+        "fit s: `brainshift fit`'s calibration (3 parameters) on the same points, in the same run."
+        + (
+            ""
+            if args.skull is None
+            else " Skull rows: the boundary nodes near the skull whose room the "
+            f"update keeps as a constraint, {min(r['skull_rows'] for r in rows)}-"
+            f"{max(r['skull_rows'] for r in rows)} in these operations."
+        ),
+    ]
     out.with_suffix(".md").write_text("\n".join(lines) + "\n")
     print(f"wrote {out}.md and .csv")
 

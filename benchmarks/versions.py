@@ -8,6 +8,7 @@ after one warm-up (compiled forms cached). Writes benchmarks/results/versions_<v
     python benchmarks/versions.py
     scripts/debian13.sh .venv/bin/python benchmarks/versions.py
 """
+
 from __future__ import annotations
 
 import statistics
@@ -50,11 +51,14 @@ def main() -> None:
     runs = [once() for _ in range(3)]
     setup = statistics.median(r[0] for r in runs)
     step = statistics.median(r[1] for r in runs)
-    lines = [f"# Setup and step of the 8 mm brain on DOLFINx {DOLFINX_VERSION}\n",
-             f"{machine_line()}; one rank; `python benchmarks/versions.py` (Debian 13: under "
-             f"`scripts/debian13.sh`); median of 3 runs.\n",
-             "| DOLFINx | setup (s) | linear step (ms) | factor package |", "|---|---:|---:|---|",
-             f"| {DOLFINX_VERSION} | {setup:.3f} | {step * 1e3:.2f} | {runs[-1][2]} |"]
+    lines = [
+        f"# Setup and step of the 8 mm brain on DOLFINx {DOLFINX_VERSION}\n",
+        f"{machine_line()}; one rank; `python benchmarks/versions.py` (Debian 13: under "
+        f"`scripts/debian13.sh`); median of 3 runs.\n",
+        "| DOLFINx | setup (s) | linear step (ms) | factor package |",
+        "|---|---:|---:|---|",
+        f"| {DOLFINX_VERSION} | {setup:.3f} | {step * 1e3:.2f} | {runs[-1][2]} |",
+    ]
     out = ROOT / "benchmarks" / "results" / f"versions_{DOLFINX_VERSION}.md"
     out.write_text("\n".join(lines) + "\n")
     print("\n".join(lines))

@@ -10,6 +10,7 @@ benchmarks/results/warp.{csv,md}.
 
     python benchmarks/warp.py [--repeat 3] [--voxel 0.005]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -29,7 +30,8 @@ sys.path.insert(0, str(ROOT))
 from fenics_brainshift import load_scene, logs, run  # noqa: E402
 from fenics_brainshift.bench import machine_line  # noqa: E402
 from fenics_brainshift.data.templates import mni_t1  # noqa: E402
-from fenics_brainshift.images import DeformedMesh, Warp, read_volume, write_itk_transform, write_like  # noqa: E402
+from fenics_brainshift.images import read_volume, write_like  # noqa: E402
+from fenics_brainshift.warp import DeformedMesh, Warp, write_itk_transform  # noqa: E402
 
 
 def main(argv=None) -> None:
@@ -45,8 +47,11 @@ def main(argv=None) -> None:
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        result = run(load_scene("brain", [f"mesh.voxel={args.voxel}", "time.mode=quasi-static",
-                                          "output.pictures=false"]), tmp / "run", MPI.COMM_SELF)
+        result = run(
+            load_scene("brain", [f"mesh.voxel={args.voxel}", "time.mode=quasi-static", "output.pictures=false"]),
+            tmp / "run",
+            MPI.COMM_SELF,
+        )
         nodes = result.summary["nodes"]
         for _ in range(args.repeat):
             row = {}
@@ -76,7 +81,9 @@ def main(argv=None) -> None:
                 if threads:
                     sitk.ProcessObject.SetGlobalDefaultNumberOfThreads(threads)
                 else:
-                    sitk.ProcessObject.SetGlobalDefaultNumberOfThreads(sitk.ProcessObject.GetGlobalDefaultNumberOfThreads())
+                    sitk.ProcessObject.SetGlobalDefaultNumberOfThreads(
+                        sitk.ProcessObject.GetGlobalDefaultNumberOfThreads()
+                    )
                 t0 = time.perf_counter()
                 pre = sitk.ReadImage(str(image), sitk.sitkFloat64)
                 transform = sitk.ReadTransform(str(tmp / "warp.h5"))
@@ -98,28 +105,32 @@ def main(argv=None) -> None:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
-    lines = ["# Warping a 1 mm whole-head volume\n",
-             f"{machine_line()}; one rank; `python benchmarks/warp.py`; medians of {args.repeat} runs.\n",
-             f"The ICBM152 T1 ({med['voxels'] / 1e6:.1f} M voxels, 1 mm) warped by the settled {args.voxel * 1e3:g} mm brain "
-             f"({nodes} nodes): {med['moved_voxels'] / 1e6:.2f} M voxels move, {med['inside_voxels'] / 1e6:.2f} M lie in "
-             f"the deformed brain.\n",
-             "| step | seconds |", "|---|---:|",
-             f"| read image + run's last state | {med['read_s']:.2f} |",
-             f"| exact inverse on the grid (`Warp.compute`) | {med['invert_s']:.2f} |",
-             f"| linear sampling (`Warp.apply`) | {med['sample_s']:.2f} |",
-             f"| write NIfTI | {med['write_s']:.2f} |",
-             f"| **`brainshift warp` total** | **{med['warp_total_s']:.2f}** |",
-             f"| write the ITK transform (.h5, {med['transform_mb']:.0f} MB) | {med['transform_write_s']:.2f} |",
-             f"| SimpleITK read + Resample with that transform, 1 thread | {med['sitk_1_thread_s']:.2f} |",
-             f"| the same, SimpleITK's default threads | {med['sitk_threads_s']:.2f} |",
-             "",
-             f"Largest difference between the two warped images (float64, away from the 2-voxel border): "
-             f"{med['largest_difference']:.2g} (intensities 0-255).\n",
-             f"The transform's field covers the voxels that move and one around them: "
-             f"{med['field_voxels'] / 1e6:.2f} M of the grid's {med['voxels'] / 1e6:.1f} M, stored gzip-compressed: "
-             f"{med['transform_mb']:.0f} MB in float64, {med['transform_float32_mb']:.0f} MB with `--transform-float32` "
-             f"(the whole grid uncompressed: {med['voxels'] * 24 / 1e6:.0f} MB). SimpleITK's resampling with it "
-             f"is the difference above: ITK moves no point outside a displacement field's grid.\n"]
+    lines = [
+        "# Warping a 1 mm whole-head volume\n",
+        f"{machine_line()}; one rank; `python benchmarks/warp.py`; medians of {args.repeat} runs.\n",
+        f"The ICBM152 T1 ({med['voxels'] / 1e6:.1f} M voxels, 1 mm) warped by the settled "
+        f"{args.voxel * 1e3:g} mm brain "
+        f"({nodes} nodes): {med['moved_voxels'] / 1e6:.2f} M voxels move, {med['inside_voxels'] / 1e6:.2f} M lie in "
+        f"the deformed brain.\n",
+        "| step | seconds |",
+        "|---|---:|",
+        f"| read image + run's last state | {med['read_s']:.2f} |",
+        f"| exact inverse on the grid (`Warp.compute`) | {med['invert_s']:.2f} |",
+        f"| linear sampling (`Warp.apply`) | {med['sample_s']:.2f} |",
+        f"| write NIfTI | {med['write_s']:.2f} |",
+        f"| **`brainshift warp` total** | **{med['warp_total_s']:.2f}** |",
+        f"| write the ITK transform (.h5, {med['transform_mb']:.0f} MB) | {med['transform_write_s']:.2f} |",
+        f"| SimpleITK read + Resample with that transform, 1 thread | {med['sitk_1_thread_s']:.2f} |",
+        f"| the same, SimpleITK's default threads | {med['sitk_threads_s']:.2f} |",
+        "",
+        f"Largest difference between the two warped images (float64, away from the 2-voxel border): "
+        f"{med['largest_difference']:.2g} (intensities 0-255).\n",
+        f"The transform's field covers the voxels that move and one around them: "
+        f"{med['field_voxels'] / 1e6:.2f} M of the grid's {med['voxels'] / 1e6:.1f} M, stored gzip-compressed: "
+        f"{med['transform_mb']:.0f} MB in float64, {med['transform_float32_mb']:.0f} MB with `--transform-float32` "
+        f"(the whole grid uncompressed: {med['voxels'] * 24 / 1e6:.0f} MB). SimpleITK's resampling with it "
+        f"is the difference above: ITK moves no point outside a displacement field's grid.\n",
+    ]
     out.with_suffix(".md").write_text("\n".join(lines) + "\n")
     print(f"wrote {out}.md and .csv")
 

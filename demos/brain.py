@@ -25,8 +25,7 @@ from pathlib import Path
 import numpy as np
 from mpi4py import MPI
 
-from fenics_brainshift import logs
-from fenics_brainshift import InputError, load_scene, run
+from fenics_brainshift import InputError, load_scene, logs, run
 from fenics_brainshift.data import scene_path
 from fenics_brainshift.scene import Swelling
 
@@ -35,21 +34,33 @@ PAPER_SHIFT_MM = "about 16-17 mm at the most anterior point (paper Table III)"
 
 
 def parse_args(argv=None):
-    p = argparse.ArgumentParser(description="Brain shift of the bundled MNI brain, supine, frontal craniotomy.",
-                                formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    p = argparse.ArgumentParser(
+        description="Brain shift of the bundled MNI brain, supine, frontal craniotomy.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
     p.add_argument("--scene", default=str(scene_path("brain")), help="scene file")
     p.add_argument("--out", default="out_brain", help="output folder")
     p.add_argument("--quasi-static", action="store_true", help="settled states only (no time stepping)")
-    p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
-                   help="scene overrides, as for brainshift run")
-    p.add_argument("--shrink", type=float, default=0.0, metavar="PERCENT",
-                   help="the whole brain's tissue shrinks by this much (a hyperosmotic drug), over the drain")
-    p.add_argument("--septa", action="store_true",
-                   help="turn on the scene's falx and tentorium (rigid membranes the tissue slides along)")
+    p.add_argument(
+        "--set", action="append", default=[], metavar="SECTION.KEY=VALUE", help="scene overrides, as for brainshift run"
+    )
+    p.add_argument(
+        "--shrink",
+        type=float,
+        default=0.0,
+        metavar="PERCENT",
+        help="the whole brain's tissue shrinks by this much (a hyperosmotic drug), over the drain",
+    )
+    p.add_argument(
+        "--septa",
+        action="store_true",
+        help="turn on the scene's falx and tentorium (rigid membranes the tissue slides along)",
+    )
     return p.parse_args(argv)
 
 
 # ## Run, then report the shift and plot the frontal pole against time (paper Fig. 16)
+
 
 # +
 def main(argv=None) -> int:
@@ -62,8 +73,9 @@ def main(argv=None) -> int:
     try:
         scene = load_scene(args.scene, overrides)
         if args.shrink:  # as a [[swelling]] table would give it: every cell, over the drain's 10 s
-            scene.swelling += (Swelling(volume_change=-args.shrink / 100, where="x > -1",
-                                        schedule=[[0.0, 0.0], [10.0, 1.0]]),)
+            scene.swelling += (
+                Swelling(volume_change=-args.shrink / 100, where="x > -1", schedule=[[0.0, 0.0], [10.0, 1.0]]),
+            )
         summary = run(scene, args.out, comm).summary
     except InputError as exc:
         if comm.rank == 0:
@@ -72,20 +84,28 @@ def main(argv=None) -> int:
     if comm.rank == 0:
         out = Path(args.out)
         pole = np.array(summary["probes"]["frontal_pole"]) * 1e3
-        print(f"brain: {summary['nodes']} nodes, {summary['cells']} tetrahedra, {summary['ranks']} rank(s), "
-              f"{summary['steps']} steps, setup {summary['setup_s']:.1f} s, "
-              f"median {summary['step_s_median'] * 1e3:.0f} ms per step")
-        print(f"  CSF level {summary['final_level_m'] * 1e3:.0f} mm; frontal pole moves "
-              f"[{pole[0]:.2f}, {pole[1]:.2f}, {pole[2]:.2f}] mm, |u| = {np.linalg.norm(pole):.2f} mm "
-              f"(largest anywhere {summary['max_displacement_m'] * 1e3:.2f} mm); the paper: {PAPER_SHIFT_MM}")
+        print(
+            f"brain: {summary['nodes']} nodes, {summary['cells']} tetrahedra, {summary['ranks']} rank(s), "
+            f"{summary['steps']} steps, setup {summary['setup_s']:.1f} s, "
+            f"median {summary['step_s_median'] * 1e3:.0f} ms per step"
+        )
+        print(
+            f"  CSF level {summary['final_level_m'] * 1e3:.0f} mm; frontal pole moves "
+            f"[{pole[0]:.2f}, {pole[1]:.2f}, {pole[2]:.2f}] mm, |u| = {np.linalg.norm(pole):.2f} mm "
+            f"(largest anywhere {summary['max_displacement_m'] * 1e3:.2f} mm); the paper: {PAPER_SHIFT_MM}"
+        )
         for septum in summary.get("septa", []):
             force = np.array(septum["force_N"])
-            print(f"  {septum['name']}: {septum['nodes']} nodes; it pushes the tissue with "
-                  f"{np.linalg.norm(force) * 1e3:.0f} mN in all ({septum['normal_force_sum_N'] * 1e3:.0f} mN summed "
-                  f"over its nodes, from both sides); the tissue slides up to {septum['largest_slide_m'] * 1e3:.2f} mm "
-                  f"along it and {septum['largest_motion_across_m'] * 1e3:.1g} mm across")
-        print(f"  results in {out}/: displacement.xdmf and surface_final.vtk (ParaView), surface_final.stl "
-              f"(3D Slicer, mm), probes.csv, summary.json, frontal_pole.png")
+            print(
+                f"  {septum['name']}: {septum['nodes']} nodes; it pushes the tissue with "
+                f"{np.linalg.norm(force) * 1e3:.0f} mN in all ({septum['normal_force_sum_N'] * 1e3:.0f} mN summed "
+                f"over its nodes, from both sides); the tissue slides up to {septum['largest_slide_m'] * 1e3:.2f} mm "
+                f"along it and {septum['largest_motion_across_m'] * 1e3:.1g} mm across"
+            )
+        print(
+            f"  results in {out}/: displacement.xdmf and surface_final.vtk (ParaView), surface_final.stl "
+            f"(3D Slicer, mm), probes.csv, summary.json, frontal_pole.png"
+        )
         plot_probe(out)
     comm.barrier()
     return 0
@@ -116,6 +136,8 @@ def plot_probe(out: Path) -> None:
     fig.tight_layout()
     fig.savefig(out / "frontal_pole.png", dpi=120)
     plt.close(fig)
+
+
 # -
 
 

@@ -29,8 +29,7 @@ from pathlib import Path
 import numpy as np
 from mpi4py import MPI
 
-from fenics_brainshift import logs
-from fenics_brainshift import InputError, load_scene, run
+from fenics_brainshift import InputError, load_scene, logs, run
 from fenics_brainshift.data import scene_path
 
 PAPER_GRIDS = ["16x16x9", "20x20x10", "25x25x12", "30x30x15"]  # 2,890 ... 15,376 nodes
@@ -38,14 +37,17 @@ PAPER_GRIDS = ["16x16x9", "20x20x10", "25x25x12", "30x30x15"]  # 2,890 ... 15,37
 
 
 def parse_args(argv=None):
-    p = argparse.ArgumentParser(description="The paper's gelatin cube: sag as the oil drains (Figs. 6, 7).",
-                                formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    p = argparse.ArgumentParser(
+        description="The paper's gelatin cube: sag as the oil drains (Figs. 6, 7).",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
     p.add_argument("--scene", default=str(scene_path("cube")), help="scene file")
     p.add_argument("--out", default="out_cube", help="output folder")
     p.add_argument("--cells", default="25x25x12", help="grid of the dynamic run, NXxNYxNZ hexahedra")
     p.add_argument("--grids", nargs="*", default=PAPER_GRIDS, help="grids of the quasi-static sweep (Fig. 7)")
-    p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
-                   help="scene overrides, as for brainshift run")
+    p.add_argument(
+        "--set", action="append", default=[], metavar="SECTION.KEY=VALUE", help="scene overrides, as for brainshift run"
+    )
     return p.parse_args(argv)
 
 
@@ -69,6 +71,7 @@ def settled_states(out: Path, hold_ends: list[float]) -> np.ndarray:
 
 # ## Run: the dynamic drain, then the quasi-static sweep over grids
 
+
 # +
 def main(argv=None) -> int:
     args = parse_args(argv)
@@ -86,8 +89,10 @@ def main(argv=None) -> int:
 
         sweep = {}
         for g in args.grids:
-            static_scene = load_scene(args.scene, [f"mesh.cells={cells(g)}", "time.mode=quasi-static",
-                                                   "output.fields=[\"displacement\"]", *args.set])
+            static_scene = load_scene(
+                args.scene,
+                [f"mesh.cells={cells(g)}", "time.mode=quasi-static", 'output.fields=["displacement"]', *args.set],
+            )
             s = run(static_scene, out / f"static_{g}", comm).summary
             sweep[g] = (s["nodes"], settled_states(out / f"static_{g}", hold_ends))
     except InputError as exc:
@@ -98,10 +103,13 @@ def main(argv=None) -> int:
         write_figures(out, volumes_ml, dynamic, sweep, summary, args.cells)
     comm.barrier()
     return 0
+
+
 # -
 
 
 # ## Figures 6 and 7 as CSV and PNG
+
 
 # +
 def write_figures(out: Path, volumes, dynamic, sweep, summary, main_grid: str) -> None:
@@ -117,8 +125,10 @@ def write_figures(out: Path, volumes, dynamic, sweep, summary, main_grid: str) -
         for i, v in enumerate(volumes):
             w.writerow([f"{v:.0f}"] + [f"{states[i, 2] * 1e3:.5f}" for _, states in sweep.values()])
 
-    print(f"gelatin cube, {summary['nodes']} nodes, {summary['ranks']} rank(s), "
-          f"{summary['steps']} Newmark steps, median {summary['step_s_median'] * 1e3:.0f} ms per step")
+    print(
+        f"gelatin cube, {summary['nodes']} nodes, {summary['ranks']} rank(s), "
+        f"{summary['steps']} Newmark steps, median {summary['step_s_median'] * 1e3:.0f} ms per step"
+    )
     print("  oil (ml)  level (mm)  top mean u_z (mm)  settled static (mm)")
     static_main = sweep.get(main_grid)
     for i, v in enumerate(volumes):
@@ -154,6 +164,8 @@ def figure(path: Path, volumes, series: dict, title: str) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
 # -
 
 

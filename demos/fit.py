@@ -41,8 +41,10 @@ FITTED, HELD_OUT = 20, 10
 
 
 def parse_args(argv=None):
-    p = argparse.ArgumentParser(description="Fit the bundled brain scene to synthetic intra-operative points.",
-                                formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    p = argparse.ArgumentParser(
+        description="Fit the bundled brain scene to synthetic intra-operative points.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
     p.add_argument("--out", default="out_demo_fit", help="output folder")
     p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", help="scene overrides")
     p.add_argument("--seed", type=int, default=1, help="of the points' choice and noise")
@@ -50,6 +52,7 @@ def parse_args(argv=None):
 
 
 # ## The truth, what is measured, the fit
+
 
 # +
 def main(argv=None) -> int:
@@ -66,9 +69,27 @@ def main(argv=None) -> int:
             write_markups(out / "intra.mrk.json", labels[:FITTED], intra[:FITTED] * 1e3)
         comm.barrier()
         sets = [a for s in args.set for a in ("--set", s)]
-        code = brainshift(["--log-level", "WARNING", "fit", "brain", "--target", str(out / "intra.mrk.json"),
-                           "--pre", str(out / "pre.mrk.json"), "--params", ",".join(TRUTH), "--noise",
-                           str(NOISE_MM), "--out", str(out), "--set", "time.mode=quasi-static", *sets])
+        code = brainshift(
+            [
+                "--log-level",
+                "WARNING",
+                "fit",
+                "brain",
+                "--target",
+                str(out / "intra.mrk.json"),
+                "--pre",
+                str(out / "pre.mrk.json"),
+                "--params",
+                ",".join(TRUTH),
+                "--noise",
+                str(NOISE_MM),
+                "--out",
+                str(out),
+                "--set",
+                "time.mode=quasi-static",
+                *sets,
+            ]
+        )
         if code:
             return code
         held = held_out_errors(args.set, out, pre[FITTED:], intra[FITTED:], comm)
@@ -77,8 +98,10 @@ def main(argv=None) -> int:
             print(f"fit.py: error: {exc}", file=sys.stderr)
         return 2 if isinstance(exc, InputError) else 3
     if comm.rank == 0:
-        print(f"held-out points ({HELD_OUT}): mean error {held['prior'].mean():.2f} mm with the scene, "
-              f"{held['fitted'].mean():.2f} mm fitted (noise {NOISE_MM} mm per axis)")
+        print(
+            f"held-out points ({HELD_OUT}): mean error {held['prior'].mean():.2f} mm with the scene, "
+            f"{held['fitted'].mean():.2f} mm fitted (noise {NOISE_MM} mm per axis)"
+        )
         picture(out, held)
         print(f"  wrote {out}/fit.png")
     return 0
@@ -87,8 +110,10 @@ def main(argv=None) -> int:
 def held_out_errors(overrides, out, pre, intra, comm) -> dict:
     """|predicted - measured| (mm) at the held-out points, by the scene and by the fitted scene."""
     errors = {}
-    for name, scene in (("prior", load_scene("brain", overrides + ["time.mode=quasi-static"])),
-                        ("fitted", load_scene(out / "fitted.toml", ["time.mode=quasi-static"]))):
+    for name, scene in (
+        ("prior", load_scene("brain", overrides + ["time.mode=quasi-static"])),
+        ("fitted", load_scene(out / "fitted.toml", ["time.mode=quasi-static"])),
+    ):
         forward = ForwardModel(scene, comm)
         forward.solve({})
         errors[name] = np.linalg.norm(forward.positions(pre) - intra, axis=1) * 1e3
@@ -107,7 +132,11 @@ def picture(out: Path, held: dict) -> None:
     import matplotlib.pyplot as plt
 
     fit = json.loads((out / "fit.json").read_text())["parameters"]
-    units = {"fluid.level": (1e3, "CSF level (mm)"), "material.G": (1.0, "G (Pa)"), "gravity.angle_z": (1.0, "head turn (deg)")}
+    units = {
+        "fluid.level": (1e3, "CSF level (mm)"),
+        "material.G": (1.0, "G (Pa)"),
+        "gravity.angle_z": (1.0, "head turn (deg)"),
+    }
     fig, axes = plt.subplots(1, len(units) + 1, figsize=(13, 3.6))
     for ax, (name, (factor, label)) in zip(axes, units.items()):
         p = fit[name]

@@ -32,22 +32,32 @@ from pathlib import Path
 import numpy as np
 from mpi4py import MPI
 
-from fenics_brainshift import logs
-from fenics_brainshift import InputError, SolverError, load_scene, run
+from fenics_brainshift import InputError, SolverError, load_scene, logs, run
 from fenics_brainshift.data import scene_path
 
 # -
 
 
 def parse_args(argv=None):
-    p = argparse.ArgumentParser(description="Brain shift with a lesion removed after the CSF has drained.",
-                                formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    p = argparse.ArgumentParser(
+        description="Brain shift with a lesion removed after the CSF has drained.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
     p.add_argument("--scene", default=str(scene_path("resection")), help="scene file")
     p.add_argument("--out", default="out_resection", help="output folder")
-    p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
-                   help="scene overrides, as for brainshift run (e.g. mesh.voxel=0.008 for a quick look)")
-    p.add_argument("--skull", type=float, metavar="MM",
-                   help="a rigid skull this far (mm) outside the brain replaces the occipital pin")
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="SECTION.KEY=VALUE",
+        help="scene overrides, as for brainshift run (e.g. mesh.voxel=0.008 for a quick look)",
+    )
+    p.add_argument(
+        "--skull",
+        type=float,
+        metavar="MM",
+        help="a rigid skull this far (mm) outside the brain replaces the occipital pin",
+    )
     return p.parse_args(argv)
 
 
@@ -59,11 +69,16 @@ def skull_overrides(gap_mm: float | None) -> list[str]:
     only support, and the scheme contact needs."""
     if gap_mm is None:
         return []
-    return [f"skull.gap={gap_mm * 1e-3}", f'fixed=[{{where = "{BRAIN_STEM}"}}]',
-            "time.scheme=generalized-alpha", "time.rho_inf=0.5"]
+    return [
+        f"skull.gap={gap_mm * 1e-3}",
+        f'fixed=[{{where = "{BRAIN_STEM}"}}]',
+        "time.scheme=generalized-alpha",
+        "time.rho_inf=0.5",
+    ]
 
 
 # ## Run, then report the cavity and plot its roof and floor against time
+
 
 # +
 def main(argv=None) -> int:
@@ -82,19 +97,30 @@ def main(argv=None) -> int:
         removal = summary["removals"][0]
         t, roof, floor = cavity_history(out)
         before = np.searchsorted(t, removal["t"]) - 1
-        print(f"resection: {summary['nodes']} nodes, {summary['ranks']} rank(s), {summary['steps']} steps, "
-              f"median {summary['step_s_median'] * 1e3:.0f} ms per step")
-        print(f"  t = {removal['t']:.1f} s: removed {removal['cells']} cells "
-              f"({summary['removed_fraction']:.1%} of the brain), {removal['region']}")
-        print(f"  cavity roof moves {roof[before]:.2f} mm -> {roof[-1]:.2f} mm along gravity; floor "
-              f"{floor[before]:.2f} -> {floor[-1]:.2f} mm; largest displacement {summary['max_displacement_m'] * 1e3:.2f} mm")
+        print(
+            f"resection: {summary['nodes']} nodes, {summary['ranks']} rank(s), {summary['steps']} steps, "
+            f"median {summary['step_s_median'] * 1e3:.0f} ms per step"
+        )
+        print(
+            f"  t = {removal['t']:.1f} s: removed {removal['cells']} cells "
+            f"({summary['removed_fraction']:.1%} of the brain), {removal['region']}"
+        )
+        print(
+            f"  cavity roof moves {roof[before]:.2f} mm -> {roof[-1]:.2f} mm along gravity; floor "
+            f"{floor[before]:.2f} -> {floor[-1]:.2f} mm; "
+            f"largest displacement {summary['max_displacement_m'] * 1e3:.2f} mm"
+        )
         if "skull_contact" in summary:
             contact = summary["skull_contact"]
-            print(f"  skull: carries {np.linalg.norm(contact['force_N']):.2f} N on {contact['pressed_nodes']} nodes; "
-                  f"deepest node {contact['max_penetration_m'] * 1e6:.1f} um past it (tolerance "
-                  f"{contact['tolerance_m'] * 1e6:.0f} um)")
-        print(f"  results in {out}/: displacement.xdmf (fields displacement, von_mises, tissue), probes.csv, "
-              f"summary.json, cavity.png")
+            print(
+                f"  skull: carries {np.linalg.norm(contact['force_N']):.2f} N on {contact['pressed_nodes']} nodes; "
+                f"deepest node {contact['max_penetration_m'] * 1e6:.1f} um past it (tolerance "
+                f"{contact['tolerance_m'] * 1e6:.0f} um)"
+            )
+        print(
+            f"  results in {out}/: displacement.xdmf (fields displacement, von_mises, tissue), probes.csv, "
+            f"summary.json, cavity.png"
+        )
         plot_cavity(out, t, roof, floor, removal["t"])
     comm.barrier()
     return 0
@@ -127,6 +153,8 @@ def plot_cavity(out: Path, t, roof, floor, t_removal: float) -> None:
     fig.tight_layout()
     fig.savefig(out / "cavity.png", dpi=120)
     plt.close(fig)
+
+
 # -
 
 

@@ -41,8 +41,10 @@ CASES = [  # (label, overrides)
 
 
 def parse_args(argv=None):
-    p = argparse.ArgumentParser(description="The bundled brain with and without a skull.",
-                                formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    p = argparse.ArgumentParser(
+        description="The bundled brain with and without a skull.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
     p.add_argument("--voxel", type=float, default=0.005, help="voxel size (m)")
     p.add_argument("--out", default="out_skull", help="output folder")
     return p.parse_args(argv)
@@ -50,10 +52,19 @@ def parse_args(argv=None):
 
 # ## Run every case
 
+
 # +
 def run_case(label: str, overrides: list[str], voxel: float, out: Path, comm) -> dict:
-    scene = load_scene("brain", ["time.mode=quasi-static", f"mesh.voxel={voxel}", "output.pictures=false",
-                                 'output.fields=["displacement"]', *overrides])
+    scene = load_scene(
+        "brain",
+        [
+            "time.mode=quasi-static",
+            f"mesh.voxel={voxel}",
+            "output.pictures=false",
+            'output.fields=["displacement"]',
+            *overrides,
+        ],
+    )
     folder = out / label.replace(", ", "_").replace(" ", "_")
     t0 = time.perf_counter()
     try:
@@ -61,12 +72,17 @@ def run_case(label: str, overrides: list[str], voxel: float, out: Path, comm) ->
     except SolverError as exc:  # the last good state is written; say why it stopped
         return {"case": label, "status": str(exc).split(" (stopped")[0], "seconds": time.perf_counter() - t0}
     contact = s.get("skull_contact", {})
-    return {"case": label, "status": "ok", "seconds": time.perf_counter() - t0,
-            "frontal_pole_mm": float(np.linalg.norm(s["probes"]["frontal_pole"]) * 1e3),
-            "max_mm": s["max_displacement_m"] * 1e3, "strain": s["validity"]["max_green_lagrange_strain"],
-            "pressed_nodes": contact.get("pressed_nodes", ""),
-            "skull_force_N": float(np.linalg.norm(contact["force_N"])) if contact else "",
-            "penetration_um": contact["max_penetration_m"] * 1e6 if contact else ""}
+    return {
+        "case": label,
+        "status": "ok",
+        "seconds": time.perf_counter() - t0,
+        "frontal_pole_mm": float(np.linalg.norm(s["probes"]["frontal_pole"]) * 1e3),
+        "max_mm": s["max_displacement_m"] * 1e3,
+        "strain": s["validity"]["max_green_lagrange_strain"],
+        "pressed_nodes": contact.get("pressed_nodes", ""),
+        "skull_force_N": float(np.linalg.norm(contact["force_N"])) if contact else "",
+        "penetration_um": contact["max_penetration_m"] * 1e6 if contact else "",
+    }
 
 
 def main(argv=None) -> int:
@@ -86,31 +102,46 @@ def main(argv=None) -> int:
         print((out / "comparison.md").read_text())
     comm.barrier()
     return 0
+
+
 # -
 
 
 def write_table(out: Path, rows: list[dict], voxel: float, ranks: int) -> None:
     import csv
 
-    keys = ["case", "status", "frontal_pole_mm", "max_mm", "strain", "pressed_nodes", "skull_force_N",
-            "penetration_um", "seconds"]
+    keys = [
+        "case",
+        "status",
+        "frontal_pole_mm",
+        "max_mm",
+        "strain",
+        "pressed_nodes",
+        "skull_force_N",
+        "penetration_um",
+        "seconds",
+    ]
     with open(out / "comparison.csv", "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=keys, extrasaction="ignore")
         writer.writeheader()
         writer.writerows(rows)
-    lines = [f"# The bundled brain with and without a skull ({GAP * 1e3:g} mm CSF layer), {voxel * 1e3:g} mm voxels, "
-             f"settled state after the drain, {ranks} rank(s): `python demos/skull.py --voxel {voxel:g}`\n",
-             "| case | frontal pole (mm) | largest shift (mm) | largest strain | pressed nodes | skull force (N) | "
-             "penetration (um) | run (s) |",
-             "|---|---:|---:|---:|---:|---:|---:|---:|"]
+    lines = [
+        f"# The bundled brain with and without a skull ({GAP * 1e3:g} mm CSF layer), {voxel * 1e3:g} mm voxels, "
+        f"settled state after the drain, {ranks} rank(s): `python demos/skull.py --voxel {voxel:g}`\n",
+        "| case | frontal pole (mm) | largest shift (mm) | largest strain | pressed nodes | skull force (N) | "
+        "penetration (um) | run (s) |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|",
+    ]
     for r in rows:
         if r["status"] != "ok":
             lines.append(f"| {r['case']} | – | – | – | – | – | – | {r['seconds']:.1f} | stopped: {r['status']} |")
             continue
         force = f"{r['skull_force_N']:.3f}" if r["skull_force_N"] != "" else ""
         pen = f"{r['penetration_um']:.1f}" if r["penetration_um"] != "" else ""
-        lines.append(f"| {r['case']} | {r['frontal_pole_mm']:.2f} | {r['max_mm']:.2f} | {r['strain']:.1%} | "
-                     f"{r['pressed_nodes']} | {force} | {pen} | {r['seconds']:.1f} |")
+        lines.append(
+            f"| {r['case']} | {r['frontal_pole_mm']:.2f} | {r['max_mm']:.2f} | {r['strain']:.1%} | "
+            f"{r['pressed_nodes']} | {force} | {pen} | {r['seconds']:.1f} |"
+        )
     (out / "comparison.md").write_text("\n".join(lines) + "\n")
 
 
@@ -126,8 +157,13 @@ def plot(out: Path, rows: list[dict]) -> None:
         values = [r.get(key, np.nan) for r in rows]
         bars = ax.bar(x + (k - 0.5) * 0.38, np.nan_to_num(values), 0.38, label=label)
         for bar, v in zip(bars, values):
-            ax.annotate("stopped" if np.isnan(v) else f"{v:.1f}", (bar.get_x() + bar.get_width() / 2, bar.get_height()),
-                        ha="center", va="bottom", fontsize=8)
+            ax.annotate(
+                "stopped" if np.isnan(v) else f"{v:.1f}",
+                (bar.get_x() + bar.get_width() / 2, bar.get_height()),
+                ha="center",
+                va="bottom",
+                fontsize=8,
+            )
     ax.set_xticks(x, [r["case"].replace(", ", ",\n") for r in rows])
     ax.set_ylabel("shift after the drain (mm)")
     ax.set_title(f"Bundled brain, CSF drained: held by a pin or by the skull ({GAP * 1e3:g} mm CSF layer)")

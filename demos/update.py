@@ -47,8 +47,10 @@ DEEP_MM = 40.0  # the deep tissue: interior nodes this close to the craniotomy's
 
 
 def parse_args(argv=None):
-    p = argparse.ArgumentParser(description="Build an atlas of the bundled brain and update it to synthetic points.",
-                                formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    p = argparse.ArgumentParser(
+        description="Build an atlas of the bundled brain and update it to synthetic points.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
     p.add_argument("--out", default="out_update", help="output folder")
     p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", help="scene overrides")
     p.add_argument("--seed", type=int, default=1, help="of the points' choice and noise")
@@ -56,6 +58,7 @@ def parse_args(argv=None):
 
 
 # ## Before surgery, the truth, what is measured, the update
+
 
 # +
 def main(argv=None) -> int:
@@ -75,8 +78,23 @@ def main(argv=None) -> int:
         labels = [f"P{i + 1}" for i in range(POINTS)]
         write_markups(out / "pre.mrk.json", labels, pre * 1e3)
         write_markups(out / "intra.mrk.json", labels, intra * 1e3)
-        code = brainshift(["--log-level", "WARNING", "update", str(out / "atlas"), "--pre", str(out / "pre.mrk.json"),
-                           "--target", str(out / "intra.mrk.json"), "--noise", str(NOISE_MM), "--out", str(out), "--replace"])
+        code = brainshift(
+            [
+                "--log-level",
+                "WARNING",
+                "update",
+                str(out / "atlas"),
+                "--pre",
+                str(out / "pre.mrk.json"),
+                "--target",
+                str(out / "intra.mrk.json"),
+                "--noise",
+                str(NOISE_MM),
+                "--out",
+                str(out),
+                "--replace",
+            ]
+        )
         if code:
             return code
         truth = true_state(args.set)
@@ -84,7 +102,7 @@ def main(argv=None) -> int:
         print(f"update.py: error: {exc}", file=sys.stderr)
         return 2 if isinstance(exc, InputError) else 3
     atlas = store.read(out / "atlas")
-    from fenics_brainshift.outputs.pictures import read_last_state
+    from fenics_brainshift.outputs.run_folder import read_last_state
 
     _, _, updated, _ = read_last_state(out / "displacement.xdmf")
     errors = table(atlas, truth, updated, json.loads((out / "update.json").read_text()))
@@ -102,10 +120,13 @@ def true_state(overrides) -> np.ndarray:
     u = GlobalVertices(sim.model.mesh).values(sim.u)
     sim.destroy()
     return u
+
+
 # -
 
 
 # ## The error before and after
+
 
 # +
 def regions(atlas) -> dict:
@@ -119,10 +140,15 @@ def regions(atlas) -> dict:
 
 
 def table(atlas, truth, updated, report) -> dict:
-    errors = {"scene": np.linalg.norm(atlas.prior_vertex - truth, axis=1) * 1e3,
-              "updated": np.linalg.norm(updated - truth, axis=1) * 1e3}
-    print(f"update: {report['points']} points, weights in {report['timings_ms']['weights_ms']:.0f} ms, the whole update {report['timings_ms']['total_ms']:.0f} ms; G {report['stiffness_G_Pa']:.0f} Pa "
-          f"(truth {TRUTH['material.G']:g}); leave-one-out RMS {report['leave_one_out_rms_mm']:.2f} mm")
+    errors = {
+        "scene": np.linalg.norm(atlas.prior_vertex - truth, axis=1) * 1e3,
+        "updated": np.linalg.norm(updated - truth, axis=1) * 1e3,
+    }
+    print(
+        f"update: {report['points']} points, weights in {report['timings_ms']['weights_ms']:.0f} ms, "
+        f"the whole update {report['timings_ms']['total_ms']:.0f} ms; G {report['stiffness_G_Pa']:.0f} Pa "
+        f"(truth {TRUTH['material.G']:g}); leave-one-out RMS {report['leave_one_out_rms_mm']:.2f} mm"
+    )
     print(f"{'mean error (mm)':28s} {'scene':>8s} {'updated':>8s}")
     for name, mask in regions(atlas).items():
         print(f"{name:28s} {errors['scene'][mask].mean():8.2f} {errors['updated'][mask].mean():8.2f}")
@@ -161,10 +187,15 @@ def picture(out: Path, atlas, errors: dict) -> None:
         ax.set_aspect("equal")
     bar = fig.colorbar(s, ax=axes, shrink=0.8)
     bar.set_label("error against the truth (mm)")
-    fig.suptitle(f"brainshift update: {POINTS} cortex points, {NOISE_MM} mm noise; the truth by the full model, "
-                 f"between the atlas's samples", fontsize=10)
+    fig.suptitle(
+        f"brainshift update: {POINTS} cortex points, {NOISE_MM} mm noise; the truth by the full model, "
+        f"between the atlas's samples",
+        fontsize=10,
+    )
     fig.savefig(out / "update.png", dpi=90)
     plt.close(fig)
+
+
 # -
 
 

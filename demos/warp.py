@@ -30,23 +30,28 @@ from mpi4py import MPI
 
 from fenics_brainshift import InputError, SolverError, load_scene, logs, run
 from fenics_brainshift.data.templates import mni_t1
-from fenics_brainshift.images import DeformedMesh, Warp, read_volume, write_itk_transform, write_like
+from fenics_brainshift.images import read_volume, write_like
 from fenics_brainshift.images.rasterize import rasterize
+from fenics_brainshift.warp import DeformedMesh, Warp, write_itk_transform
 
 # -
 
 
 def parse_args(argv=None):
-    p = argparse.ArgumentParser(description="Warp the pre-operative T1 by the brain's predicted shift.",
-                                formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    p = argparse.ArgumentParser(
+        description="Warp the pre-operative T1 by the brain's predicted shift.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
     p.add_argument("--out", default="out_demo_warp", help="output folder")
     p.add_argument("--image", help="the pre-operative image (default: the ICBM152 T1, fetched once)")
-    p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
-                   help="scene overrides, as for brainshift run")
+    p.add_argument(
+        "--set", action="append", default=[], metavar="SECTION.KEY=VALUE", help="scene overrides, as for brainshift run"
+    )
     return p.parse_args(argv)
 
 
 # ## Settle the brain, warp the image, draw the slices
+
 
 # +
 def main(argv=None) -> int:
@@ -71,7 +76,9 @@ def main(argv=None) -> int:
         shutil.copyfile(image, out / "t1_pre.nii.gz")
         write_like(volume, predicted, out / "t1_intra.nii.gz")
         write_itk_transform(warp, out / "warp.h5")
-        print(f"warp: {int(warp.moved().sum())} voxels moved, largest {warp.largest_mm():.2f} mm, in {warp.seconds:.1f} s")
+        print(
+            f"warp: {int(warp.moved().sum())} voxels moved, largest {warp.largest_mm():.2f} mm, in {warp.seconds:.1f} s"
+        )
         picture(out / "warp.png", volume, predicted, body, warp)
         print(f"  wrote {out}/t1_intra.nii.gz, warp.h5, warp.png")
     comm.barrier()
@@ -102,13 +109,27 @@ def picture(path: Path, volume, predicted: np.ndarray, body, warp) -> None:
     diff = predicted.astype(float) - pre
     limit = np.percentile(np.abs(diff[after | before]), 99) or 1.0
     # index axes are R, A, S for this template (affine diagonal, positive)
-    views = [("sagittal", lambda a: a[i, :, :].T, ("P", "A", "I", "S"), f"x = {volume.index_to_ras(np.array([i, 0, 0]))[0]:.0f} mm"),
-             ("axial", lambda a: a[:, :, k].T, ("L", "R", "P", "A"), f"z = {volume.index_to_ras(np.array([0, 0, k]))[2]:.0f} mm")]
+    views = [
+        (
+            "sagittal",
+            lambda a: a[i, :, :].T,
+            ("P", "A", "I", "S"),
+            f"x = {volume.index_to_ras(np.array([i, 0, 0]))[0]:.0f} mm",
+        ),
+        (
+            "axial",
+            lambda a: a[:, :, k].T,
+            ("L", "R", "P", "A"),
+            f"z = {volume.index_to_ras(np.array([0, 0, k]))[2]:.0f} mm",
+        ),
+    ]
     fig, axes = plt.subplots(2, 3, figsize=(12, 8.5))
     for row, (name, cut, (left, right, bottom, top), where) in zip(axes, views):
-        for ax, data, title, cmap, lim in ((row[0], pre, "pre-operative", "gray", None),
-                                           (row[1], predicted.astype(float), "predicted (CSF drained)", "gray", None),
-                                           (row[2], diff, "predicted - pre-operative", "RdBu_r", limit)):
+        for ax, data, title, cmap, lim in (
+            (row[0], pre, "pre-operative", "gray", None),
+            (row[1], predicted.astype(float), "predicted (CSF drained)", "gray", None),
+            (row[2], diff, "predicted - pre-operative", "RdBu_r", limit),
+        ):
             shown = ax.imshow(cut(data), origin="lower", cmap=cmap, vmin=-lim if lim else None, vmax=lim)
             ax.contour(cut(before.astype(float)), [0.5], colors="tab:orange", linestyles="--", linewidths=0.9)
             ax.contour(cut(after.astype(float)), [0.5], colors="tab:cyan", linewidths=0.9)
@@ -119,11 +140,15 @@ def picture(path: Path, volume, predicted: np.ndarray, body, warp) -> None:
                 ax.text(*xy, text, transform=ax.transAxes, color="yellow", fontsize=11, weight="bold")
             if lim:
                 fig.colorbar(shown, ax=ax, fraction=0.04, label="intensity difference (T1 units)")
-    fig.suptitle("Brain outline before (dashed orange) and after the shift (cyan); gravity towards posterior (supine)",
-                 fontsize=10)
+    fig.suptitle(
+        "Brain outline before (dashed orange) and after the shift (cyan); gravity towards posterior (supine)",
+        fontsize=10,
+    )
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
+
+
 # -
 
 

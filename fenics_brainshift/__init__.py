@@ -9,14 +9,21 @@ The public API (see docs/api.md)::
 Names are imported on first use, so reading a scene or asking for the version does not
 start DOLFINx.
 """
+
 from importlib import import_module
 
-__version__ = "0.2.0"
+__version__ = "0.3.0"
 
 _API = {
-    "Scene": "scene", "load_scene": "scene", "scene_from_dict": "scene",
-    "InputError": "errors", "SolverError": "errors", "BrainshiftError": "errors",
-    "run": "runner", "Result": "runner", "Simulation": "runner",
+    "Scene": "scene",
+    "load_scene": "scene",
+    "scene_from_dict": "scene",
+    "InputError": "errors",
+    "SolverError": "errors",
+    "BrainshiftError": "errors",
+    "run": "runner",
+    "Result": "runner",
+    "Simulation": "runner",
 }
 
 __all__ = ["__version__", *_API]

@@ -2,14 +2,15 @@
 
 Everything else in the package calls these helpers and never branches on the version.
 """
+
 from __future__ import annotations
 
-import numpy as np
-import ufl
 import dolfinx
 import dolfinx.fem.petsc  # noqa: F401  (0.9 does not import it with dolfinx.fem)
 import dolfinx.geometry
 import dolfinx.io
+import numpy as np
+import ufl
 from dolfinx import fem
 
 from .logs import quiet_compiler
@@ -91,8 +92,9 @@ def settled_mesh(mesh):
     element = domain.ufl_coordinate_element()
     sub = getattr(element, "_sub_element", None)
     if sub is not None and getattr(sub, "variant", lambda: "")() is None:
-        scalar = ufl.FiniteElement(sub.family(), sub.cell(), sub.degree(), quad_scheme=sub.quadrature_scheme(),
-                                   variant="equispaced")
+        scalar = ufl.FiniteElement(
+            sub.family(), sub.cell(), sub.degree(), quad_scheme=sub.quadrature_scheme(), variant="equispaced"
+        )
         domain._ufl_coordinate_element = ufl.VectorElement(scalar, dim=element.value_shape()[0])
     return mesh
 

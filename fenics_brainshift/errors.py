@@ -10,6 +10,7 @@
 
 Any other exception is a bug; under mpirun ``abort_on_uncaught`` makes it end the whole job.
 """
+
 from __future__ import annotations
 
 import sys
@@ -36,10 +37,21 @@ class Interrupted(SolverError):
 # What the C++ writers say when a file cannot be written (a full disk, a quota, a folder
 # gone): DOLFINx's HDF5 and VTK writers (0.5 and 0.9) and ITK's. Specific phrases, not "write":
 # DOLFINx's "Cannot write sub-Functions to VTK file" is a program's error and must stay loud.
-WRITER_FAILURES = ("failed to write", "could not write", "h5dwrite", "failed to create hdf5",
-                   "failed to create/open hdf5", "failed to close hdf5", "failed to flush hdf5",
-                   "failed to create director", "imagefilewriter", "transformfilewriter",
-                   "could not create io object for writing", "no space left", "quota exceeded")
+WRITER_FAILURES = (
+    "failed to write",
+    "could not write",
+    "h5dwrite",
+    "failed to create hdf5",
+    "failed to create/open hdf5",
+    "failed to close hdf5",
+    "failed to flush hdf5",
+    "failed to create director",
+    "imagefilewriter",
+    "transformfilewriter",
+    "could not create io object for writing",
+    "no space left",
+    "quota exceeded",
+)
 
 
 def write_failed(exc: BaseException) -> bool:
@@ -70,8 +82,7 @@ def abort_on_uncaught() -> None:
             MPI = sys.modules.get("mpi4py.MPI")
             if MPI is not None and MPI.Is_initialized() and not MPI.Is_finalized() and MPI.COMM_WORLD.size > 1:
                 try:
-                    sys.stderr.write(f"[rank {MPI.COMM_WORLD.rank}] an uncaught {kind.__name__}: aborting every "
-                                     f"rank\n")
+                    sys.stderr.write(f"[rank {MPI.COMM_WORLD.rank}] an uncaught {kind.__name__}: aborting every rank\n")
                     sys.stderr.flush()
                 except Exception:
                     pass

@@ -1,4 +1,5 @@
 """Which files the package reads, by suffix: the one table every reader and check uses."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -7,8 +8,10 @@ TETRA_SUFFIXES = (".msh", ".xdmf")  # tetrahedral meshes, read as they are
 LABEL_SUFFIXES = (".nii", ".nii.gz", ".nrrd")  # label volumes (NIfTI, NRRD, Slicer .seg.nrrd), voxel-meshed
 SURFACE_SUFFIXES = (".stl", ".obj", ".ply", ".vtk", ".vtp", ".vtu", ".off", ".gii")  # surfaces, voxel-meshed
 
-MESH_HELP = ("use .msh, .xdmf, a label volume (.nii, .nii.gz, .nrrd, .seg.nrrd) or a surface "
-             "(.stl, .obj, .ply, .vtk, .vtp, .gii)")
+MESH_HELP = (
+    "use .msh, .xdmf, a label volume (.nii, .nii.gz, .nrrd, .seg.nrrd) or a surface "
+    "(.stl, .obj, .ply, .vtk, .vtp, .gii)"
+)
 
 
 def _name(path: str | Path) -> str:

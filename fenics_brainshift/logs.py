@@ -1,4 +1,5 @@
 """Logging that lets rank 0 speak (other ranks only when asked with all_ranks=True)."""
+
 from __future__ import annotations
 
 import logging

@@ -1,5 +1,6 @@
 """The machine's facts that `brainshift info` prints: the stack's versions, MPI, MUMPS, the BLAS
 this process loaded, which optional packages are present."""
+
 from __future__ import annotations
 
 from . import __version__
@@ -20,7 +21,9 @@ def versions() -> dict:
         "ranks": MPI.COMM_WORLD.size,
         "mumps": bool(PETSc.Sys.hasExternalPackage("mumps")),
         "blas": blas(),
-        **{f"extra {name}": version_of(name) for name in ("pyvista", "tqdm", "nibabel", "matplotlib", "gmsh", "meshio")},
+        **{
+            f"extra {name}": version_of(name) for name in ("pyvista", "tqdm", "nibabel", "matplotlib", "gmsh", "meshio")
+        },
     }
 
 

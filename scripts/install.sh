@@ -13,7 +13,7 @@ set -euo pipefail
 
 here=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 venv=${BRAINSHIFT_VENV:-$here/.venv}
-extras=${BRAINSHIFT_EXTRAS:-test,viz}
+extras=${BRAINSHIFT_EXTRAS:-test,viz,lint}
 
 # Debian's own builds: DOLFINx 0.5.2 on Debian 12, 0.9.0 on Debian 13.
 APT_PACKAGES=(

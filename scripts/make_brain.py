@@ -12,6 +12,7 @@ written as binary PLY (3D Slicer, ParaView and meshio read it).
 
     .venv/bin/python scripts/make_brain.py [--nilearn-version 0.14.1]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -68,9 +69,11 @@ def main(argv=None) -> int:
 
 def write_ply(path: Path, verts: np.ndarray, faces: np.ndarray) -> None:
     """Binary little-endian PLY: float32 vertices, uint8-counted int32 faces."""
-    header = (f"ply\nformat binary_little_endian 1.0\ncomment ICBM 2009a brain surface, mm (MNI)\n"
-              f"element vertex {len(verts)}\nproperty float x\nproperty float y\nproperty float z\n"
-              f"element face {len(faces)}\nproperty list uchar int vertex_indices\nend_header\n")
+    header = (
+        f"ply\nformat binary_little_endian 1.0\ncomment ICBM 2009a brain surface, mm (MNI)\n"
+        f"element vertex {len(verts)}\nproperty float x\nproperty float y\nproperty float z\n"
+        f"element face {len(faces)}\nproperty list uchar int vertex_indices\nend_header\n"
+    )
     face_rows = np.zeros(len(faces), dtype=[("n", "u1"), ("v", "<i4", (3,))])
     face_rows["n"], face_rows["v"] = 3, faces
     buffer = io.BytesIO()

@@ -7,6 +7,7 @@ mesh file in mm (`[mesh] unit = "mm"`).
 
     .venv/bin/python scripts/make_phantom.py
 """
+
 from pathlib import Path
 
 import gmsh

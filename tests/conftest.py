@@ -1,4 +1,5 @@
 """Shared helpers: small scenes built from dictionaries, and MPI awareness."""
+
 from __future__ import annotations
 
 import copy
@@ -13,8 +14,9 @@ ROOT = Path(__file__).resolve().parents[1]
 COMM = MPI.COMM_WORLD
 
 
-def column_dict(layers: int, degree: int = 1, height: float = 0.1, width: float = 0.02,
-                gravity=(0.0, 0.0, -9.81), **sections) -> dict:
+def column_dict(
+    layers: int, degree: int = 1, height: float = 0.1, width: float = 0.02, gravity=(0.0, 0.0, -9.81), **sections
+) -> dict:
     """A laterally confined column: bottom clamped, sides sliding (rollers), 1 x 1 x layers
     hexahedra split into tetrahedra. The analytic answer is the 1-D uniaxial-strain column."""
     eps = 1e-9
@@ -102,8 +104,9 @@ def run_group(cmd: list[str], timeout: float, **kwargs):
     import signal
     import subprocess
 
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
-                            **kwargs)
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True, **kwargs
+    )
     try:
         out, err = proc.communicate(timeout=timeout)
     except subprocess.TimeoutExpired:
@@ -113,8 +116,9 @@ def run_group(cmd: list[str], timeout: float, **kwargs):
         except subprocess.TimeoutExpired:
             os.killpg(proc.pid, signal.SIGKILL)
             out, err = proc.communicate()
-        pytest.fail(f"{' '.join(map(str, cmd[:6]))} ... ran past {timeout:g} s; its last words:\n"
-                    f"{out[-1500:]}\n{err[-3000:]}")
+        pytest.fail(
+            f"{' '.join(map(str, cmd[:6]))} ... ran past {timeout:g} s; its last words:\n{out[-1500:]}\n{err[-3000:]}"
+        )
     return subprocess.CompletedProcess(cmd, proc.returncode, out, err)
 
 

@@ -1,6 +1,7 @@
 """The atlas (brainshift atlas) and the update (brainshift update): each mode is the settled state
 a separately built scene reaches; an operation inside the atlas's span is recovered from 20
 noisy points; the update's run folder is one that warp takes; bad input is one line."""
+
 from __future__ import annotations
 
 import json
@@ -13,7 +14,6 @@ import numpy as np
 import pytest
 from mpi4py import MPI
 
-from conftest import mpirun, subprocess_env
 from fenics_brainshift import load_scene
 from fenics_brainshift.atlas import store
 from fenics_brainshift.atlas.build import build, solve_family_mode, solve_from_prior
@@ -23,9 +23,11 @@ from fenics_brainshift.atlas.vertices import GlobalVertices
 from fenics_brainshift.data import scene_path
 from fenics_brainshift.errors import SolverError
 from fenics_brainshift.fit.parameters import rotated_gravity
-from fenics_brainshift.fit.targets import Target
 from fenics_brainshift.images import write_markups
+from fenics_brainshift.images.targets import Target
 from fenics_brainshift.runner import Simulation
+
+from conftest import mpirun, subprocess_env
 
 COARSE = ["mesh.voxel=0.01", "time.mode=quasi-static"]
 VARY = ["fluid.level=0.02,0.03,0.04", "gravity.angle_z=-8,0,8"]
@@ -52,11 +54,13 @@ def _settled(scene) -> tuple[np.ndarray, np.ndarray]:
 def test_a_mode_is_the_settled_state_of_a_scene_built_with_its_scenario(atlas):
     """Mode 'level 40 mm, head turned 8 degrees about z' against a scene with that gravity
     vector and level, built and solved on its own."""
-    k = next(i for i, s in enumerate(atlas.scenarios)
-             if s["kind"] == "family" and s["values"] == {"gravity.angle_z": 8.0, "fluid.level": 0.04})
+    k = next(
+        i
+        for i, s in enumerate(atlas.scenarios)
+        if s["kind"] == "family" and s["values"] == {"gravity.angle_z": 8.0, "fluid.level": 0.04}
+    )
     g = rotated_gravity([0.0, -9.81, 0.0], {"gravity.angle_z": 8.0})
-    points, u = _settled(load_scene("brain", COARSE + [f"gravity.vector=[{g[0]}, {g[1]}, {g[2]}]",
-                                                       "fluid.level=0.04"]))
+    points, u = _settled(load_scene("brain", COARSE + [f"gravity.vector=[{g[0]}, {g[1]}, {g[2]}]", "fluid.level=0.04"]))
     assert np.array_equal(points, atlas.points)
     scale = np.abs(u).max()
     assert scale > 3e-3  # a real sag, mm
@@ -68,7 +72,9 @@ def _shrunk_scene(tmp_path, sets):
     """The bundled brain with the whole brain shrunk by 4 % ([[swelling]])."""
     text = scene_path("brain").read_text() + '\n[[swelling]]\nvolume_change = -0.04\nwhere = "x > -1"\n'
     here = scene_path("brain").parent
-    text = text.replace('file = "../', f'file = "{here.parent}/').replace('surface = "../', f'surface = "{here.parent}/')
+    text = text.replace('file = "../', f'file = "{here.parent}/').replace(
+        'surface = "../', f'surface = "{here.parent}/'
+    )
     (tmp_path / "shrunk.toml").write_text(text)
     return load_scene(tmp_path / "shrunk.toml", sets)
 
@@ -119,7 +125,7 @@ def test_an_operation_inside_the_span_is_recovered_to_the_noise_from_20_cortex_p
     # (the whole brain's volume change and G trade off against each other at cortex points: the
     # displacement is recovered, not each cause; test_a_stiffer_brain... checks G alone)
     assert -0.04 <= result.volume_changes(atlas)["brain"] < 0.0
-    assert np.sqrt(np.mean(result.leave_one_out ** 2)) < 3 * noise
+    assert np.sqrt(np.mean(result.leave_one_out**2)) < 3 * noise
     # the spread means what it says: the true error is inside twice the reported spread at nearly
     # every node (this draw: 0.97 posterior, 0.94 bootstrap; over 12 noise draws at least 0.9 in 11
     # and 10 of them), and below the noise of one point
@@ -153,8 +159,9 @@ def test_a_point_far_off_is_set_aside_and_the_update_is_made_without_it(atlas):
     slipped = update(atlas, Target(measured, points[picked], labels), noise)
     assert slipped.outliers == [7] and "p7" in slipped.warning and "set aside" in slipped.warning
     keep = np.flatnonzero(np.arange(20) != 7)
-    by_hand = update(atlas, Target(measured[keep], points[picked][keep], [labels[i] for i in keep]), noise,
-                     set_aside=False)
+    by_hand = update(
+        atlas, Target(measured[keep], points[picked][keep], [labels[i] for i in keep]), noise, set_aside=False
+    )
     np.testing.assert_allclose(slipped.displacement, by_hand.displacement, atol=1e-12)
     assert slipped.residual[7] > 0.006  # its error at the update made without it: the 8 mm slip
     kept_in = update(atlas, Target(measured, points[picked], labels), noise, set_aside=False)
@@ -260,8 +267,25 @@ def test_update_writes_a_run_folder_that_warp_takes(atlas, atlas_folder, tmp_pat
 
     pre, intra = _markups(tmp_path, atlas, noise=0.3e-3)
     out = tmp_path / "upd"
-    assert main(["update", str(atlas_folder), "--target", str(tmp_path / "intra.mrk.json"), "--pre",
-                 str(tmp_path / "pre.mrk.json"), "--noise", "0.3", "--out", str(out), "--image", str(MASK)]) == 0
+    assert (
+        main(
+            [
+                "update",
+                str(atlas_folder),
+                "--target",
+                str(tmp_path / "intra.mrk.json"),
+                "--pre",
+                str(tmp_path / "pre.mrk.json"),
+                "--noise",
+                "0.3",
+                "--out",
+                str(out),
+                "--image",
+                str(MASK),
+            ]
+        )
+        == 0
+    )
     report = json.loads((out / "update.json").read_text())
     assert report["points"] == 20 and report["kind"] == "point-to-point"
     assert report["residual_rms_mm"] < 0.6 < report["prior_residual_rms_mm"]
@@ -290,8 +314,18 @@ def test_update_reports_a_slip_set_aside_and_keep_all_fits_it(atlas, atlas_folde
     labels = [f"P{i}" for i in range(20)]
     intra[3] += [0.0, 0.008, 0.0]
     write_markups(tmp_path / "intra.mrk.json", labels, intra * 1e3)
-    args = ["update", str(atlas_folder), "--target", str(tmp_path / "intra.mrk.json"), "--pre",
-            str(tmp_path / "pre.mrk.json"), "--noise", "0.3", "--bootstrap", "0"]
+    args = [
+        "update",
+        str(atlas_folder),
+        "--target",
+        str(tmp_path / "intra.mrk.json"),
+        "--pre",
+        str(tmp_path / "pre.mrk.json"),
+        "--noise",
+        "0.3",
+        "--bootstrap",
+        "0",
+    ]
     assert main(args + ["--out", str(tmp_path / "a")]) == 0
     report = json.loads((tmp_path / "a" / "update.json").read_text())
     assert report["set_aside"] == ["P3"]
@@ -311,14 +345,28 @@ def test_swapped_points_a_second_update_and_the_default_noise_are_said(atlas, at
     from fenics_brainshift.cli import main
 
     _markups(tmp_path, atlas, noise=0.3e-3)
-    right = ["update", str(atlas_folder), "--pre", str(tmp_path / "pre.mrk.json"), "--target",
-             str(tmp_path / "intra.mrk.json")]
+    right = [
+        "update",
+        str(atlas_folder),
+        "--pre",
+        str(tmp_path / "pre.mrk.json"),
+        "--target",
+        str(tmp_path / "intra.mrk.json"),
+    ]
     assert main(right + ["--out", str(tmp_path / "a")]) == 0
     said = capsys.readouterr().out
     assert "are --pre and --target swapped" not in said and "1 mm per coordinate, the default" in said
     assert json.loads((tmp_path / "a" / "update.json").read_text())["noise_stated"] is False
-    swapped = ["update", str(atlas_folder), "--pre", str(tmp_path / "intra.mrk.json"), "--target",
-               str(tmp_path / "pre.mrk.json"), "--noise", "0.3"]
+    swapped = [
+        "update",
+        str(atlas_folder),
+        "--pre",
+        str(tmp_path / "intra.mrk.json"),
+        "--target",
+        str(tmp_path / "pre.mrk.json"),
+        "--noise",
+        "0.3",
+    ]
     assert main(swapped + ["--out", str(tmp_path / "b")]) == 0
     assert "are --pre and --target swapped?" in capsys.readouterr().out
     assert "swapped" in json.loads((tmp_path / "b" / "update.json").read_text())["warning"]
@@ -331,22 +379,33 @@ def test_swapped_points_a_second_update_and_the_default_noise_are_said(atlas, at
     assert json.loads((tmp_path / "a" / "update.json").read_text())["noise_mm"] == 0.5
 
 
-@pytest.mark.parametrize("case, words", [
-    ("no atlas", "holds no atlas"),
-    ("too few", "too few for the update: give at least 3"),
-    ("in metres", "outside the atlas's body"),
-    ("noise", "--noise must be a finite number of mm > 0"),
-    ("bootstrap", "--bootstrap"),
-    ("csv in metres", "positions in metres?"),
-    ("image elsewhere", "does not overlap the atlas's brain"),
-    ("partial pre columns", "but not all of x_pre"),
-])
+@pytest.mark.parametrize(
+    "case, words",
+    [
+        ("no atlas", "holds no atlas"),
+        ("too few", "too few for the update: give at least 3"),
+        ("in metres", "outside the atlas's body"),
+        ("noise", "--noise must be a finite number of mm > 0"),
+        ("bootstrap", "--bootstrap"),
+        ("csv in metres", "positions in metres?"),
+        ("image elsewhere", "does not overlap the atlas's brain"),
+        ("partial pre columns", "but not all of x_pre"),
+    ],
+)
 def test_bad_update_input_is_one_line(atlas, atlas_folder, tmp_path, capsys, case, words):
     from fenics_brainshift.cli import main
 
     pre, intra = _markups(tmp_path, atlas)
-    args = ["update", str(atlas_folder), "--target", str(tmp_path / "intra.mrk.json"), "--pre",
-            str(tmp_path / "pre.mrk.json"), "--out", str(tmp_path / "out")]
+    args = [
+        "update",
+        str(atlas_folder),
+        "--target",
+        str(tmp_path / "intra.mrk.json"),
+        "--pre",
+        str(tmp_path / "pre.mrk.json"),
+        "--out",
+        str(tmp_path / "out"),
+    ]
     if case == "no atlas":
         args[1] = str(tmp_path)
     elif case == "too few":
@@ -376,18 +435,28 @@ def test_bad_update_input_is_one_line(atlas, atlas_folder, tmp_path, capsys, cas
     assert not (tmp_path / "out" / "update.json").exists() and not (tmp_path / "out" / "displacement.h5").exists()
 
 
-@pytest.mark.parametrize("vary, words", [
-    (["fluid.level"], "give KEY=VALUES"),
-    (["material.E=1,2"], "cannot be varied"),
-    (["fluid.level=20,30"], "in metres (mm / 1000)"),
-    (["gravity.angle_x=90"], "angles are degrees"),
-    (["swelling.tumour=-0.1,0.1"], "no such region"),
-])
+@pytest.mark.parametrize(
+    "vary, words",
+    [
+        (["fluid.level"], "give KEY=VALUES"),
+        (["material.E=1,2"], "cannot be varied"),
+        (["fluid.level=20,30"], "in metres (mm / 1000)"),
+        (["gravity.angle_x=90"], "angles are degrees"),
+        (["swelling.tumour=-0.1,0.1"], "no such region"),
+    ],
+)
 def test_bad_atlas_input_is_one_line(tmp_path, capsys, vary, words):
     from fenics_brainshift.cli import main
 
-    argv = ["atlas", "brain", "-o", str(tmp_path / "a"), "--set", "mesh.voxel=0.01",
-            *[a for v in vary for a in ("--vary", v)]]
+    argv = [
+        "atlas",
+        "brain",
+        "-o",
+        str(tmp_path / "a"),
+        "--set",
+        "mesh.voxel=0.01",
+        *[a for v in vary for a in ("--vary", v)],
+    ]
     assert main(argv) == 2
     err = capsys.readouterr().err
     errors = [line for line in err.splitlines() if line.startswith("brainshift: error")]  # (beside the log)
@@ -501,11 +570,15 @@ def test_with_a_skull_a_mode_is_the_full_models_contact_state(skull_atlas, atlas
     modes' own (0.05 mm); every mode is inside the skull to it."""
     from fenics_brainshift.atlas.update import _skull
 
-    k = next(i for i, s in enumerate(skull_atlas.scenarios)
-             if s["kind"] == "family" and s["values"] == {"gravity.angle_z": 8.0, "fluid.level": 0.04})
+    k = next(
+        i
+        for i, s in enumerate(skull_atlas.scenarios)
+        if s["kind"] == "family" and s["values"] == {"gravity.angle_z": 8.0, "fluid.level": 0.04}
+    )
     g = rotated_gravity([0.0, -9.81, 0.0], {"gravity.angle_z": 8.0})
-    _, u = _settled(load_scene("brain", COARSE + SKULL + [f"gravity.vector=[{g[0]}, {g[1]}, {g[2]}]",
-                                                          "fluid.level=0.04"]))
+    _, u = _settled(
+        load_scene("brain", COARSE + SKULL + [f"gravity.vector=[{g[0]}, {g[1]}, {g[2]}]", "fluid.level=0.04"])
+    )
     assert np.abs(skull_atlas.vertex_modes[k] - u).max() < 0.05e-3
     rows = _skull(skull_atlas, skull_atlas.vertex_modes.astype(float))
     family = np.flatnonzero(skull_atlas.family)
@@ -546,8 +619,9 @@ class _Forward:
 
     def solve(self, values):
         contact = self.sim.contact
-        self.calls.append((self.sim.u.x.array.copy(), None if contact is None else contact.multipliers.copy(),
-                           self.from_rest))
+        self.calls.append(
+            (self.sim.u.x.array.copy(), None if contact is None else contact.multipliers.copy(), self.from_rest)
+        )
         if self.fail_first and len(self.calls) == 1:
             raise SolverError("Newton did not converge")
 
@@ -558,7 +632,7 @@ def test_a_swelling_mode_starts_from_the_prior_state_and_its_multipliers():
     prior_u, prior_multipliers = np.arange(6.0), np.array([1.0, 2.0])
     forward = _Forward()
     solve_from_prior(forward, {}, prior_u, prior_multipliers)
-    (u, multipliers, from_rest), = forward.calls
+    ((u, multipliers, from_rest),) = forward.calls
     assert np.array_equal(u, prior_u) and np.array_equal(multipliers, prior_multipliers) and not from_rest
     forward.sim.contact.multipliers[:] = -1.0
     assert np.array_equal(prior_multipliers, [1.0, 2.0])  # (the prior's own are not the solver's)
@@ -635,8 +709,17 @@ def test_the_update_keeps_the_brain_inside_the_skull(skull_atlas):
 def test_an_atlas_built_on_two_ranks_is_the_one_built_on_one(atlas, tmp_path):
     """(A subprocess under mpirun of its own: serial pass only, mpirun cannot nest.)"""
     out = tmp_path / "a2"
-    command = mpirun() + [sys.executable, "-m", "fenics_brainshift.cli", "atlas", "brain", "-o", str(out),
-                          *VARY_ARGS, *[a for s in COARSE for a in ("--set", s)]]
+    command = mpirun() + [
+        sys.executable,
+        "-m",
+        "fenics_brainshift.cli",
+        "atlas",
+        "brain",
+        "-o",
+        str(out),
+        *VARY_ARGS,
+        *[a for s in COARSE for a in ("--set", s)],
+    ]
     done = subprocess.run(command, capture_output=True, text=True, env=subprocess_env(), timeout=600)
     assert done.returncode == 0, done.stderr[-3000:]
     two = store.read(out)
@@ -656,8 +739,17 @@ def test_a_skull_atlas_built_on_two_ranks_is_the_one_built_on_one(skull_atlas, t
     equal those built on one. (At 10 mm the contact state is unique, so this checks the ranks'
     agreement, not the start: that is the stand-in test above. Serial pass only, as above.)"""
     out = tmp_path / "s2"
-    command = mpirun() + [sys.executable, "-m", "fenics_brainshift.cli", "atlas", "brain", "-o", str(out),
-                          *VARY_ARGS, *[a for s in COARSE + SKULL for a in ("--set", s)]]
+    command = mpirun() + [
+        sys.executable,
+        "-m",
+        "fenics_brainshift.cli",
+        "atlas",
+        "brain",
+        "-o",
+        str(out),
+        *VARY_ARGS,
+        *[a for s in COARSE + SKULL for a in ("--set", s)],
+    ]
     done = subprocess.run(command, capture_output=True, text=True, env=subprocess_env(), timeout=600)
     assert done.returncode == 0, done.stderr[-3000:]
     two = store.read(out)
@@ -675,7 +767,7 @@ def _write_tag(path: Path, pre_mm: np.ndarray, intra_mm: np.ndarray) -> None:
 
 
 def test_landmark_pairs_of_an_mni_tag_file_update_as_markups_do(atlas, atlas_folder, tmp_path):
-    from fenics_brainshift.fit.targets import read_target
+    from fenics_brainshift.images.targets import read_target
 
     pre, intra = _markups(tmp_path, atlas, noise=0.3e-3)
     _write_tag(tmp_path / "pairs.tag", pre * 1e3, intra * 1e3)
@@ -689,14 +781,17 @@ def test_landmark_pairs_of_an_mni_tag_file_update_as_markups_do(atlas, atlas_fol
     assert np.abs(a.displacement - b.displacement).max() < 1e-6
 
 
-@pytest.mark.parametrize("text, words", [
-    ("MNI Tag Point File\nVolumes = 1;\nPoints =\n 1 2 3;\n", "must hold landmark pairs"),
-    ("MNI Tag Point File\nVolumes = 2;\nPoints =\n 1 2 3 4 5 x;\n", "point 1 is not six finite numbers"),
-    ("Tag file\n", "is not an MNI tag file"),
-])
+@pytest.mark.parametrize(
+    "text, words",
+    [
+        ("MNI Tag Point File\nVolumes = 1;\nPoints =\n 1 2 3;\n", "must hold landmark pairs"),
+        ("MNI Tag Point File\nVolumes = 2;\nPoints =\n 1 2 3 4 5 x;\n", "point 1 is not six finite numbers"),
+        ("Tag file\n", "is not an MNI tag file"),
+    ],
+)
 def test_a_bad_tag_file_is_one_line(tmp_path, text, words):
     from fenics_brainshift.errors import InputError
-    from fenics_brainshift.fit.targets import read_target
+    from fenics_brainshift.images.targets import read_target
 
     (tmp_path / "bad.tag").write_text(text)
     with pytest.raises(InputError, match=words):
@@ -713,13 +808,22 @@ def test_a_poses_next_level_starts_from_its_last_two_extrapolated():
     from fenics_brainshift.atlas.build import predict_start
 
     def forward():
-        return SimpleNamespace(sim=SimpleNamespace(u=SimpleNamespace(x=SimpleNamespace(array=np.array([5.0, 5.0]))),
-                                                   contact=SimpleNamespace(multipliers=np.full((2, 3), 9.0))))
-    last = [(0.040, np.array([1.0, 2.0]), np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 4.0]])),
-            (0.035, np.array([2.0, 2.5]), np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]))]
+        return SimpleNamespace(
+            sim=SimpleNamespace(
+                u=SimpleNamespace(x=SimpleNamespace(array=np.array([5.0, 5.0]))),
+                contact=SimpleNamespace(multipliers=np.full((2, 3), 9.0)),
+            )
+        )
+
+    last = [
+        (0.040, np.array([1.0, 2.0]), np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 4.0]])),
+        (0.035, np.array([2.0, 2.5]), np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])),
+    ]
     f = forward()
     predict_start(f, last, {"fluid.level": 0.030, "gravity.angle_z": 6.0})
-    assert f.sim.u.x.array == pytest.approx([3.0, 3.0]) and np.allclose(f.sim.contact.multipliers, [[2.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    assert f.sim.u.x.array == pytest.approx([3.0, 3.0]) and np.allclose(
+        f.sim.contact.multipliers, [[2.0, 0.0, 0.0], [0.0, 0.0, 0.0]]
+    )
     f = forward()
     predict_start(f, last, {"fluid.level": 0.0325})  # half a step ahead
     assert f.sim.u.x.array == pytest.approx([2.5, 2.75])

@@ -1,21 +1,22 @@
 """The command line: every subcommand through main([...]), its outputs and its error paths,
 and the pictures a run makes (produced, and not blank)."""
+
 from __future__ import annotations
 
 import csv
+import json
 import subprocess
 import sys
 from pathlib import Path
-import json
 
 import numpy as np
 import pytest
+from test_scene_errors import write_scene
+
+from fenics_brainshift.cli import main
+from fenics_brainshift.data import MESHES, scene_path
 
 from conftest import column_dict, subprocess_env
-from fenics_brainshift.data import MESHES
-from fenics_brainshift.data import scene_path
-from fenics_brainshift.cli import main
-from test_scene_errors import write_scene
 
 pytestmark = pytest.mark.usefixtures("serial_only")
 
@@ -46,8 +47,23 @@ def test_help_explains_every_subcommand(capsys):
 
 def test_run_with_pictures(tmp_path, capsys):
     out = tmp_path / "out"
-    assert main(["--no-progress", "run", str(scene_path("cube")), "--out", str(out), "--pictures",
-                 "--set", "mesh.cells=[6, 6, 3]", "--set", "time.end=0.5"]) == 0
+    assert (
+        main(
+            [
+                "--no-progress",
+                "run",
+                str(scene_path("cube")),
+                "--out",
+                str(out),
+                "--pictures",
+                "--set",
+                "mesh.cells=[6, 6, 3]",
+                "--set",
+                "time.end=0.5",
+            ]
+        )
+        == 0
+    )
     assert "max |u|" in capsys.readouterr().out
     summary = json.loads((out / "summary.json").read_text())
     assert summary["status"] == "ok" and summary["gravity_vector"] == [0.0, 0.0, -9.81]
@@ -56,10 +72,14 @@ def test_run_with_pictures(tmp_path, capsys):
 
 
 def test_pictures_of_a_resection_leave_the_removed_cells_out(tmp_path):
-    from fenics_brainshift.outputs.pictures import read_last_state
+    from fenics_brainshift.outputs.run_folder import read_last_state
 
-    data = column_dict(4, time={"mode": "dynamic", "dt": 0.01, "end": 0.03},
-                       remove=[{"at": 0.0, "where": "z > 0.075"}], output={"pictures": True})
+    data = column_dict(
+        4,
+        time={"mode": "dynamic", "dt": 0.01, "end": 0.03},
+        remove=[{"at": 0.0, "where": "z > 0.075"}],
+        output={"pictures": True},
+    )
     scene = write_scene(tmp_path / "scene.toml", data)
     assert main(["run", str(scene), "--out", str(tmp_path / "out")]) == 0
     points, tets, u, tissue = read_last_state(tmp_path / "out" / "displacement.xdmf")
@@ -87,14 +107,44 @@ def test_bench_smoke_writes_table_csv_and_pareto_plot(tmp_path, capsys):
         writer = csv.DictWriter(f, fieldnames=list(marked[0]))
         writer.writeheader()
         writer.writerows(marked)
-    assert main(["--log-level", "WARNING", "bench", "--scene", "cube", "--smoke", "--out", str(tmp_path),
-                 "--only", p1["config"]]) == 0
+    assert (
+        main(
+            [
+                "--log-level",
+                "WARNING",
+                "bench",
+                "--scene",
+                "cube",
+                "--smoke",
+                "--out",
+                str(tmp_path),
+                "--only",
+                p1["config"],
+            ]
+        )
+        == 0
+    )
     again = {r["config"]: r for r in csv.DictReader(open(tmp_path / "time_vs_error_cube.csv"))}
     assert list(again) == names
     assert float(again[p1["config"]]["total_s"]) != 1234.5
     assert all(float(r["total_s"]) == 1234.5 for name, r in again.items() if name != p1["config"])
-    assert main(["--log-level", "WARNING", "bench", "--scene", "cube", "--smoke", "--out", str(tmp_path),
-                 "--only", "P9 nothing"]) == 2
+    assert (
+        main(
+            [
+                "--log-level",
+                "WARNING",
+                "bench",
+                "--scene",
+                "cube",
+                "--smoke",
+                "--out",
+                str(tmp_path),
+                "--only",
+                "P9 nothing",
+            ]
+        )
+        == 2
+    )
     table = (tmp_path / "time_vs_error_cube.md").read_text()
     assert "| configuration |" in table and "*" in table  # the Pareto front is marked
     _not_blank(tmp_path / "time_vs_error_cube.png")
@@ -120,24 +170,57 @@ def _subcommand_failures(tmp: Path) -> list[tuple[list[str], str]]:
         (["mesh", str(BRAIN_MASK), "--voxel", "20", "-o", "/proc/nope/brain.xdmf"], "cannot be written"),
         (["run", "cube", "--out", "/proc/nope"], "cannot be written"),
         # metres given for a millimetre surface: a grid of 10^13 voxels
-        (["mesh", str(BRAIN_SURFACE), "--voxel", "0.005", "-o", str(tmp / "m.xdmf")],
-         "is the voxel size in the right unit?"),
-        (["mesh", str(BRAIN_MASK), "--voxel", "0.005", "-o", str(tmp / "m.xdmf")], "is the voxel size in the right unit?"),
+        (
+            ["mesh", str(BRAIN_SURFACE), "--voxel", "0.005", "-o", str(tmp / "m.xdmf")],
+            "is the voxel size in the right unit?",
+        ),
+        (
+            ["mesh", str(BRAIN_MASK), "--voxel", "0.005", "-o", str(tmp / "m.xdmf")],
+            "is the voxel size in the right unit?",
+        ),
         (["mesh", str(tmp / "garbage.stl"), "-o", str(tmp / "m.xdmf")], "could not be read as a surface"),
-        (["compare", str(tmp / "a.stl"), str(BRAIN_SURFACE), str(BRAIN_SURFACE), "-o", str(tmp / "c.json")],
-         "compare: '"),
-        (["compare", str(BRAIN_SURFACE), str(BRAIN_SURFACE), str(BRAIN_SURFACE), "--radius", "0", "-o",
-          str(tmp / "c.json")], "must be > 0"),
-        (["compare", str(BRAIN_SURFACE), str(BRAIN_SURFACE), str(BRAIN_SURFACE), "-o", str(tmp / "a_file" / "c.json")],
-         "folder of -o"),
-        (["compare", str(tmp / "garbage.stl"), str(BRAIN_SURFACE), str(BRAIN_SURFACE), "-o", str(tmp / "c.json")],
-         "could not be read as a surface"),
+        (
+            ["compare", str(tmp / "a.stl"), str(BRAIN_SURFACE), str(BRAIN_SURFACE), "-o", str(tmp / "c.json")],
+            "compare: '",
+        ),
+        (
+            [
+                "compare",
+                str(BRAIN_SURFACE),
+                str(BRAIN_SURFACE),
+                str(BRAIN_SURFACE),
+                "--radius",
+                "0",
+                "-o",
+                str(tmp / "c.json"),
+            ],
+            "must be > 0",
+        ),
+        (
+            [
+                "compare",
+                str(BRAIN_SURFACE),
+                str(BRAIN_SURFACE),
+                str(BRAIN_SURFACE),
+                "-o",
+                str(tmp / "a_file" / "c.json"),
+            ],
+            "folder of -o",
+        ),
+        (
+            ["compare", str(tmp / "garbage.stl"), str(BRAIN_SURFACE), str(BRAIN_SURFACE), "-o", str(tmp / "c.json")],
+            "could not be read as a surface",
+        ),
         # the default --scales take SIM in metres: a mm SIM is 1000x the others (it said "raise --search")
-        (["compare", str(BRAIN_SURFACE), str(BRAIN_SURFACE), str(BRAIN_SURFACE), "-o", str(tmp / "c.json")],
-         "compare: SIM is 284 m across against the others' 0.284 m with --scales 0.001 0.001 1: is its scale 0.001?"),
+        (
+            ["compare", str(BRAIN_SURFACE), str(BRAIN_SURFACE), str(BRAIN_SURFACE), "-o", str(tmp / "c.json")],
+            "compare: SIM is 284 m across against the others' 0.284 m with --scales 0.001 0.001 1: is its scale 0.001?",
+        ),
         (["bench", "--scene", "cube", "--smoke", "--out", str(tmp / "a_file")], "is an existing file"),
-        (["bench", "--scene", "cube", "--smoke", "--out", str(tmp / "b"), "--only", "P9 nothing"],
-         "--only: no configuration named 'P9 nothing'"),
+        (
+            ["bench", "--scene", "cube", "--smoke", "--out", str(tmp / "b"), "--only", "P9 nothing"],
+            "--only: no configuration named 'P9 nothing'",
+        ),
         (["run", "no-such-scene"], "scene file 'no-such-scene' not found"),
     ]
 
@@ -154,8 +237,10 @@ def test_every_subcommand_fails_with_one_line_and_writes_nothing(tmp_path, capsy
 def test_compiler_command_lines_stay_out_of_the_terminal(tmp_path, serial_only):
     """A fresh form cache compiles C; the gcc lines must not reach a user of the Python API."""
     env = {**subprocess_env(), "XDG_CACHE_HOME": str(tmp_path / "cache")}
-    code = ("from fenics_brainshift import load_scene, run; "
-            "run(load_scene('cube', ['mesh.cells=[2, 2, 1]', 'time.mode=quasi-static']))")
+    code = (
+        "from fenics_brainshift import load_scene, run; "
+        "run(load_scene('cube', ['mesh.cells=[2, 2, 1]', 'time.mode=quasi-static']))"
+    )
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=600)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "gcc" not in proc.stdout + proc.stderr and "build_ext" not in proc.stdout + proc.stderr

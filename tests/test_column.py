@@ -1,21 +1,22 @@
 """Statics against exact answers: the confined column under gravity (scene path) and a
 manufactured non-polynomial column (forms path), with observed convergence rates."""
+
 from __future__ import annotations
 
+import dolfinx.fem.petsc
 import numpy as np
 import pytest
 import ufl
 from dolfinx import fem
-import dolfinx.fem.petsc
 
-from conftest import COMM, column_dict
 from fenics_brainshift import compat
+from fenics_brainshift.linalg import LinearSolver
 from fenics_brainshift.physics import forms
 from fenics_brainshift.physics.gravity import assemble_into
-from fenics_brainshift.runner import build_model
+from fenics_brainshift.runner import Simulation, build_model
 from fenics_brainshift.scene import scene_from_dict
-from fenics_brainshift.runner import Simulation
-from fenics_brainshift.linalg import LinearSolver
+
+from conftest import COMM, column_dict
 
 pytestmark = pytest.mark.mpi
 H = 0.1

@@ -1,5 +1,6 @@
-"""Frictionless contact with a rigid skull (physics/skull.py, physics/contact.py): exact
+"""Frictionless contact with a rigid skull (surfaces/skull.py, physics/contact.py): exact
 reactions, sliding supports, nothing past the skull, bad skulls refused."""
+
 from __future__ import annotations
 
 import re
@@ -7,16 +8,17 @@ import re
 import meshio
 import numpy as np
 import pytest
-
 from dolfinx import fem
 from mpi4py import MPI
 
-from conftest import COMM
 from fenics_brainshift import compat
 from fenics_brainshift.errors import InputError
-from fenics_brainshift.physics.skull import RigidSkull, closest_points_on_triangles
 from fenics_brainshift.runner import Simulation, run
 from fenics_brainshift.scene import scene_from_dict
+from fenics_brainshift.surfaces.skull import RigidSkull
+from fenics_brainshift.surfaces.triangles import closest_points_on_triangles
+
+from conftest import COMM
 
 pytestmark = pytest.mark.mpi
 
@@ -27,8 +29,9 @@ E, NU, RHO, RHO_OIL, LEVEL = 729.0, 0.48, 1048.0, 975.0, 0.02
 def _box_surface(lo, hi, path, drop_face: bool = False) -> str:
     """A closed box (12 triangles, outward), written by rank 0; every rank gets the path."""
     (x0, y0, z0), (x1, y1, z1) = lo, hi
-    P = np.array([[x0, y0, z0], [x1, y0, z0], [x1, y1, z0], [x0, y1, z0],
-                  [x0, y0, z1], [x1, y0, z1], [x1, y1, z1], [x0, y1, z1]])
+    P = np.array(
+        [[x0, y0, z0], [x1, y0, z0], [x1, y1, z0], [x0, y1, z0], [x0, y0, z1], [x1, y0, z1], [x1, y1, z1], [x0, y1, z1]]
+    )
     quads = [[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [2, 3, 7, 6], [1, 2, 6, 5], [0, 4, 7, 3]]
     if drop_face:
         quads = quads[1:]
@@ -40,13 +43,16 @@ def _box_surface(lo, hi, path, drop_face: bool = False) -> str:
 
 
 def _block(bottom: list, skull: dict | None, model: str = "linear", g: float = 9.81) -> dict:
-    data = {"mesh": {"shape": "box", "size": [L, L, H], "cells": [6, 6, 3]},
-            "material": {"E": E, "nu": NU, "density": RHO, "model": model},
-            "gravity": {"vector": [0.0, 0.0, -g]},
-            "fluid": {"density": RHO_OIL, "level": LEVEL, "follower": False},
-            "fixed": [{"where": "x < 1e-9", "axes": "x"}, {"where": "y < 1e-9", "axes": "y"}] + bottom,
-            "time": {"mode": "quasi-static"}, "solver": {"kind": "cholesky"},
-            "probes": {"top": [L, L, H], "bottom": [L, L, 0.0], "centre": [L / 2, L / 2, 0.0]}}
+    data = {
+        "mesh": {"shape": "box", "size": [L, L, H], "cells": [6, 6, 3]},
+        "material": {"E": E, "nu": NU, "density": RHO, "model": model},
+        "gravity": {"vector": [0.0, 0.0, -g]},
+        "fluid": {"density": RHO_OIL, "level": LEVEL, "follower": False},
+        "fixed": [{"where": "x < 1e-9", "axes": "x"}, {"where": "y < 1e-9", "axes": "y"}] + bottom,
+        "time": {"mode": "quasi-static"},
+        "solver": {"kind": "cholesky"},
+        "probes": {"top": [L, L, H], "bottom": [L, L, 0.0], "centre": [L / 2, L / 2, 0.0]},
+    }
     if skull is not None:
         data["skull"] = skull
     return data
@@ -60,15 +66,22 @@ def floor(shared_tmp):
 
 def test_closest_points_on_triangles_against_an_optimiser():
     from scipy.optimize import minimize
+
     rng = np.random.default_rng(3)
     for _ in range(50):
         a, b, c, p = rng.normal(size=(4, 3))
         q = closest_points_on_triangles(p, a, b, c)
-        res = minimize(lambda z: np.sum((a + z[0] * (b - a) + z[1] * (c - a) - p) ** 2), [0.3, 0.3],
-                       bounds=[(0, 1), (0, 1)], constraints=[{"type": "ineq", "fun": lambda z: 1 - z[0] - z[1]}],
-                       method="SLSQP", options={"ftol": 1e-15})
-        assert np.linalg.norm(q - p) == pytest.approx(np.linalg.norm(a + res.x[0] * (b - a) + res.x[1] * (c - a) - p),
-                                                      abs=1e-7)
+        res = minimize(
+            lambda z: np.sum((a + z[0] * (b - a) + z[1] * (c - a) - p) ** 2),
+            [0.3, 0.3],
+            bounds=[(0, 1), (0, 1)],
+            constraints=[{"type": "ineq", "fun": lambda z: 1 - z[0] - z[1]}],
+            method="SLSQP",
+            options={"ftol": 1e-15},
+        )
+        assert np.linalg.norm(q - p) == pytest.approx(
+            np.linalg.norm(a + res.x[0] * (b - a) + res.x[1] * (c - a) - p), abs=1e-7
+        )
 
 
 def test_distance_field_of_a_cube_inside_and_of_its_dilation():
@@ -158,10 +171,16 @@ def test_a_skull_from_labels_of_the_label_volume(shared_tmp):
         labels[6:14, 6:14, 6:14] = 1  # the block: 11 .. 27 mm, its bottom 6 mm over the floor
         nib.save(nib.Nifti1Image(labels, np.diag([2.0, 2.0, 2.0, 1.0])), str(shared_tmp / "head.nii.gz"))
     COMM.barrier()
-    data = {"mesh": {"file": str(shared_tmp / "head.nii.gz"), "labels": [1], "voxel": 0.002, "unit": "mm"},
-            "material": {"E": E, "nu": NU, "density": RHO}, "gravity": {"vector": [0.0, 0.0, -8 * 9.81]},
-            "fixed": [{"where": "z > 0.0269"}], "time": {"mode": "quasi-static"}, "solver": {"kind": "cholesky"},
-            "skull": {"label": [1, 2], "tolerance": 1e-6}, "probes": {"bottom": [0.019, 0.019, 0.011]}}
+    data = {
+        "mesh": {"file": str(shared_tmp / "head.nii.gz"), "labels": [1], "voxel": 0.002, "unit": "mm"},
+        "material": {"E": E, "nu": NU, "density": RHO},
+        "gravity": {"vector": [0.0, 0.0, -8 * 9.81]},
+        "fixed": [{"where": "z > 0.0269"}],
+        "time": {"mode": "quasi-static"},
+        "solver": {"kind": "cholesky"},
+        "skull": {"label": [1, 2], "tolerance": 1e-6},
+        "probes": {"bottom": [0.019, 0.019, 0.011]},
+    }
     result = run(scene_from_dict(data), comm=COMM)
     contact = result.summary["skull_contact"]
     assert contact["max_penetration_m"] <= 1e-6 and contact["pressed_nodes"] > 0
@@ -187,14 +206,17 @@ def test_contact_is_skipped_while_nothing_reaches_the_skull():
     np.testing.assert_allclose(result.probes["centre"], free.probes["centre"], rtol=0, atol=1e-12)
 
 
-@pytest.mark.parametrize("label, skull, message", [
-    ("gap not positive", {"gap": 0.0}, "[skull] gap must be a positive distance"),
-    ("both", {"gap": 0.001, "file": "x.stl"}, "[skull] give exactly one of file"),
-    ("not a surface", {"file": "skull.nii.gz"}, "[skull] file must be a closed triangulated surface"),
-    ("missing", {"file": "/nonexistent/skull.stl"}, "[skull] file not found"),
-    ("label of no volume", {"label": [1, 2]}, "[skull] label needs [mesh] file to be a label volume"),
-    ("label not a label", {"label": [1.5]}, "[skull] label must be a label value"),
-])
+@pytest.mark.parametrize(
+    "label, skull, message",
+    [
+        ("gap not positive", {"gap": 0.0}, "[skull] gap must be a positive distance"),
+        ("both", {"gap": 0.001, "file": "x.stl"}, "[skull] give exactly one of file"),
+        ("not a surface", {"file": "skull.nii.gz"}, "[skull] file must be a closed triangulated surface"),
+        ("missing", {"file": "/nonexistent/skull.stl"}, "[skull] file not found"),
+        ("label of no volume", {"label": [1, 2]}, "[skull] label needs [mesh] file to be a label volume"),
+        ("label not a label", {"label": [1.5]}, "[skull] label must be a label value"),
+    ],
+)
 def test_bad_skull_sections_are_named(label, skull, message):
     with pytest.raises(InputError, match=message.replace("[", r"\[").replace("]", r"\]")):
         scene_from_dict(_block([], skull))
@@ -221,7 +243,9 @@ def test_a_block_dropped_on_the_floor_settles_where_the_static_contact_puts_it(f
     assert contact["force_N"][2] == pytest.approx(RHO * 9.81 * L * L * H - RHO_OIL * 9.81 * L * L * LEVEL, rel=1e-3)
     assert contact["max_penetration_m"] <= 1e-6
     settled = static.probe_values()
-    np.testing.assert_allclose([result.probes["top"], result.probes["bottom"]], settled[:2], atol=1e-3 * np.abs(settled).max())
+    np.testing.assert_allclose(
+        [result.probes["top"], result.probes["bottom"]], settled[:2], atol=1e-3 * np.abs(settled).max()
+    )
 
 
 def test_an_open_skull_or_one_crossing_the_body_is_refused(shared_tmp):
@@ -237,6 +261,7 @@ def test_the_contact_pressure_is_written_with_the_fields(floor, shared_tmp):
     """displacement.xdmf carries contact_pressure: the floor's pressure on the bottom nodes,
     nothing on the top; summed over the nodes' areas it gives the floor's force."""
     import meshio
+
     out = shared_tmp / "contact_out"
     result = run(scene_from_dict(_block([], {"file": floor, "tolerance": 1e-6})), out, COMM)
     if COMM.rank != 0:
@@ -251,11 +276,14 @@ def test_the_contact_pressure_is_written_with_the_fields(floor, shared_tmp):
     # each node's area: a third of every surface triangle it is a corner of (a node on the
     # bottom's rim also has its share of the side faces, and presses with all of it)
     tets = cells[0].data
-    faces = np.sort(np.concatenate([tets[:, [0, 1, 2]], tets[:, [0, 1, 3]], tets[:, [0, 2, 3]], tets[:, [1, 2, 3]]]), axis=1)
+    faces = np.sort(
+        np.concatenate([tets[:, [0, 1, 2]], tets[:, [0, 1, 3]], tets[:, [0, 2, 3]], tets[:, [1, 2, 3]]]), axis=1
+    )
     unique, count = np.unique(faces, axis=0, return_counts=True)
     faces = unique[count == 1]  # the surface
-    area = 0.5 * np.linalg.norm(np.cross(points[faces[:, 1]] - points[faces[:, 0]],
-                                         points[faces[:, 2]] - points[faces[:, 0]]), axis=1)
+    area = 0.5 * np.linalg.norm(
+        np.cross(points[faces[:, 1]] - points[faces[:, 0]], points[faces[:, 2]] - points[faces[:, 0]]), axis=1
+    )
     assert area.sum() == pytest.approx(2 * L * L + 4 * L * H)
     share = np.zeros(len(points))
     np.add.at(share, faces.ravel(), np.repeat(area / 3.0, 3))
@@ -294,22 +322,29 @@ def test_a_skull_file_in_another_unit_than_the_mesh_is_refused(shared_tmp):
     from fenics_brainshift import load_scene
 
     mm = _box_surface((-10.0, -10.0, -5.0), (60.0, 60.0, 35.0), shared_tmp / "skull_mm.stl")
-    with pytest.raises(InputError, match=r"^\[skull\] file 'skull_mm.stl' is 107 m across against a 0.075 m body, "
-                                         r"5 m from it at rest: is it in mm\? give the skull in the mesh's unit \(m\)"):
+    with pytest.raises(
+        InputError,
+        match=r"^\[skull\] file 'skull_mm.stl' is 107 m across against a 0.075 m body, "
+        r"5 m from it at rest: is it in mm\? give the skull in the mesh's unit \(m\)",
+    ):
         Simulation(scene_from_dict(_block([], {"file": mm})), COMM)
     metres = _box_surface((-0.01, -0.01, -0.005), (0.06, 0.06, 0.035), shared_tmp / "skull_m.stl")
     sim = Simulation(scene_from_dict(_block([], {"file": metres})), COMM)
     assert sim.contact.clearance(fem.Function(sim.model.V)) == pytest.approx(0.005)
     phantom = _box_surface((-0.075, -0.09, -0.005), (0.075, 0.09, 0.125), shared_tmp / "phantom_skull_m.stl")
-    with pytest.raises(InputError, match=r"^\[skull\] file 'phantom_skull_m.stl' is 0.000268 m across against a "
-                                         r"0.251 m body: is it in m\? give the skull in the mesh's unit \(mm\)"):
+    with pytest.raises(
+        InputError,
+        match=r"^\[skull\] file 'phantom_skull_m.stl' is 0.000268 m across against a "
+        r"0.251 m body: is it in m\? give the skull in the mesh's unit \(mm\)",
+    ):
         Simulation(load_scene("phantom", ["time.mode=quasi-static", f"skull.file={phantom}"]), COMM)
 
 
 def test_brainshift_run_refuses_a_skull_in_mm_for_a_scene_in_m(shared_tmp, capsys):
     """`brainshift run` with `--set skull.file=` a skull in mm: exit 2, one line, nothing written."""
-    from fenics_brainshift.cli import main
     from test_scene_errors import write_scene
+
+    from fenics_brainshift.cli import main
 
     mm = _box_surface((-10.0, -10.0, -5.0), (60.0, 60.0, 35.0), shared_tmp / "skull_mm.stl")
     scene = write_scene(shared_tmp / f"block_r{COMM.rank}.toml", _block([], None))  # every rank its own copy
@@ -318,8 +353,9 @@ def test_brainshift_run_refuses_a_skull_in_mm_for_a_scene_in_m(shared_tmp, capsy
     err = capsys.readouterr().err.strip()
     assert code == 2
     if COMM.rank == 0:
-        assert ("[skull] file 'skull_mm.stl' is 107 m across against a 0.075 m body, 5 m from it at rest: "
-                "is it in mm?") in err
+        assert (
+            "[skull] file 'skull_mm.stl' is 107 m across against a 0.075 m body, 5 m from it at rest: is it in mm?"
+        ) in err
         assert len(err.splitlines()) == 1 and "Traceback" not in err, err
     else:
         assert err == ""
@@ -330,10 +366,16 @@ def test_brainshift_run_refuses_a_skull_in_mm_for_a_scene_in_m(shared_tmp, capsy
 def _cantilever(floor: str, tolerance: float, solve: bool = True) -> Simulation:
     """A 100 x 10 x 10 mm cantilever clamped at x = 0 whose weight would bend its free end 10 mm
     down, over a floor 2 mm below it (the settled state, solved)."""
-    data = {"mesh": {"shape": "box", "size": [0.1, 0.01, 0.01], "cells": [20, 2, 2]},
-            "material": {"E": 1e6, "nu": 0.3, "density": 1000.0}, "gravity": {"vector": [0.0, 0.0, -9.81]},
-            "fixed": [{"where": "x < 1e-9"}], "time": {"mode": "quasi-static"}, "solver": {"kind": "cholesky"},
-            "skull": {"file": floor, "tolerance": tolerance}, "probes": {"tip": [0.1, 0.005, 0.0]}}
+    data = {
+        "mesh": {"shape": "box", "size": [0.1, 0.01, 0.01], "cells": [20, 2, 2]},
+        "material": {"E": 1e6, "nu": 0.3, "density": 1000.0},
+        "gravity": {"vector": [0.0, 0.0, -9.81]},
+        "fixed": [{"where": "x < 1e-9"}],
+        "time": {"mode": "quasi-static"},
+        "solver": {"kind": "cholesky"},
+        "skull": {"file": floor, "tolerance": tolerance},
+        "probes": {"tip": [0.1, 0.005, 0.0]},
+    }
     sim = Simulation(scene_from_dict(data), COMM)
     if solve:
         sim.solve_to_settled(0.0)
@@ -443,19 +485,25 @@ def test_a_settled_state_not_found_in_contact_says_what_the_skull_had_to_do_with
     sim = Simulation(scene_from_dict(_block([], {"file": floor, "tolerance": 1e-6})), COMM)
     # (Newton converged each time and was told it had not: the deepest node is within the
     # tolerance, the advice says so and only supposes the skull's shape)
-    with pytest.raises(SolverError, match=r"with skull contact: the deepest node \d\.\d+e-0\d m past the skull where "
-                                          r"Newton stopped, \[skull\] tolerance = 1e-06 m \(the deepest node is "
-                                          r"within it, a looser one will not help; the skull's shape where the body "
-                                          r"presses it may be the cause, docs/limits.md\)$") as failure:
+    with pytest.raises(
+        SolverError,
+        match=r"with skull contact: the deepest node \d\.\d+e-0\d m past the skull where "
+        r"Newton stopped, \[skull\] tolerance = 1e-06 m \(the deepest node is "
+        r"within it, a looser one will not help; the skull's shape where the body "
+        r"presses it may be the cause, docs/limits.md\)$",
+    ) as failure:
         sim.solve_to_settled(0.0)
     assert "\n" not in str(failure.value)
 
 
-@pytest.mark.parametrize("deepest, words", [
-    (3e-4, r"the deepest node 0.0003 m past .* \(if the body is held, a looser tolerance may settle\)$"),
-    (5e-7, r"the deepest node 5e-07 m past .* \(the deepest node is within it, a looser one will not help"),
-    (None, r"\[skull\] tolerance = 1e-06 m \(if the body is held, a looser tolerance may settle\)$"),
-])
+@pytest.mark.parametrize(
+    "deepest, words",
+    [
+        (3e-4, r"the deepest node 0.0003 m past .* \(if the body is held, a looser tolerance may settle\)$"),
+        (5e-7, r"the deepest node 5e-07 m past .* \(the deepest node is within it, a looser one will not help"),
+        (None, r"\[skull\] tolerance = 1e-06 m \(if the body is held, a looser tolerance may settle\)$"),
+    ],
+)
 def test_the_skull_advice_follows_how_deep_the_deepest_node_was(deepest, words):
     """A node deeper past the skull than the tolerance where Newton stopped: a looser one may
     settle; within it, the tolerance is not what stopped Newton; not known (a state not

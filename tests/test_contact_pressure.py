@@ -9,6 +9,7 @@ boundary triangle of the mesh it is a corner of, found from the tetrahedra's coo
 (gathered from every rank); the reactions under gravity come from the linear-elastic
 residual K u - f assembled with UFL forms written here.
 """
+
 from __future__ import annotations
 
 import meshio
@@ -20,10 +21,11 @@ from dolfinx.fem.petsc import assemble_vector
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from conftest import COMM
 from fenics_brainshift import compat
 from fenics_brainshift.runner import Simulation
 from fenics_brainshift.scene import scene_from_dict
+
+from conftest import COMM
 
 pytestmark = pytest.mark.mpi
 
@@ -34,8 +36,9 @@ G = 9.81
 def _box_surface(lo, hi, path) -> str:
     """A closed box surface (12 triangles, outward), written by rank 0."""
     (x0, y0, z0), (x1, y1, z1) = lo, hi
-    P = np.array([[x0, y0, z0], [x1, y0, z0], [x1, y1, z0], [x0, y1, z0],
-                  [x0, y0, z1], [x1, y0, z1], [x1, y1, z1], [x0, y1, z1]])
+    P = np.array(
+        [[x0, y0, z0], [x1, y0, z0], [x1, y1, z0], [x0, y1, z0], [x0, y0, z1], [x1, y0, z1], [x1, y1, z1], [x0, y1, z1]]
+    )
     quads = [[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [2, 3, 7, 6], [1, 2, 6, 5], [0, 4, 7, 3]]
     tris = [[q[0], q[1], q[2]] for q in quads] + [[q[0], q[2], q[3]] for q in quads]
     if COMM.rank == 0:
@@ -51,8 +54,7 @@ def _boundary_triangles(mesh) -> np.ndarray:
     tets = mesh.geometry.x[compat.geometry_dofmap(mesh)[:n_owned]]  # (c, 4, 3)
     tets = np.concatenate(COMM.allgather(tets))
     size = np.abs(tets).max()
-    points, ids = np.unique(np.round(tets.reshape(-1, 3) / (1e-9 * size)).astype(np.int64), axis=0,
-                            return_inverse=True)
+    points, ids = np.unique(np.round(tets.reshape(-1, 3) / (1e-9 * size)).astype(np.int64), axis=0, return_inverse=True)
     ids = ids.reshape(-1, 4)
     faces = np.concatenate([ids[:, [0, 1, 2]], ids[:, [0, 1, 3]], ids[:, [0, 2, 3]], ids[:, [1, 2, 3]]])
     unique, count = np.unique(np.sort(faces, axis=1), axis=0, return_counts=True)
@@ -62,8 +64,7 @@ def _boundary_triangles(mesh) -> np.ndarray:
 
 def _shares(triangles: np.ndarray, nodes: np.ndarray) -> np.ndarray:
     """Each node's area share: a third of every triangle it is a corner of (m^2)."""
-    area = 0.5 * np.linalg.norm(np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0]),
-                                axis=1)
+    area = 0.5 * np.linalg.norm(np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0]), axis=1)
     share = np.zeros(len(nodes))
     for corner in range(3):
         hit = np.linalg.norm(nodes[:, None, :] - triangles[None, :, corner, :], axis=2) < 1e-9
@@ -92,14 +93,19 @@ def test_a_buoyant_column_presses_the_skull_roof_with_the_uniform_closed_form_pr
     rim has side area too, so a contact giving every node the same area is caught."""
     W, H, RHO_F, LEVEL = 0.04, 0.02, 1000.0, 0.05
     roof = _box_surface((-0.1, -0.1, -0.2), (0.15, 0.15, H), shared_tmp / "roof.stl")
-    data = {"mesh": {"shape": "box", "size": [W, W, H], "cells": [4, 4, 2]},
-            "material": {"E": 729.0, "nu": 0.48, "density": 1e-9},  # weightless next to the fluid
-            "gravity": {"vector": [0.0, 0.0, -G]},
-            "fluid": {"density": RHO_F, "level": LEVEL, "follower": False},
-            "fixed": [{"where": f"x < {EPS} or x > {W - EPS}", "axes": "x"},
-                      {"where": f"y < {EPS} or y > {W - EPS}", "axes": "y"}],
-            "time": {"mode": "quasi-static"}, "solver": {"kind": "cholesky"},
-            "skull": {"file": roof, "tolerance": 1e-7}}
+    data = {
+        "mesh": {"shape": "box", "size": [W, W, H], "cells": [4, 4, 2]},
+        "material": {"E": 729.0, "nu": 0.48, "density": 1e-9},  # weightless next to the fluid
+        "gravity": {"vector": [0.0, 0.0, -G]},
+        "fluid": {"density": RHO_F, "level": LEVEL, "follower": False},
+        "fixed": [
+            {"where": f"x < {EPS} or x > {W - EPS}", "axes": "x"},
+            {"where": f"y < {EPS} or y > {W - EPS}", "axes": "y"},
+        ],
+        "time": {"mode": "quasi-static"},
+        "solver": {"kind": "cholesky"},
+        "skull": {"file": roof, "tolerance": 1e-7},
+    }
     sim = Simulation(scene_from_dict(data), COMM)
     sim.solve_to_settled(0.0)
     contact = sim.static.contact
@@ -142,11 +148,15 @@ def test_under_gravity_each_floor_node_carries_its_reaction_and_its_pressure_tim
     contact's force is that reaction, and its pressure times the node's area is it too."""
     L, H, E, NU, RHO = 0.05, 0.025, 729.0, 0.48, 1048.0
     floor = _box_surface((-0.1, -0.1, 0.0), (0.15, 0.15, 0.2), shared_tmp / "floor.stl")
-    data = {"mesh": {"shape": "box", "size": [L, L, H], "cells": [4, 4, 2]},
-            "material": {"E": E, "nu": NU, "density": RHO}, "gravity": {"vector": [0.0, 0.0, -G]},
-            "fixed": [{"where": f"x < {EPS}", "axes": "x"}, {"where": f"y < {EPS}", "axes": "y"}],
-            "time": {"mode": "quasi-static"}, "solver": {"kind": "cholesky"},
-            "skull": {"file": floor, "tolerance": 1e-7}}
+    data = {
+        "mesh": {"shape": "box", "size": [L, L, H], "cells": [4, 4, 2]},
+        "material": {"E": E, "nu": NU, "density": RHO},
+        "gravity": {"vector": [0.0, 0.0, -G]},
+        "fixed": [{"where": f"x < {EPS}", "axes": "x"}, {"where": f"y < {EPS}", "axes": "y"}],
+        "time": {"mode": "quasi-static"},
+        "solver": {"kind": "cholesky"},
+        "skull": {"file": floor, "tolerance": 1e-7},
+    }
     sim = Simulation(scene_from_dict(data), COMM)
     sim.solve_to_settled(0.0)
     contact = sim.static.contact
@@ -171,7 +181,8 @@ def test_under_gravity_each_floor_node_carries_its_reaction_and_its_pressure_tim
     assert -_max(-reaction[bottom].min(initial=np.inf)) > 0.0  # every floor node pressed
     scale = _max(reaction[bottom].max(initial=0.0))
     assert _max(np.abs(force[bottom] - reaction[bottom]).max(initial=0.0)) < 1e-3 * scale
-    assert _max(np.abs(pressure[bottom] * share[bottom] - reaction[bottom]).max(initial=0.0)) < 1e-3 * scale, \
+    assert _max(np.abs(pressure[bottom] * share[bottom] - reaction[bottom]).max(initial=0.0)) < 1e-3 * scale, (
         "pressure x tributary area != the node's reaction"
+    )
     # summed over the floor, pressure times area is the weight
     assert COMM.allreduce(float(np.sum(pressure[bottom] * share[bottom]))) == pytest.approx(weight, rel=1e-6)

@@ -1,6 +1,7 @@
 """How contact is solved fast (stepping/contact_preconditioner.py, stepping/lagged_contact.py):
 the stiffness put in the factor, the rent-or-buy rule for rebuilding it, and time steps of a
 linear body by the fixed point against the same steps by Newton."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -8,16 +9,17 @@ import pytest
 import scipy.linalg
 from mpi4py import MPI
 from petsc4py import PETSc
+from test_contact import LEVEL, RHO, RHO_OIL, H, L, _block, _box_surface
 
-from conftest import COMM
 from fenics_brainshift.linalg.low_rank import LowRankUpdate
 from fenics_brainshift.physics.contact import SkullContact
 from fenics_brainshift.runner import Simulation
 from fenics_brainshift.scene import scene_from_dict
-from fenics_brainshift.stepping.contact_preconditioner import ContactPreconditioner
 from fenics_brainshift.stepping import contact_preconditioner, exact_contact, newton, newton_dynamic
+from fenics_brainshift.stepping.contact_preconditioner import ContactPreconditioner
 from fenics_brainshift.stepping.newton_dynamic import NewtonDynamicStepper
-from test_contact import RHO, RHO_OIL, LEVEL, L, H, _block, _box_surface
+
+from conftest import COMM
 
 pytestmark = pytest.mark.mpi
 
@@ -205,11 +207,14 @@ def test_the_updated_factor_is_that_of_the_matrix_with_the_pressed_nodes(floor):
 def _leaning_cube(skull: str, degrees: float, tolerance: float = 1e-5) -> dict:
     """The gelatin block fixed at its base, gravity tilted by ``degrees`` toward +x."""
     a = np.radians(degrees)
-    return {"mesh": {"shape": "box", "size": [L, L, H], "cells": [6, 6, 3]},
-            "material": {"E": 729.0, "nu": 0.48, "density": 1048.0},
-            "gravity": {"vector": [9.81 * np.sin(a), 0.0, -9.81 * np.cos(a)]},
-            "fixed": [{"where": "z < 1e-9"}], "time": {"mode": "quasi-static"},
-            "skull": {"file": skull, "tolerance": tolerance}}
+    return {
+        "mesh": {"shape": "box", "size": [L, L, H], "cells": [6, 6, 3]},
+        "material": {"E": 729.0, "nu": 0.48, "density": 1048.0},
+        "gravity": {"vector": [9.81 * np.sin(a), 0.0, -9.81 * np.cos(a)]},
+        "fixed": [{"where": "z < 1e-9"}],
+        "time": {"mode": "quasi-static"},
+        "skull": {"file": skull, "tolerance": tolerance},
+    }
 
 
 @pytest.mark.parametrize("degrees", [20, 90])
@@ -265,8 +270,10 @@ def test_a_cut_after_a_multiplier_update_steps_the_multipliers(shared_tmp, monke
             def newton(t_k, factor):
                 seen.append((self.contact.multipliers.copy(), multipliers_before, new))
                 return inner(t_k, factor) and len(seen) > 1  # the first try fails
+
             monkeypatch.setattr(self, "_newton", newton)
         return original(self, t, multipliers_before)
+
     monkeypatch.setattr(NewtonStatic, "_solve_loads", spy)
     sim = Simulation(scene_from_dict(_leaning_cube(skull, 20)), COMM)
     sim.setup()
@@ -326,8 +333,9 @@ def test_the_compliance_solves_k_plus_the_blocks_of_any_pressed_dofs(at_once):
     P0, ksp = _tridiagonal(n)
     lo, hi = P0.getOwnershipRange()
     pc = ksp.getPC()
-    compliance = Compliance(lambda r, x: pc.apply(r, x), P0.createVecRight(),
-                            (lambda: pc.getFactorMatrix()) if at_once else None)
+    compliance = Compliance(
+        lambda r, x: pc.apply(r, x), P0.createVecRight(), (lambda: pc.getFactorMatrix()) if at_once else None
+    )
     rng = np.random.default_rng(2)  # the same on every rank
     rhs = P0.createVecRight()
     rhs.setArray(rng.normal(size=n)[lo:hi])
@@ -342,7 +350,9 @@ def test_the_compliance_solves_k_plus_the_blocks_of_any_pressed_dofs(at_once):
         x = rhs.duplicate()
         compliance.solve(rhs, x)
         np.testing.assert_allclose(x.getArray(), _lu(P, rhs).getArray(), rtol=0, atol=1e-10)
-        singular = -np.linalg.inv(compliance.G[np.ix_(*[[compliance._position[d] for d in dofs]] * 2)]) if dofs else None
+        singular = (
+            -np.linalg.inv(compliance.G[np.ix_(*[[compliance._position[d] for d in dofs]] * 2)]) if dofs else None
+        )
         if singular is not None:  # K + E B E^T singular: refused, the last change kept
             assert not compliance.set(np.array(dofs, dtype=np.int64), singular)
             compliance.solve(rhs, x)
@@ -362,7 +372,7 @@ def test_newton_in_contact_keeps_ks_one_factor_and_settles_where_refactoring_doe
     """A linear cantilever bent onto a floor (not touching at rest): Newton's solves are
     preconditioned exactly for K and the pressed nodes' contact blocks, on K's one factor; the
     preconditioner is the inverse of that matrix assembled afresh (an LU of it), and the settled
-    state equals the one by the factor rebuilt with the pressed nodes (the former path)."""
+    state equals the one by the factor rebuilt with the pressed nodes (the refactoring path)."""
     from test_contact import _box_surface, _cantilever
 
     floor = _box_surface((-0.05, -0.05, -0.002), (0.2, 0.06, 0.05), shared_tmp / "exact_floor.stl")
@@ -447,12 +457,14 @@ def test_a_diverging_fixed_point_with_the_skull_stops_early():
     """The lagged fixed point of a time step with the skull (the resection demo's first steps)
     diverged to nodes 1e6 m out over its 80 iterations before Newton took the step: the
     skull's distances to such iterates took most of the run's time (204 s against 63 s for its
-    first 0.6 s, scratch runs of `python demos/resection.py --skull 3`) and, before they went a
-    few points at a time, its memory. An iterate 100 times its first solve's size now ends the
-    fixed point at once; a follower-load fixed point without the skull is left as it was."""
+    first 0.6 s of `python demos/resection.py --skull 3`, measured once on a 2-core machine, not
+    in a results file) and, measured all at once, its memory. An iterate 100 times its first
+    solve's size now ends the fixed point at once; a follower-load fixed point without the skull
+    is left as it was."""
     from types import SimpleNamespace
 
-    from dolfinx import fem, mesh as meshes
+    from dolfinx import fem
+    from dolfinx import mesh as meshes
 
     from fenics_brainshift import compat
     from fenics_brainshift.errors import SolverError
@@ -478,8 +490,12 @@ def test_a_diverging_fixed_point_with_the_skull_stops_early():
     assert len(calls) < 80  # (29: Anderson holds it back a while)
     x.x.array[:] = 0.0
     calls.clear()
-    follower = Settle(template, SimpleNamespace(vector=lambda v: None),
-                      SimpleNamespace(follower=True, reused_last=False), max_iterations=80)
+    follower = Settle(
+        template,
+        SimpleNamespace(vector=lambda v: None),
+        SimpleNamespace(follower=True, reused_last=False),
+        max_iterations=80,
+    )
     with pytest.raises(SolverError, match="follower-load iteration did not settle in 80 iterations"):
         follower(x, rhs, solve, 0.0, scale=0.0, same_problem=False)
     assert len(calls) == 80

@@ -1,4 +1,5 @@
 """The cube demo end to end: serial and mpirun give the same probe; outputs are readable."""
+
 from __future__ import annotations
 
 import json
@@ -7,10 +8,11 @@ import sys
 import numpy as np
 import pytest
 
-from conftest import ROOT, mpirun, run_group, subprocess_env
-from fenics_brainshift.data import scene_path
 from fenics_brainshift.cli import main
+from fenics_brainshift.data import scene_path
 from fenics_brainshift.scene import load_scene
+
+from conftest import ROOT, mpirun, run_group, subprocess_env
 
 pytestmark = pytest.mark.usefixtures("serial_only")
 
@@ -48,9 +50,24 @@ def test_cube_scene_same_probe_on_one_and_two_ranks(tmp_path):
     assert np.abs(a - b).max() <= tol * np.abs(a).max()
     assert two["max_displacement_m"] == pytest.approx(one["max_displacement_m"], rel=tol)
     assert two["final_level_m"] == pytest.approx(one["final_level_m"], rel=1e-9)
-    for key in ("dolfinx_version", "ranks", "nodes", "cells", "dofs", "steps", "setup_s", "step_s_median",
-                "solve_s_total", "final_time", "max_displacement_m", "probes", "fluid_force_N", "gravity_force_N",
-                "submerged_volume_m3", "final_level_m"):
+    for key in (
+        "dolfinx_version",
+        "ranks",
+        "nodes",
+        "cells",
+        "dofs",
+        "steps",
+        "setup_s",
+        "step_s_median",
+        "solve_s_total",
+        "final_time",
+        "max_displacement_m",
+        "probes",
+        "fluid_force_N",
+        "gravity_force_N",
+        "submerged_volume_m3",
+        "final_level_m",
+    ):
         assert key in one, key
     # the weight is exactly rho g V; the buoyancy is rho_oil g V_submerged, pointing up
     assert one["gravity_force_N"][2] == pytest.approx(-1048.0 * 9.81 * 0.05 * 0.05 * 0.025, rel=1e-12)
@@ -102,7 +119,16 @@ def test_cube_outputs_open_in_meshio(tmp_path):
     u = point_data["displacement"]
     assert np.abs(u).max() == pytest.approx(summary["max_displacement_m"], rel=0.5)
     header = (tmp_path / "o" / "probes.csv").read_text().splitlines()[0].split(",")
-    assert header == ["t", "level", "top_centre_x", "top_centre_y", "top_centre_z", "top_mean_x", "top_mean_y", "top_mean_z"]
+    assert header == [
+        "t",
+        "level",
+        "top_centre_x",
+        "top_centre_y",
+        "top_centre_z",
+        "top_mean_x",
+        "top_mean_y",
+        "top_mean_z",
+    ]
     csv = np.loadtxt(tmp_path / "o" / "probes.csv", delimiter=",", skiprows=1)
     assert csv[-1, 0] == pytest.approx(0.2)
 
@@ -110,6 +136,7 @@ def test_cube_outputs_open_in_meshio(tmp_path):
 def test_quasi_static_mode_matches_settled_dynamics(tmp_path):
     """With the load held, the damped dynamic answer settles onto the static one."""
     from test_scene_errors import write_scene
+
     from conftest import column_dict
 
     data = column_dict(8, 1, fluid={"density": 1000.0, "level": [[0.0, 0.05], [1.0, 0.05]]})
@@ -133,8 +160,7 @@ def test_info_command(capsys):
 def test_phantom_mesh_file_in_mm_sags_posteriorly(tmp_path):
     """demos/phantom.toml: a .msh in millimetres, supine gravity in RAS (-y)."""
     out = tmp_path / "ph"
-    code = main(["run", str(scene_path("phantom")), "--out", str(out),
-                 "--set", "time.mode=quasi-static"])
+    code = main(["run", str(scene_path("phantom")), "--out", str(out), "--set", "time.mode=quasi-static"])
     assert code == 0
     s = json.loads((out / "summary.json").read_text())
     assert s["mode"] == "quasi-static" and s["steps"] == 3  # one solve per level breakpoint
@@ -296,8 +322,20 @@ def test_brain_demo_shrinks_the_brain_towards_its_supports(tmp_path):
     poles = {}
     for shrink in ("0", "2"):
         out = tmp_path / f"s{shrink}"
-        _run(out, 1, str(ROOT / "demos" / "brain.py"), "--quasi-static", "--shrink", shrink, "--out", str(out),
-             "--set", "mesh.voxel=0.012", "--set", "output.pictures=false")
+        _run(
+            out,
+            1,
+            str(ROOT / "demos" / "brain.py"),
+            "--quasi-static",
+            "--shrink",
+            shrink,
+            "--out",
+            str(out),
+            "--set",
+            "mesh.voxel=0.012",
+            "--set",
+            "output.pictures=false",
+        )
         poles[shrink] = np.array(json.loads((out / "summary.json").read_text())["probes"]["frontal_pole"])
     extra = poles["2"][1] - poles["0"][1]
     assert -2.0e-3 < extra < -0.5e-3, extra
@@ -307,12 +345,29 @@ def test_brain_demo_with_the_septa_holds_a_brain_lying_on_its_side(tmp_path):
     """--septa turns on the scene's falx and tentorium: lying on the right side the falx holds
     the midline, so the frontal pole moves far less than without (at 5 mm: 2.5 against 20.8 mm,
     benchmarks/results/septa_effect.md), and the demo says what each septum carries."""
-    side = ["--set", "gravity.vector=[9.81, 0.0, 0.0]", "--set", "fluid.level=[[0.0, 0.08], [10.0, 0.02], [16.0, 0.02]]"]
+    side = [
+        "--set",
+        "gravity.vector=[9.81, 0.0, 0.0]",
+        "--set",
+        "fluid.level=[[0.0, 0.08], [10.0, 0.02], [16.0, 0.02]]",
+    ]
     poles, printed = {}, {}
     for flag in ([], ["--septa"]):
         out = tmp_path / ("septa" if flag else "none")
-        printed[bool(flag)] = _run(out, 1, str(ROOT / "demos" / "brain.py"), "--quasi-static", *flag, "--out", str(out),
-                                   "--set", "mesh.voxel=0.012", "--set", "output.pictures=false", *side)
+        printed[bool(flag)] = _run(
+            out,
+            1,
+            str(ROOT / "demos" / "brain.py"),
+            "--quasi-static",
+            *flag,
+            "--out",
+            str(out),
+            "--set",
+            "mesh.voxel=0.012",
+            "--set",
+            "output.pictures=false",
+            *side,
+        )
         summary = json.loads((out / "summary.json").read_text())
         poles[bool(flag)] = np.linalg.norm(summary["probes"]["frontal_pole"])
     assert poles[True] < 0.3 * poles[False], poles

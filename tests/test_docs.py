@@ -1,4 +1,5 @@
 """The documentation's examples run as written, and its links point at files that exist."""
+
 from __future__ import annotations
 
 import re
@@ -11,10 +12,10 @@ pytestmark = pytest.mark.mpi
 DOCS = sorted((ROOT / "docs").glob("*.md")) + [ROOT / "README.md"]
 
 
-@pytest.mark.parametrize("block", range(3))
+@pytest.mark.parametrize("block", range(4))
 def test_api_examples_run(block):
     code = re.findall(r"```python\n(.*?)```", (ROOT / "docs" / "api.md").read_text(), re.S)
-    assert len(code) == 3
+    assert len(code) == 4
     exec(compile(code[block], f"docs/api.md example {block + 1}", "exec"), {})
 
 
@@ -34,15 +35,20 @@ def test_readme_scene_runs(shared_tmp):
 def test_links_and_paths_exist(page):
     text = page.read_text()
     targets = re.findall(r"\]\(([^)#\s]+)", text)  # markdown links
-    targets += [t for t in re.findall(r"`((?:fenics_brainshift|benchmarks|demos|scripts|tests|docs|docker)/[^`\s]*)`", text)]
+    targets += [
+        t for t in re.findall(r"`((?:fenics_brainshift|benchmarks|demos|scripts|tests|docs|docker)/[^`\s]*)`", text)
+    ]
     for target in targets:
         if target.startswith(("http://", "https://")):
             continue
         target = re.sub(r"\{([^,}]*),[^}]*\}", r"\1", target)  # a.{csv,md}: the first is enough
         if "*" in target:
             target = target.rsplit("/", 1)[0]  # a glob: its folder must exist
-        base = page.parent if not target.startswith(("fenics_brainshift/", "benchmarks/", "demos/", "scripts/",
-                                                      "tests/", "docker/")) else ROOT
+        base = (
+            page.parent
+            if not target.startswith(("fenics_brainshift/", "benchmarks/", "demos/", "scripts/", "tests/", "docker/"))
+            else ROOT
+        )
         path = (base / target).resolve()
         assert path.exists(), f"{page.name}: {target}"
         assert ROOT in path.parents or path == ROOT, f"{page.name}: {target} is outside the repository"

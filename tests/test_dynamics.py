@@ -5,25 +5,31 @@ the test runs the same under mpirun. Started from u = phi at rest with no load, 
 response stays in that mode, and its top displacement must follow the single-degree-of-
 freedom theory at the discrete frequency w exactly.
 """
+
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from conftest import COMM, column_dict, decay_per_step, lowest_mode
-from fenics_brainshift.stepping.integrators import newmark_discrete_frequency
-from fenics_brainshift.runner import build_model
+from fenics_brainshift.runner import Simulation, build_model
 from fenics_brainshift.scene import scene_from_dict
-from fenics_brainshift.runner import Simulation
+from fenics_brainshift.stepping.integrators import newmark_discrete_frequency
+
+from conftest import COMM, column_dict, decay_per_step, lowest_mode
 
 pytestmark = pytest.mark.mpi
 H = 0.1
 
 
 def _free_vibration(scheme: dict, damping: dict, omega_dt: float, steps: int, degree: int = 1):
-    data = column_dict(16, degree, height=H, gravity=(0.0, 0.0, 0.0),
-                       time={"mode": "dynamic", "dt": 1.0, "end": 1.0, **scheme},
-                       damping=damping)
+    data = column_dict(
+        16,
+        degree,
+        height=H,
+        gravity=(0.0, 0.0, 0.0),
+        time={"mode": "dynamic", "dt": 1.0, "end": 1.0, **scheme},
+        damping=damping,
+    )
     scene = scene_from_dict(data)
     model = build_model(scene, COMM)
     omega, phi, _ = lowest_mode(model)

@@ -4,6 +4,7 @@ References independent of the fit's shortcuts: the truth is solved by a Simulati
 a scene that carries the true values (its own gravity vector, G and level), not by the
 forward model's in-place changes; and the in-place changes are checked against such
 rebuilt scenes directly."""
+
 from __future__ import annotations
 
 import json
@@ -14,15 +15,16 @@ import numpy as np
 import pytest
 from mpi4py import MPI
 
-from conftest import mpirun, subprocess_env
 from fenics_brainshift import load_scene
-from fenics_brainshift.fit import ForwardModel, Target, fit, parameters
+from fenics_brainshift.fit import ForwardModel, Target, fit, fit_parameters
 from fenics_brainshift.fit.parameters import rotated_gravity
 from fenics_brainshift.images import write_markups
 from fenics_brainshift.outputs.fine_surface import SurfaceEmbedding
 from fenics_brainshift.outputs.points import PointEvaluator
-from fenics_brainshift.physics.skull import gathered_outward_surface
+from fenics_brainshift.physics.surface import gathered_outward_surface
 from fenics_brainshift.runner import Simulation, build
+
+from conftest import mpirun, subprocess_env
 
 COARSE = ["mesh.voxel=0.01", "time.mode=quasi-static"]
 TRUTH = {"fluid.level": 0.040, "material.G": 3000.0, "gravity.angle_z": 8.0}
@@ -94,13 +96,18 @@ def truth():
     moved = cortex + SurfaceEmbedding(sim.model.mesh, cortex, triangles).values(sim.u)
     scan = moved[rng.choice(np.flatnonzero(cortex[:, 1] > 0.03), 40, replace=False)]
     sim.destroy()
-    return pre, exact + rng.normal(scale=0.5e-3, size=exact.shape), exact, scan + rng.normal(scale=0.5e-3, size=scan.shape)
+    return (
+        pre,
+        exact + rng.normal(scale=0.5e-3, size=exact.shape),
+        exact,
+        scan + rng.normal(scale=0.5e-3, size=scan.shape),
+    )
 
 
 def test_a_fit_recovers_the_truth_within_its_uncertainty_and_predicts_held_out_points(truth):
     pre, measured, exact, _ = truth
     forward = ForwardModel(load_scene("brain", COARSE))
-    params = parameters(forward.scene, list(TRUTH), forward.heights())
+    params = fit_parameters(forward.scene, list(TRUTH), forward.heights())
     result = fit(forward, Target(measured[:20], pre[:20], [str(i) for i in range(20)]), params, noise=0.5e-3)
     for p, value, sd, ok in zip(params, result.values, result.std, result.constrained):
         assert ok, p.name
@@ -120,7 +127,7 @@ def test_two_outliers_do_not_pull_the_fit(truth):
     standard deviations (those of the fit without the outliers) of the truth."""
     pre, measured, _, _ = truth
     forward = ForwardModel(load_scene("brain", COARSE))
-    params = parameters(forward.scene, list(TRUTH), forward.heights())
+    params = fit_parameters(forward.scene, list(TRUTH), forward.heights())
     labels = [str(i) for i in range(20)]
     clean = fit(forward, Target(measured[:20], pre[:20], labels), params, noise=0.5e-3)
     measured = measured[:20].copy()
@@ -139,7 +146,7 @@ def test_points_that_do_not_move_constrain_nothing():
     surface, _ = gathered_outward_surface(forward.model.fluid.hydro.facets, forward.model.comm)
     pinned = np.unique(surface, axis=0)
     pinned = pinned[pinned[:, 1] < -0.0985][:15]
-    params = parameters(forward.scene, ["fluid.level", "material.G"], forward.heights())
+    params = fit_parameters(forward.scene, ["fluid.level", "material.G"], forward.heights())
     result = fit(forward, Target(pinned + 1e-4, pinned, [str(i) for i in range(len(pinned))]), params, noise=0.5e-3)
     assert result.constrained == [False, False]
     assert result.as_dict()["parameters"]["material.G"]["std"] is None
@@ -155,7 +162,7 @@ def test_point_to_surface_on_the_cortex_recovers_the_level_and_stiffness(truth):
     g = rotated_gravity([0.0, -9.81, 0.0], TRUTH)
     forward = ForwardModel(load_scene("brain", COARSE + [f"gravity.vector=[{g[0]}, {g[1]}, {g[2]}]"]))
     names = ["fluid.level", "material.G"]
-    params = parameters(forward.scene, names, forward.heights())
+    params = fit_parameters(forward.scene, names, forward.heights())
     result = fit(forward, Target(scan, None, [str(i) for i in range(len(scan))]), params, noise=0.5e-3)
     assert "fine surface" in forward.measured_surface
     assert result.constrained == [True, True]
@@ -173,10 +180,24 @@ def test_fit_command_writes_a_scene_that_runs_and_agrees_on_two_ranks(tmp_path, 
     fits = {}
     for ranks in (1, 2):
         out = tmp_path / f"r{ranks}"
-        command = [sys.executable, "-m", "fenics_brainshift.cli", "fit", "brain", "--target",
-                   str(tmp_path / "intra.mrk.json"), "--pre", str(tmp_path / "pre.mrk.json"), "--params",
-                   "fluid.level,material.G,gravity.angle_z", "--noise", "0.5", "--out", str(out),
-                   *[a for s in COARSE for a in ("--set", s)]]
+        command = [
+            sys.executable,
+            "-m",
+            "fenics_brainshift.cli",
+            "fit",
+            "brain",
+            "--target",
+            str(tmp_path / "intra.mrk.json"),
+            "--pre",
+            str(tmp_path / "pre.mrk.json"),
+            "--params",
+            "fluid.level,material.G,gravity.angle_z",
+            "--noise",
+            "0.5",
+            "--out",
+            str(out),
+            *[a for s in COARSE for a in ("--set", s)],
+        ]
         if ranks > 1:
             command = mpirun() + ["-n", "2"] + command
         done = subprocess.run(command, capture_output=True, text=True, env=subprocess_env(), timeout=600)
@@ -192,20 +213,31 @@ def test_fit_command_writes_a_scene_that_runs_and_agrees_on_two_ranks(tmp_path, 
         assert fits[2]["parameters"][name]["fitted"] == pytest.approx(p["fitted"], rel=1e-4, abs=1e-4), name
 
 
-@pytest.mark.parametrize("args, words", [
-    (["--params", "material.E"], "'material.E' cannot be fitted"),
-    (["--params", "material.G,material.G"], "given twice"),
-    (["--target", "missing.mrk.json"], "--target: no file"),
-    (["--pre", "other.mrk.json"], "no namesake in --pre"),
-    (["--noise", "0"], "--noise must be a finite number of mm > 0"),
-    (["--target", "metres.mrk.json"], "positions in metres?"),
-    (["--pre", "twice.mrk.json"], "the label(s) a name more than one point"),
-    (["--frame", "LPS"], "--frame is for a CSV or surface target"),
-    (["--target", "one_intra.mrk.json", "--pre", "one_pre.mrk.json",
-      "--params", "fluid.level,material.G,gravity.angle_x,gravity.angle_z"],
-     "1 point pairs, 3 values each, cannot fit 4 parameters"),  # (exit 0 with four "+-" values)
-    (["--target", "garbage.csv", "--pre", None], "'garbage.csv' is not UTF-8 text"),  # (a traceback)
-])
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (["--params", "material.E"], "'material.E' cannot be fitted"),
+        (["--params", "material.G,material.G"], "given twice"),
+        (["--target", "missing.mrk.json"], "--target: no file"),
+        (["--pre", "other.mrk.json"], "no namesake in --pre"),
+        (["--noise", "0"], "--noise must be a finite number of mm > 0"),
+        (["--target", "metres.mrk.json"], "positions in metres?"),
+        (["--pre", "twice.mrk.json"], "the label(s) a name more than one point"),
+        (["--frame", "LPS"], "--frame is for a CSV or surface target"),
+        (
+            [
+                "--target",
+                "one_intra.mrk.json",
+                "--pre",
+                "one_pre.mrk.json",
+                "--params",
+                "fluid.level,material.G,gravity.angle_x,gravity.angle_z",
+            ],
+            "1 point pairs, 3 values each, cannot fit 4 parameters",
+        ),  # (exit 0 with four "+-" values)
+        (["--target", "garbage.csv", "--pre", None], "'garbage.csv' is not UTF-8 text"),  # (a traceback)
+    ],
+)
 def test_bad_fit_input_is_one_line(tmp_path, capsys, args, words):
     from fenics_brainshift.cli import main
 
@@ -218,8 +250,12 @@ def test_bad_fit_input_is_one_line(tmp_path, capsys, args, words):
     write_markups(tmp_path / "one_pre.mrk.json", ["a"], points[:1])
     write_markups(tmp_path / "one_intra.mrk.json", ["a"], points[:1] + 1.0)
     (tmp_path / "garbage.csv").write_bytes(bytes(range(256)) * 4)
-    base = {"--target": str(tmp_path / "intra.mrk.json"), "--pre": str(tmp_path / "pre.mrk.json"),
-            "--params": "fluid.level", "--out": str(tmp_path / "out")}
+    base = {
+        "--target": str(tmp_path / "intra.mrk.json"),
+        "--pre": str(tmp_path / "pre.mrk.json"),
+        "--params": "fluid.level",
+        "--out": str(tmp_path / "out"),
+    }
     for key, value in zip(args[::2], args[1::2]):
         if value is None:
             del base[key]
@@ -238,8 +274,17 @@ def test_a_damaged_vtk_target_is_one_line_on_the_terminal(tmp_path, capfd):
     from fenics_brainshift.cli import main
 
     (tmp_path / "garbage.vtk").write_bytes(b"# vtk DataFile Version 4.2\n" + bytes(range(256)) * 8)
-    argv = ["fit", "cube", "--target", str(tmp_path / "garbage.vtk"), "--params", "material.G", "--no-run",
-            "--out", str(tmp_path / "out")]
+    argv = [
+        "fit",
+        "cube",
+        "--target",
+        str(tmp_path / "garbage.vtk"),
+        "--params",
+        "material.G",
+        "--no-run",
+        "--out",
+        str(tmp_path / "out"),
+    ]
     assert main(argv) == 2
     err = capfd.readouterr().err.strip()
     assert "'garbage.vtk' could not be read as a surface" in err and len(err.splitlines()) == 1, err
@@ -251,12 +296,13 @@ def test_fit_slips_are_refused_alike_on_two_ranks(shared_tmp):
     too few values for the parameters, a --pre point outside the body, a CSV that is not text,
     a NaN in a CSV target, and a Slicer CSV with a byte-order mark read as it should be."""
     from fenics_brainshift.errors import InputError
-    from fenics_brainshift.fit.targets import read_target
+    from fenics_brainshift.images.targets import read_target
 
     points = np.array([[10.0, 40.0, 20.0], [-15.0, 50.0, 25.0]]) * 1e-3
     forward = ForwardModel(load_scene("brain", COARSE))
-    params = parameters(forward.scene, ["fluid.level", "material.G", "gravity.angle_x", "gravity.angle_z"],
-                        forward.heights())
+    params = fit_parameters(
+        forward.scene, ["fluid.level", "material.G", "gravity.angle_x", "gravity.angle_z"], forward.heights()
+    )
     with pytest.raises(InputError, match="1 point pairs, 3 values each, cannot fit 4 parameters"):
         fit(forward, Target(points[:1] + 1e-3, points[:1], ["a"]), params, 0.5e-3)
     with pytest.raises(InputError, match=r"--pre: 1 point\(s\) \(b\) lie outside the body"):
@@ -309,7 +355,7 @@ def test_a_parameter_on_its_bound_is_flagged_not_measured():
     measured = pre + PointEvaluator(sim.model.mesh, pre).values(sim.u)
     sim.destroy()
     forward = ForwardModel(load_scene("brain", COARSE))
-    params = parameters(forward.scene, list(TRUTH), forward.heights())
+    params = fit_parameters(forward.scene, list(TRUTH), forward.heights())
     result = fit(forward, Target(measured, pre, [str(i) for i in range(len(pre))]), params, noise=0.5e-3)
     forward.destroy()
     entry = result.as_dict()["parameters"]["gravity.angle_z"]
@@ -323,9 +369,10 @@ def test_a_fit_that_does_not_explain_the_data_says_so(truth):
     and no word; now a warning in fit.json and the report."""
     pre, measured, _, _ = truth
     forward = ForwardModel(load_scene("brain", COARSE))
-    params = parameters(forward.scene, ["fluid.level", "material.G"], forward.heights())
-    result = fit(forward, Target(measured[:20] + [0.055, 0.0, 0.0], pre[:20], [str(i) for i in range(20)]), params,
-                 noise=0.5e-3)
+    params = fit_parameters(forward.scene, ["fluid.level", "material.G"], forward.heights())
+    result = fit(
+        forward, Target(measured[:20] + [0.055, 0.0, 0.0], pre[:20], [str(i) for i in range(20)]), params, noise=0.5e-3
+    )
     assert "does not explain the data" in result.as_dict()["warning"]
     clean = fit(forward, Target(measured[:20], pre[:20], [str(i) for i in range(20)]), params, noise=0.5e-3)
     assert "warning" not in clean.as_dict()
@@ -339,7 +386,7 @@ def test_pre_points_outside_the_body_are_refused(truth):
 
     pre, measured, _, _ = truth
     forward = ForwardModel(load_scene("brain", COARSE))
-    params = parameters(forward.scene, ["material.G"], forward.heights())
+    params = fit_parameters(forward.scene, ["material.G"], forward.heights())
     away = pre[:10] + [0.0, 0.05, 0.0]  # 50 mm in front of the exposed cortex
     with pytest.raises(InputError, match=r"--pre: 10 point\(s\) .* lie outside the body"):
         fit(forward, Target(measured[:10], away, [f"P{i}" for i in range(10)]), params, noise=0.5e-3)
@@ -356,10 +403,13 @@ def test_measurements_far_from_the_prediction_are_refused(truth, kind):
 
     pre, measured, _, scan = truth
     forward = ForwardModel(load_scene("brain", COARSE))
-    params = parameters(forward.scene, ["material.G"], forward.heights())
+    params = fit_parameters(forward.scene, ["material.G"], forward.heights())
     off = np.array([0.0, 0.0, 0.15])
-    target = (Target(measured[:10] + off, pre[:10], [f"P{i}" for i in range(10)]) if kind == "point-to-point"
-              else Target(scan + off, None, [f"s{i}" for i in range(len(scan))]))
+    target = (
+        Target(measured[:10] + off, pre[:10], [f"P{i}" for i in range(10)])
+        if kind == "point-to-point"
+        else Target(scan + off, None, [f"s{i}" for i in range(len(scan))])
+    )
     with pytest.raises(InputError, match=r"--target: half the points lie more than .* mm from .*a frame or unit slip"):
         fit(forward, target, params, noise=0.5e-3)
     forward.destroy()

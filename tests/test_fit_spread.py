@@ -9,6 +9,7 @@ model's in-place changes. With N fits the sample standard deviation over the tru
 distributed as sqrt(chi^2_{N-1} / (N-1)): the test's window is that distribution's
 two-sided 1e-4 interval, and the seeds are fixed (the test is deterministic).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -16,7 +17,7 @@ import pytest
 from mpi4py import MPI
 from scipy.stats import chi2
 
-from fenics_brainshift.fit import ForwardModel, Target, fit, parameters
+from fenics_brainshift.fit import ForwardModel, Target, fit, fit_parameters
 from fenics_brainshift.outputs.points import PointEvaluator
 from fenics_brainshift.runner import Simulation
 from fenics_brainshift.scene import scene_from_dict
@@ -29,12 +30,16 @@ MISS = 1e-4  # the chance, two-sided, that a right spread falls outside the wind
 
 
 def _scene(G: float, gravity) -> object:
-    return scene_from_dict({
-        "mesh": {"shape": "box", "size": [S, S, H], "cells": [3, 3, 3]},
-        "material": {"G": G, "nu": 0.45, "density": 1040.0},
-        "gravity": {"vector": [float(c) for c in gravity]},
-        "fixed": [{"where": "z < 1e-9"}],
-        "time": {"mode": "quasi-static"}, "solver": {"kind": "cholesky"}})
+    return scene_from_dict(
+        {
+            "mesh": {"shape": "box", "size": [S, S, H], "cells": [3, 3, 3]},
+            "material": {"G": G, "nu": 0.45, "density": 1040.0},
+            "gravity": {"vector": [float(c) for c in gravity]},
+            "fixed": [{"where": "z < 1e-9"}],
+            "time": {"mode": "quasi-static"},
+            "solver": {"kind": "cholesky"},
+        }
+    )
 
 
 @pytest.fixture(scope="module")
@@ -50,7 +55,7 @@ def problem():
     exact = pre + PointEvaluator(truth.model.mesh, pre).values(truth.u)
     truth.destroy()
     forward = ForwardModel(_scene(2000.0, [0.0, 0.0, -9.81]))
-    params = parameters(forward.scene, list(TRUTH), forward.heights())
+    params = fit_parameters(forward.scene, list(TRUTH), forward.heights())
     yield forward, params, pre, exact
     forward.destroy()
 
@@ -80,8 +85,10 @@ def _check(values, std, names):
     reported = np.sqrt(np.mean(std**2, axis=0))  # the fits' own spread (each fit's varies a little)
     scatter = values.std(axis=0, ddof=1)
     for name, s, r in zip(names, scatter, reported):
-        assert lo < s / r < hi, (f"{name}: sample sd over {n} noise draws {s:.4g}, reported sd {r:.4g}: "
-                                 f"ratio {s / r:.3f} outside [{lo:.3f}, {hi:.3f}]")
+        assert lo < s / r < hi, (
+            f"{name}: sample sd over {n} noise draws {s:.4g}, reported sd {r:.4g}: "
+            f"ratio {s / r:.3f} outside [{lo:.3f}, {hi:.3f}]"
+        )
     # and the fits scatter about the truth (no bias beyond 4 standard errors)
     for name, mean, s in zip(names, values.mean(axis=0), scatter):
         assert abs(mean - TRUTH[name]) < 4.0 * s / np.sqrt(n), (name, mean, s)

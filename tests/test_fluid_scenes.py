@@ -1,17 +1,18 @@
 """The fluid in a scene: container levels, follower geometry (iterated, Aitken-relaxed)."""
+
 from __future__ import annotations
 
 import numpy as np
 import pytest
 from dolfinx.fem.petsc import set_bc
 
-from conftest import COMM
-from fenics_brainshift.data import scene_path
 from fenics_brainshift import compat
-from fenics_brainshift.runner import build_model
+from fenics_brainshift.data import scene_path
 from fenics_brainshift.errors import InputError
+from fenics_brainshift.runner import Simulation, build_model
 from fenics_brainshift.scene import load_scene, scene_from_dict
-from fenics_brainshift.runner import Simulation
+
+from conftest import COMM
 
 pytestmark = pytest.mark.mpi
 CUBE = scene_path("cube")
@@ -73,8 +74,12 @@ def test_deep_water_follower_is_stable_in_dynamics():
 
 
 def test_paper_rule_needs_degree_one():
-    data = {"mesh": {"shape": "box", "cells": [2, 2, 1]}, "material": {"E": 1e3},
-            "fluid": {"level": 0.01, "rule": "paper"}, "element": {"degree": 2}}
+    data = {
+        "mesh": {"shape": "box", "cells": [2, 2, 1]},
+        "material": {"E": 1e3},
+        "fluid": {"level": 0.01, "rule": "paper"},
+        "element": {"degree": 2},
+    }
     with pytest.raises(InputError, match="degree 1 only"):
         scene_from_dict(data)
 

@@ -1,7 +1,8 @@
-"""Unit and frame slips on the way in (issue 30): each used to pass with exit 0 and a wrong
+"""Unit and frame slips on the way in: each used to pass with exit 0 and a wrong
 answer; now the frame a file declares is honoured and a unit slip is one line naming it,
 before anything is written. References are hand-built: the points written, with x and y
 negated by hand for LPS."""
+
 from __future__ import annotations
 
 import json
@@ -9,17 +10,23 @@ import json
 import numpy as np
 import pytest
 
-from conftest import COMM, shared_tmp  # noqa: F401  (fixture)
 from fenics_brainshift.data import MESHES
 from fenics_brainshift.errors import InputError
-from fenics_brainshift.fit.targets import read_target
-from fenics_brainshift.meshing.voxelize import read_surface
+from fenics_brainshift.images.targets import read_target
 from fenics_brainshift.outputs.fine_surface import write_slicer_stl
 from fenics_brainshift.runner import run
 from fenics_brainshift.scene import scene_from_dict
+from fenics_brainshift.surfaces.files import read_surface
 
-BOX = {"name": "box", "mesh": {"shape": "box", "size": [0.05, 0.05, 0.025], "cells": [4, 4, 2]},
-       "material": {"E": 3000.0, "nu": 0.45}, "fixed": [{"where": "z < 1e-9"}], "time": {"mode": "quasi-static"}}
+from conftest import COMM
+
+BOX = {
+    "name": "box",
+    "mesh": {"shape": "box", "size": [0.05, 0.05, 0.025], "cells": [4, 4, 2]},
+    "material": {"E": 3000.0, "nu": 0.45},
+    "fixed": [{"where": "z < 1e-9"}],
+    "time": {"mode": "quasi-static"},
+}
 # a tetrahedron's corners (mm), not symmetric in x or y: a mirror shows
 CORNERS = np.array([[10.0, 20.0, 30.0], [40.0, 25.0, 35.0], [15.0, 60.0, 32.0], [18.0, 28.0, 70.0]])
 FACES = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
@@ -35,12 +42,16 @@ def _vtk(path, points, header: str) -> str:
     return str(path)
 
 
-@pytest.mark.parametrize("header, frame, expected", [
-    ("3D Slicer output. SPACE=LPS", None, LPS),   # Slicer 4.11+: models saved in LPS
-    ("3D Slicer output. SPACE=RAS", None, 1.0),
-    ("vtk output", None, 1.0),                     # untagged: RAS, this project's frame
-    ("vtk output", "LPS", LPS),                    # untagged, --frame LPS
-    ("3D Slicer output. SPACE=LPS", "LPS", LPS)])
+@pytest.mark.parametrize(
+    "header, frame, expected",
+    [
+        ("3D Slicer output. SPACE=LPS", None, LPS),  # Slicer 4.11+: models saved in LPS
+        ("3D Slicer output. SPACE=RAS", None, 1.0),
+        ("vtk output", None, 1.0),  # untagged: RAS, this project's frame
+        ("vtk output", "LPS", LPS),  # untagged, --frame LPS
+        ("3D Slicer output. SPACE=LPS", "LPS", LPS),
+    ],
+)
 def test_a_surface_target_is_read_in_the_frame_its_header_declares(tmp_path, header, frame, expected):
     target = read_target(_vtk(tmp_path / "scan.vtk", CORNERS, header), None, frame)
     got = target.measured[np.lexsort(target.measured.T)]
@@ -60,9 +71,13 @@ def test_a_slicer_stl_tagged_lps_reads_as_ras_and_ours_round_trips(tmp_path):
     np.testing.assert_allclose(np.unique(points, axis=0), np.unique(CORNERS * LPS * 1e-3, axis=0), atol=1e-9)
 
 
-@pytest.mark.parametrize("header, frame, words", [
-    ("SPACE=LPS", "RAS", "--frame RAS but 'scan.vtk' declares SPACE=LPS"),
-    ("SPACE=LPS and SPACE=RAS", None, "declares both SPACE=RAS and SPACE=LPS")])
+@pytest.mark.parametrize(
+    "header, frame, words",
+    [
+        ("SPACE=LPS", "RAS", "--frame RAS but 'scan.vtk' declares SPACE=LPS"),
+        ("SPACE=LPS and SPACE=RAS", None, "declares both SPACE=RAS and SPACE=LPS"),
+    ],
+)
 def test_contradicting_frames_are_refused(tmp_path, header, frame, words):
     with pytest.raises(InputError, match=words):
         read_target(_vtk(tmp_path / "scan.vtk", CORNERS, header), None, frame)
@@ -88,12 +103,16 @@ def test_markups_in_metres_are_refused(tmp_path):
 
 
 @pytest.mark.mpi
-@pytest.mark.parametrize("scale, words", [
-    (1e-3, r"\[mesh\] surface: it is 7.5e\+04 mm across .* the mesh 75 mm \(1e\+03x\): is it in another unit"),
-    (1e3, r"\[mesh\] surface: it is 0.075 mm across .* \(0.001x\)"),
-    ("slivers", r"\[mesh\] surface: its triangles cover .* degenerate triangles, or not the body's closed"),
-    (1.0, None),
-    ("patch", None)])  # a piece of the top face, a fifth of the box across: the craniotomy's cortex alone
+@pytest.mark.parametrize(
+    "scale, words",
+    [
+        (1e-3, r"\[mesh\] surface: it is 7.5e\+04 mm across .* the mesh 75 mm \(1e\+03x\): is it in another unit"),
+        (1e3, r"\[mesh\] surface: it is 0.075 mm across .* \(0.001x\)"),
+        ("slivers", r"\[mesh\] surface: its triangles cover .* degenerate triangles, or not the body's closed"),
+        (1.0, None),
+        ("patch", None),
+    ],
+)  # a piece of the top face, a fifth of the box across: the craniotomy's cortex alone
 def test_a_fine_surface_in_another_unit_than_the_mesh_is_refused(shared_tmp, scale, words):
     """The box's own surface written in mm under [mesh] unit = "m" came out 1000x too large,
     exit 0; in km (as metres under "mm") it lay at the mesh's corner, 1000x too small, and
@@ -153,10 +172,20 @@ def test_an_image_in_mm_declared_metres_names_the_unit_not_the_voxel():
 
 
 @pytest.mark.mpi
-@pytest.mark.parametrize("override, words", [
-    ("material.G=2.37", r"E = 7.074 Pa \(G = 2.37 Pa\): the body's weight alone would strain it about 259 .* is it in kPa\?"),
-    ("fluid.level=[[0, 85], [10, 30], [16, 30]]", r"\[fluid\] level = 85 at t = 0 s is 84.9 m above the body's top .* is it in mm\?"),
-    ("fluid.level=-30", r"\[fluid\] level = -30 at t = 0 s is 29.9 m below its bottom")])
+@pytest.mark.parametrize(
+    "override, words",
+    [
+        (
+            "material.G=2.37",
+            r"E = 7.074 Pa \(G = 2.37 Pa\): the body's weight alone would strain it about 259 .* is it in kPa\?",
+        ),
+        (
+            "fluid.level=[[0, 85], [10, 30], [16, 30]]",
+            r"\[fluid\] level = 85 at t = 0 s is 84.9 m above the body's top .* is it in mm\?",
+        ),
+        ("fluid.level=-30", r"\[fluid\] level = -30 at t = 0 s is 29.9 m below its bottom"),
+    ],
+)
 def test_moduli_in_kpa_and_levels_in_mm_are_refused_before_the_solve(override, words):
     """Both ended in NaN and "reduce [time] dt" in a quasi-static run (no dt there)."""
     from fenics_brainshift import Simulation, load_scene

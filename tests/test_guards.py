@@ -5,27 +5,33 @@ work of the loads), with or without a moving fluid level; damping only lowers it
 (NaN/Inf, a diverged Krylov solve, energy from nowhere) is triggered on purpose and must stop
 the run with one line and the last good state written.
 """
+
 from __future__ import annotations
 
 import json
 
 import numpy as np
 import pytest
+from test_scene_errors import write_scene
+
+from fenics_brainshift.cli import main
+from fenics_brainshift.errors import SolverError
+from fenics_brainshift.runner import Simulation
+from fenics_brainshift.scene import scene_from_dict
+from fenics_brainshift.stepping import DynamicStepper, TimeIntegrator
 
 from conftest import COMM, column_dict
-from fenics_brainshift.cli import main
-from fenics_brainshift.stepping import DynamicStepper, TimeIntegrator
-from fenics_brainshift.scene import scene_from_dict
-from fenics_brainshift.runner import Simulation
-from fenics_brainshift.errors import SolverError
-from test_scene_errors import write_scene
 
 pytestmark = pytest.mark.mpi
 
 
 def _column(**sections):
-    data = column_dict(8, fluid={"density": 1030.0, "level": [[0.0, 0.12], [0.05, 0.04]], "follower": False},
-                       time={"mode": "dynamic", "dt": 0.005, "end": 0.1}, **sections)
+    data = column_dict(
+        8,
+        fluid={"density": 1030.0, "level": [[0.0, 0.12], [0.05, 0.04]], "follower": False},
+        time={"mode": "dynamic", "dt": 0.005, "end": 0.1},
+        **sections,
+    )
     return data
 
 
@@ -54,8 +60,7 @@ def test_unstable_scheme_is_stopped_by_the_energy_guard():
     # Newmark with beta = 0.05 is only conditionally stable (omega dt < 2.24): with this dt
     # the column's highest modes grow; the guard must fire before anything overflows
     sim = Simulation(scene_from_dict(_column(damping={})), COMM)
-    stepper = DynamicStepper(sim.model, sim.state, TimeIntegrator(0.005, beta=0.05, gamma=0.5), (0.0, 0.0),
-                             sim.solves)
+    stepper = DynamicStepper(sim.model, sim.state, TimeIntegrator(0.005, beta=0.05, gamma=0.5), (0.0, 0.0), sim.solves)
     stepper.setup()
     with pytest.raises(SolverError, match="energy grew without a source"):
         for _ in range(200):

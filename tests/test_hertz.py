@@ -12,6 +12,7 @@ body), so the test compares the part of it a finite body has, the contact point'
 against surface points at r = 2a and 3a, with the half-space's surface displacement under the
 Hertz pressure (Johnson, Contact Mechanics, eqs. 3.41a and 3.42b). Serial only: the finest
 meshes take most of the time."""
+
 from __future__ import annotations
 
 import gmsh
@@ -38,8 +39,9 @@ def _quarter_ball(path, h_contact: float, a: float, zone: float = 1.5) -> None:
     occ.synchronize()
     field = gmsh.model.mesh.field
     size = field.add("MathEval")
-    field.setString(size, "F", f"{h_contact} + {R / 4 - h_contact} * Min(1, Max(0, Sqrt(x*x + y*y + z*z) - "
-                               f"{zone * a}) / {2 * a})")
+    field.setString(
+        size, "F", f"{h_contact} + {R / 4 - h_contact} * Min(1, Max(0, Sqrt(x*x + y*y + z*z) - {zone * a}) / {2 * a})"
+    )
     field.setAsBackgroundMesh(size)
     for name in ("ExtendFromBoundary", "FromPoints", "FromCurvature"):  # the field alone sets the size
         gmsh.option.setNumber(f"Mesh.MeshSize{name}", 0)
@@ -50,7 +52,9 @@ def _quarter_ball(path, h_contact: float, a: float, zone: float = 1.5) -> None:
 
 
 def _floor(path) -> None:
-    P = 0.2 * np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0], [-1, -1, 1], [1, -1, 1], [1, 1, 1], [-1, 1, 1]], float)
+    P = 0.2 * np.array(
+        [[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0], [-1, -1, 1], [1, -1, 1], [1, 1, 1], [-1, 1, 1]], float
+    )
     quads = [[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [2, 3, 7, 6], [1, 2, 6, 5], [0, 4, 7, 3]]
     tris = np.array([[q[0], q[1], q[2]] for q in quads] + [[q[0], q[2], q[3]] for q in quads])
     meshio.write(str(path), meshio.Mesh(P, [("triangle", tris)]), binary=True)
@@ -63,11 +67,17 @@ A_HERTZ = (3 * WEIGHT * R / (4 * E / (1 - NU**2))) ** (1 / 3)  # the contact rad
 def _settled_ball(tmp_path, h: float, zone: float = 1.5) -> Simulation:
     _floor(tmp_path / "floor.stl")
     _quarter_ball(tmp_path / "ball.msh", h, A_HERTZ, zone)
-    scene = scene_from_dict({
-        "mesh": {"file": str(tmp_path / "ball.msh")}, "material": {"E": E, "nu": NU, "density": RHO},
-        "gravity": {"vector": [0.0, 0.0, -G]}, "skull": {"file": str(tmp_path / "floor.stl"), "tolerance": 1e-6},
-        "fixed": [{"where": "x < 1e-9", "axes": "x"}, {"where": "y < 1e-9", "axes": "y"}],
-        "time": {"mode": "quasi-static"}, "solver": {"kind": "cholesky"}})
+    scene = scene_from_dict(
+        {
+            "mesh": {"file": str(tmp_path / "ball.msh")},
+            "material": {"E": E, "nu": NU, "density": RHO},
+            "gravity": {"vector": [0.0, 0.0, -G]},
+            "skull": {"file": str(tmp_path / "floor.stl"), "tolerance": 1e-6},
+            "fixed": [{"where": "x < 1e-9", "axes": "x"}, {"where": "y < 1e-9", "axes": "y"}],
+            "time": {"mode": "quasi-static"},
+            "solver": {"kind": "cholesky"},
+        }
+    )
     sim = Simulation(scene, MPI.COMM_SELF)
     sim.solve_to_settled(0.0)
     return sim
@@ -135,6 +145,7 @@ def test_ball_on_a_plane_approach_converges_to_hertz(tmp_path):
 
 
 def _volume(sim) -> float:
-    from dolfinx import fem
     import ufl
+    from dolfinx import fem
+
     return fem.assemble_scalar(fem.form(1.0 * ufl.dx(domain=sim.model.mesh)))

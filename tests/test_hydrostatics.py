@@ -1,5 +1,6 @@
 """The exact clipped hydrostatic load: Archimedes to round-off, the paper's cases by hand,
 the same vector on 1 and 2 ranks, and the quadrature reference's error."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -8,14 +9,15 @@ from mpi4py import MPI
 from scipy import integrate
 from scipy.spatial import ConvexHull, QhullError
 
-from conftest import COMM
 from fenics_brainshift import compat
+from fenics_brainshift.meshing import mesh_from_arrays
+from fenics_brainshift.meshing.hexgrid import voxel_mesh
 from fenics_brainshift.physics.hydrostatic import HydrostaticLoad
 from fenics_brainshift.physics.wet_facets import consistent_loads, paper_loads, split_wet, wet_integrals
-from fenics_brainshift.meshing import mesh_from_arrays
 from fenics_brainshift.runner.build import mesh_from_spec as build_mesh
-from fenics_brainshift.meshing.hexgrid import voxel_mesh
 from fenics_brainshift.scene import MeshSpec
+
+from conftest import COMM
 
 RHO, G = 1000.0, 9.81
 
@@ -182,8 +184,7 @@ def test_case3_one_wet():
     # in (y, z) the vertices are (0,1), (1,1), (0,0), so N1 = z - y, N2 = y, N3 = 1 - z
     shapes = [lambda y, z: z - y, lambda y, z: y, lambda y, z: 1 - z]
     for i, N in enumerate(shapes):
-        ref, _ = integrate.dblquad(lambda y, z: (0.5 - z) * N(y, z), 0, 0.5, 0, lambda z: z,
-                                   epsabs=1e-14, epsrel=1e-14)
+        ref, _ = integrate.dblquad(lambda y, z: (0.5 - z) * N(y, z), 0, 0.5, 0, lambda z: z, epsabs=1e-14, epsrel=1e-14)
         assert consistent[i] == pytest.approx(ref, abs=1e-12)
 
 
@@ -201,8 +202,9 @@ def test_p2_consistent_against_independent_integrals():
     lam = [lambda y, z: 1 - y - z, lambda y, z: y, lambda y, z: z]
 
     def wet_integral(f):
-        return integrate.dblquad(lambda y, z: (0.5 - z) * f(y, z), 0, 0.5, 0, lambda z: 1 - z,
-                                 epsabs=1e-14, epsrel=1e-14)[0]
+        return integrate.dblquad(
+            lambda y, z: (0.5 - z) * f(y, z), 0, 0.5, 0, lambda z: 1 - z, epsabs=1e-14, epsrel=1e-14
+        )[0]
 
     for k in range(3):
         ref = wet_integral(lambda y, z: lam[k](y, z) * (2 * lam[k](y, z) - 1))
@@ -321,15 +323,20 @@ def test_the_follower_loads_tangent_is_the_derivative_of_the_assembled_load(rule
     difference of the fluid load assembled on the moved surface (hydrostatic.py, the load a run
     applies), at a state whose water line cuts the side facets; on 1 or 2 ranks. The paper's
     rule, whose shares jump where two vertices are level, to a looser tolerance (its forward
-    differences were 886 times off: a stranger's review)."""
+    differences were 886 times off)."""
     from fenics_brainshift.physics.load_tangent import add_load_tangent
     from fenics_brainshift.runner import Simulation
     from fenics_brainshift.scene import scene_from_dict
 
-    scene = scene_from_dict({
-        "mesh": {"shape": "box", "size": [0.05, 0.05, 0.025], "cells": [5, 5, 3]},
-        "material": {"E": 729.0, "nu": 0.45, "density": 1048.0}, "fixed": [{"where": "z < 1e-9"}],
-        "fluid": {"density": 975.0, "level": 0.017, "follower": True, "rule": rule}, "time": {"mode": "quasi-static"}})
+    scene = scene_from_dict(
+        {
+            "mesh": {"shape": "box", "size": [0.05, 0.05, 0.025], "cells": [5, 5, 3]},
+            "material": {"E": 729.0, "nu": 0.45, "density": 1048.0},
+            "fixed": [{"where": "z < 1e-9"}],
+            "fluid": {"density": 975.0, "level": 0.017, "follower": True, "rule": rule},
+            "time": {"mode": "quasi-static"},
+        }
+    )
     sim = Simulation(scene, COMM)
     model = sim.model
     x = model.V.tabulate_dof_coordinates().reshape(-1, 3)  # (block dofs: one row a node)

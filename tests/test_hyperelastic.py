@@ -1,5 +1,6 @@
 """Finite-deformation materials and Newton's method, against closed forms and 1-D references
 computed here independently of the code under test."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -11,13 +12,14 @@ from mpi4py import MPI
 from scipy.integrate import quad
 from scipy.optimize import brentq
 
-from conftest import COMM, column_dict
 from fenics_brainshift import compat
 from fenics_brainshift.errors import SolverError
 from fenics_brainshift.physics.material import Hyperelastic, lame_parameters
 from fenics_brainshift.runner import Simulation, run
 from fenics_brainshift.runner.build import mesh_from_spec
 from fenics_brainshift.scene import MeshSpec, load_scene, scene_from_dict
+
+from conftest import COMM, column_dict
 
 pytestmark = pytest.mark.mpi
 MU, LMBDA = lame_parameters(3000.0, 0.45)
@@ -71,8 +73,9 @@ def test_simple_shear_of_neo_hookean_block(degree):
 
 
 def _column_top(E: float, degree: int, layers: int, model: str, g: float = 9.81) -> float:
-    data = column_dict(layers, degree, gravity=(0.0, 0.0, -g),
-                       material={"E": E, "nu": 0.3, "density": 1000.0, "model": model})
+    data = column_dict(
+        layers, degree, gravity=(0.0, 0.0, -g), material={"E": E, "nu": 0.3, "density": 1000.0, "model": model}
+    )
     sim = Simulation(scene_from_dict(data), COMM)
     sim.solve_to_settled(0.0)
     return float(sim.probe_values()[0, 2])
@@ -99,8 +102,10 @@ def test_standing_column_under_its_weight_against_the_1d_equilibrium():
 
 
 def test_small_loads_give_the_linear_answer_with_a_linear_deviation():
-    ratios = {s: _column_top(5000.0, 1, 4, "neo-hookean", 9.81 * s) / _column_top(5000.0, 1, 4, "linear", 9.81 * s)
-              for s in (0.02, 0.01)}
+    ratios = {
+        s: _column_top(5000.0, 1, 4, "neo-hookean", 9.81 * s) / _column_top(5000.0, 1, 4, "linear", 9.81 * s)
+        for s in (0.02, 0.01)
+    }
     deviation = {s: r - 1.0 for s, r in ratios.items()}
     assert abs(deviation[0.01]) < 1e-3
     assert deviation[0.02] / deviation[0.01] == pytest.approx(2.0, rel=0.02)  # first order in the load
@@ -108,15 +113,21 @@ def test_small_loads_give_the_linear_answer_with_a_linear_deviation():
 
 def _block_in_oil(model: str, degree: int = 1, nu: float = 0.48) -> dict:
     """The gelatin block of the paper, glued to the floor, oil standing 20 mm high."""
-    return {"mesh": {"shape": "box", "size": [0.05, 0.05, 0.025], "cells": [6, 6, 3]},
-            "material": {"E": 729.0, "nu": nu, "density": 1048.0, "model": model},
-            "fluid": {"density": 975.0, "level": 0.02}, "fixed": [{"where": "z < 1e-9"}],
-            "time": {"mode": "quasi-static"}, "solver": {"kind": "cholesky"}, "element": {"degree": degree},
-            "probes": {"top": [0.025, 0.025, 0.025]}}
+    return {
+        "mesh": {"shape": "box", "size": [0.05, 0.05, 0.025], "cells": [6, 6, 3]},
+        "material": {"E": 729.0, "nu": nu, "density": 1048.0, "model": model},
+        "fluid": {"density": 975.0, "level": 0.02},
+        "fixed": [{"where": "z < 1e-9"}],
+        "time": {"mode": "quasi-static"},
+        "solver": {"kind": "cholesky"},
+        "element": {"degree": degree},
+        "probes": {"top": [0.025, 0.025, 0.025]},
+    }
 
 
-@pytest.mark.parametrize("model, degree, nu", [("neo-hookean", 1, 0.48), ("saint-venant-kirchhoff", 1, 0.48),
-                                               ("neo-hookean", 2, 0.4999)])
+@pytest.mark.parametrize(
+    "model, degree, nu", [("neo-hookean", 1, 0.48), ("saint-venant-kirchhoff", 1, 0.48), ("neo-hookean", 2, 0.4999)]
+)
 def test_newton_converges_quadratically_with_the_follower_tangent(model, degree, nu):
     scene = scene_from_dict(_block_in_oil(model, degree, nu))
     sim = Simulation(scene, COMM)
@@ -142,6 +153,7 @@ def test_newton_on_the_linear_material_finds_the_fixed_point_answer():
     by the (default) Anderson fixed point to a tight tolerance: one answer, and Newton's
     convergence is quadratic."""
     from fenics_brainshift.stepping.newton import NewtonStatic
+
     data = _block_in_oil("linear", 1, 0.48)
     data["fluid"]["follower_tol"] = 1e-10
     fixed_point = Simulation(scene_from_dict(data), COMM)
@@ -160,8 +172,16 @@ def test_newton_on_the_linear_material_finds_the_fixed_point_answer():
 def test_archimedes_holds_on_the_deformed_surface(shared_tmp):
     from test_hydrostatics import submerged_volume
 
-    scene = load_scene("cube", ["mesh.cells=[6, 6, 3]", "time.mode=quasi-static", "fluid.volume=100e-6",
-                                "material.model=neo-hookean", "output.pictures=false"])
+    scene = load_scene(
+        "cube",
+        [
+            "mesh.cells=[6, 6, 3]",
+            "time.mode=quasi-static",
+            "fluid.volume=100e-6",
+            "material.model=neo-hookean",
+            "output.pictures=false",
+        ],
+    )
     result = run(scene)
     mesh, u = result.mesh, result.displacement
     # move the mesh to the deformed shape (P1: the vertices carry the displacement), then clip
@@ -172,6 +192,7 @@ def test_archimedes_holds_on_the_deformed_surface(shared_tmp):
     w.interpolate(u)
     coords = V1.tabulate_dof_coordinates()
     from scipy.spatial import cKDTree
+
     nearest = cKDTree(coords).query(x)[1]
     moved += w.x.array.reshape(-1, 3)[nearest]
     mesh.geometry.x[:] = moved
@@ -197,16 +218,32 @@ def test_a_rigid_rotation_of_the_scene_rotates_the_answer(shared_tmp):
         meshio.write(shared_tmp / "turned.xdmf", meshio.Mesh(points @ R.T, [("tetra", tets)]))
     COMM.barrier()
     top = np.array([0.01, 0.01, 0.04])
-    common = {"material": {"E": 300.0, "nu": 0.4, "density": 1040.0, "model": "neo-hookean"},
-              "time": {"mode": "quasi-static"}, "solver": {"kind": "cholesky"}}
-    upright = scene_from_dict({**common, "mesh": {"shape": "box", "size": list(size), "cells": list(cells)},
-                               "gravity": {"vector": [0.0, 0.0, -9.81]}, "fixed": [{"where": "z < 1e-9"}],
-                               "fluid": {"density": 1000.0, "level": 0.02}, "probes": {"top": list(top)}})
+    common = {
+        "material": {"E": 300.0, "nu": 0.4, "density": 1040.0, "model": "neo-hookean"},
+        "time": {"mode": "quasi-static"},
+        "solver": {"kind": "cholesky"},
+    }
+    upright = scene_from_dict(
+        {
+            **common,
+            "mesh": {"shape": "box", "size": list(size), "cells": list(cells)},
+            "gravity": {"vector": [0.0, 0.0, -9.81]},
+            "fixed": [{"where": "z < 1e-9"}],
+            "fluid": {"density": 1000.0, "level": 0.02},
+            "probes": {"top": list(top)},
+        }
+    )
     up = R @ np.array([0.0, 0.0, 1.0])
-    turned = scene_from_dict({**common, "mesh": {"file": str(shared_tmp / "turned.xdmf")},
-                              "gravity": {"vector": list(-9.81 * up)},
-                              "fixed": [{"where": f"{float(up[0])!r} * x + {float(up[1])!r} * y + {float(up[2])!r} * z < 1e-9"}],
-                              "fluid": {"density": 1000.0, "level": 0.02}, "probes": {"top": list(R @ top)}})
+    turned = scene_from_dict(
+        {
+            **common,
+            "mesh": {"file": str(shared_tmp / "turned.xdmf")},
+            "gravity": {"vector": list(-9.81 * up)},
+            "fixed": [{"where": f"{float(up[0])!r} * x + {float(up[1])!r} * y + {float(up[2])!r} * z < 1e-9"}],
+            "fluid": {"density": 1000.0, "level": 0.02},
+            "probes": {"top": list(R @ top)},
+        }
+    )
     a, b = (run(s).probes["top"] for s in (upright, turned))
     assert np.linalg.norm(a) > 1e-3  # millimetres of sag: a large deformation of a 40 mm block
     np.testing.assert_allclose(b, R @ np.array(a), atol=1e-8 * np.linalg.norm(a))
@@ -214,8 +251,12 @@ def test_a_rigid_rotation_of_the_scene_rotates_the_answer(shared_tmp):
 
 def _swinging_column(model: str, dt: float, g: float = 9.81):
     """A confined column under suddenly applied gravity, undamped, for half a second."""
-    data = column_dict(4, gravity=(0.0, 0.0, -g), material={"E": 3000.0, "nu": 0.3, "density": 1000.0, "model": model},
-                       time={"mode": "dynamic", "dt": dt, "end": 0.5})
+    data = column_dict(
+        4,
+        gravity=(0.0, 0.0, -g),
+        material={"E": 3000.0, "nu": 0.3, "density": 1000.0, "model": model},
+        time={"mode": "dynamic", "dt": dt, "end": 0.5},
+    )
     sim = Simulation(scene_from_dict(data), COMM)
     sim.setup()
     tops = [sim.probe_values()[0, 2]]
@@ -246,10 +287,14 @@ def test_nonlinear_dynamics_tends_to_linear_dynamics_for_small_loads():
 def test_a_time_step_newton_cannot_solve_is_cut_in_halves():
     """Newton refused every whole step (as if it had failed): each is then solved as two
     half steps, so the run equals one made with dt / 2, state, work and energy alike."""
+
     def run_with(dt: float, refuse_whole_steps: bool):
-        data = column_dict(4, gravity=(0.0, 0.0, -9.81), material={"E": 3000.0, "nu": 0.3, "density": 1000.0,
-                                                                  "model": "neo-hookean"},
-                           time={"mode": "dynamic", "dt": dt, "end": 0.2})
+        data = column_dict(
+            4,
+            gravity=(0.0, 0.0, -9.81),
+            material={"E": 3000.0, "nu": 0.3, "density": 1000.0, "model": "neo-hookean"},
+            time={"mode": "dynamic", "dt": dt, "end": 0.2},
+        )
         sim = Simulation(scene_from_dict(data), COMM)
         sim.setup()
         stepper = sim.dynamic
@@ -260,6 +305,7 @@ def test_a_time_step_newton_cannot_solve_is_cut_in_halves():
                 if stepper.integrator.dt > 0.75 * dt:
                     raise SolverError("refused, for the test")
                 return solve_step(t_new)
+
             stepper._newton_step = refusing
         tops = []
         for _ in range(int(round(0.2 / dt))):

@@ -1,4 +1,5 @@
 """Time-integration theory on the single-degree-of-freedom oscillator (plain arrays)."""
+
 from __future__ import annotations
 
 import math
@@ -6,8 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from conftest import decay_per_step
 from fenics_brainshift.stepping.integrators import TimeIntegrator, initial_stiffness_weight, newmark_discrete_frequency
+
+from conftest import decay_per_step
 
 
 def _oscillate(ti: TimeIntegrator, omega: float, steps: int, xi: float = 0.0):
@@ -105,8 +107,9 @@ def test_a_load_at_rest_with_stiff_damping_gives_no_spurious_displacement(scheme
     ti = TimeIntegrator.newmark(dt) if scheme == "newmark" else TimeIntegrator.generalized_alpha(dt, 0.5)
     t = dt * np.arange(1, steps + 1)
     for omega in (100.0, 1e3, 1e5):  # stiffly damped: b omega^2 dt = 40 ... 4e7
-        error = np.max(np.abs(_loaded_from_rest(ti, omega, a_r, b_r, steps, True) -
-                              _loaded_from_rest_exact(omega, a_r, b_r, t)))
+        error = np.max(
+            np.abs(_loaded_from_rest(ti, omega, a_r, b_r, steps, True) - _loaded_from_rest_exact(omega, a_r, b_r, t))
+        )
         assert error < 0.25, (omega, error)
     resolved = 1.0  # omega dt = 0.2: the averaged a0 differs from a0 by 0.2 %
     exact = _loaded_from_rest_exact(resolved, a_r, b_r, t)

@@ -1,4 +1,5 @@
 """Meshes: the paper's structured grids, gmsh shapes, and files in other units."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -6,11 +7,12 @@ import pytest
 import ufl
 from dolfinx import fem
 
-from conftest import COMM
-from fenics_brainshift.runner.build import mesh_from_spec as build_mesh
-from fenics_brainshift.meshing.hexgrid import structured_box
 from fenics_brainshift.errors import InputError
+from fenics_brainshift.meshing.hexgrid import structured_box
+from fenics_brainshift.runner.build import mesh_from_spec as build_mesh
 from fenics_brainshift.scene import MeshSpec
+
+from conftest import COMM
 
 
 def _volume(mesh) -> float:
@@ -18,9 +20,15 @@ def _volume(mesh) -> float:
     return COMM.allreduce(fem.assemble_scalar(fem.form(one * ufl.dx(domain=mesh))))
 
 
-@pytest.mark.parametrize("cells, nodes, elements", [
-    ((16, 16, 9), 2890, 11520), ((20, 20, 10), 4851, 20000),
-    ((25, 25, 12), 8788, 37500), ((30, 30, 15), 15376, 67500)])
+@pytest.mark.parametrize(
+    "cells, nodes, elements",
+    [
+        ((16, 16, 9), 2890, 11520),
+        ((20, 20, 10), 4851, 20000),
+        ((25, 25, 12), 8788, 37500),
+        ((30, 30, 15), 15376, 67500),
+    ],
+)
 def test_paper_cube_grids_have_the_papers_counts_and_conform(cells, nodes, elements):
     points, tets = structured_box((0.05, 0.05, 0.025), cells)
     assert (len(points), len(tets)) == (nodes, elements)
@@ -88,7 +96,9 @@ def test_mesh_files_in_millimetres(tmp_path, serial_only):
     third = build_mesh(MeshSpec(file=str(tmp_path / "meshio.xdmf"), unit="mm"), COMM)
     assert _volume(third) == pytest.approx(0.05 * 0.05 * 0.025, rel=1e-12)
     meshio.write(tmp_path / "triangles.xdmf", meshio.Mesh(points, [("triangle", tets[:, :3])]))
-    with pytest.raises(InputError, match=r"'triangles.xdmf' could not be read as a tetrahedral mesh: it holds no tetra"):
+    with pytest.raises(
+        InputError, match=r"'triangles.xdmf' could not be read as a tetrahedral mesh: it holds no tetra"
+    ):
         build_mesh(MeshSpec(file=str(tmp_path / "triangles.xdmf")), COMM)
     # a corrupt file is a named error, not a traceback
     (tmp_path / "bad.msh").write_text("this is not gmsh")

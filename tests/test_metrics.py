@@ -1,4 +1,5 @@
 """The paper's error measures recover a known synthetic shift exactly."""
+
 from __future__ import annotations
 
 import json
@@ -7,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fenics_brainshift.data import MESHES
 from fenics_brainshift.cli import main
-from fenics_brainshift.meshing.voxelize import read_surface
+from fenics_brainshift.data import MESHES
 from fenics_brainshift.outputs.metrics import compare, region
+from fenics_brainshift.surfaces.files import read_surface
 
 PRE = MESHES / "mni152_brain_surface.ply"
 UP, SECOND = [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]
@@ -19,9 +20,9 @@ UP, SECOND = [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]
 def _field(points):
     """A known, monotone shift (m): sag along -y growing towards anterior, plus a translation."""
     y0 = points[:, 1].min()
-    return np.column_stack([np.full(len(points), 0.001),
-                            -0.002 - 0.05 * (points[:, 1] - y0),
-                            np.full(len(points), 0.0005)])
+    return np.column_stack(
+        [np.full(len(points), 0.001), -0.002 - 0.05 * (points[:, 1] - y0), np.full(len(points), 0.0005)]
+    )
 
 
 OFFSET = np.array([0.0, 0.0005, 0.0])  # the simulation's known error: 0.5 mm too far up
@@ -31,8 +32,9 @@ def test_known_shift_and_known_error_recovered_exactly():
     pre, _ = read_surface(PRE, 1e-3)
     shift = _field(pre)
     intra = pre + shift
-    result = compare(pre, intra, intra + OFFSET, UP, SECOND, 0.005, 0.005, 0.010,
-                     roi=((-0.02, 0.02), (-0.02, 0.02)), spacing=0.001)
+    result = compare(
+        pre, intra, intra + OFFSET, UP, SECOND, 0.005, 0.005, 0.010, roi=((-0.02, 0.02), (-0.02, 0.02)), spacing=0.001
+    )
     for name in ("A", "B"):
         r = result[name]
         expected = shift[r["index_pre"]]
@@ -71,8 +73,19 @@ def test_compare_command(tmp_path, capsys):
     meshio.Mesh(pre + shift_mm, [("triangle", triangles)]).write(tmp_path / "intra.stl")
     meshio.Mesh((pre + shift_mm) * 1e-3 + OFFSET, [("triangle", triangles)]).write(tmp_path / "sim.vtk")  # metres
     out = tmp_path / "c" / "compare.json"
-    args = ["compare", str(PRE), str(tmp_path / "intra.stl"), str(tmp_path / "sim.vtk"),
-            "--roi", "-20", "20", "-20", "20", "-o", str(out)]
+    args = [
+        "compare",
+        str(PRE),
+        str(tmp_path / "intra.stl"),
+        str(tmp_path / "sim.vtk"),
+        "--roi",
+        "-20",
+        "20",
+        "-20",
+        "20",
+        "-o",
+        str(out),
+    ]
     assert main(args) == 0
     text = capsys.readouterr().out
     assert "node A" in text and "MAE 0.50 mm" in text

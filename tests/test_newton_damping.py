@@ -9,6 +9,7 @@ of the scheme's amplification matrix for it, written out here from the scheme's 
 (Newmark, or generalized-alpha: Chung & Hulbert 1993). The top's increments q_{n+1} - q_n
 carry the same |lambda| without the static offset.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -16,9 +17,10 @@ import pytest
 from dolfinx.fem.petsc import set_bc
 from mpi4py import MPI
 
-from conftest import COMM, column_dict, decay_per_step, lowest_mode
 from fenics_brainshift.runner import Simulation, build_model
 from fenics_brainshift.scene import scene_from_dict
+
+from conftest import COMM, column_dict, decay_per_step, lowest_mode
 
 pytestmark = pytest.mark.mpi
 STEPS = 80
@@ -54,17 +56,22 @@ def _closed_form_decay(omega_dt: float, c_dt: float, scheme: dict) -> float:
 
 def _run(material: str, scheme: dict, a: float, b: float):
     """(w, dt, the top's z per step, the stepper) from u = sag + phi (top amplitude ~ the sag)."""
-    data = column_dict(8, gravity=(0.0, 0.0, -9.81e-4),
-                       material={"E": 5000.0, "nu": 0.3, "density": 1000.0, "model": material},
-                       time={"mode": "dynamic", "dt": 1.0, "end": 1.0, **scheme}, damping={"a": a, "b": b})
+    data = column_dict(
+        8,
+        gravity=(0.0, 0.0, -9.81e-4),
+        material={"E": 5000.0, "nu": 0.3, "density": 1000.0, "model": material},
+        time={"mode": "dynamic", "dt": 1.0, "end": 1.0, **scheme},
+        damping={"a": a, "b": b},
+    )
     scene = scene_from_dict(data)
     model = build_model(scene, COMM)
     omega, phi, sag = _mode_and_sag(model)
     scene.time.dt = OMEGA_DT / omega
     sim = Simulation(scene, COMM, model)
     n = sim.state.n_owned
-    ratio = COMM.allreduce(float(np.abs(sag.array_r).max(initial=0.0)), op=MPI.MAX) / \
-        COMM.allreduce(float(np.abs(phi.array_r).max(initial=0.0)), op=MPI.MAX)
+    ratio = COMM.allreduce(float(np.abs(sag.array_r).max(initial=0.0)), op=MPI.MAX) / COMM.allreduce(
+        float(np.abs(phi.array_r).max(initial=0.0)), op=MPI.MAX
+    )
     sim.u.x.array[:n] = sag.array_r + ratio * phi.array_r
     sim.u.x.scatter_forward()
     sim.setup()
@@ -75,10 +82,13 @@ def _run(material: str, scheme: dict, a: float, b: float):
     return omega, scene.time.dt, np.array(top), sim.dynamic
 
 
-@pytest.mark.parametrize("scheme, a, b", [
-    ({"scheme": "newmark"}, 2.0, 1.5e-3),
-    ({"scheme": "generalized-alpha", "rho_inf": 0.8}, 0.0, 2.0e-3),
-])
+@pytest.mark.parametrize(
+    "scheme, a, b",
+    [
+        ({"scheme": "newmark"}, 2.0, 1.5e-3),
+        ({"scheme": "generalized-alpha", "rho_inf": 0.8}, 0.0, 2.0e-3),
+    ],
+)
 def test_newton_steps_with_stiffness_damping_decay_as_the_closed_form_and_the_linear_stepper(scheme, a, b):
     omega, dt, top, stepper = _run("neo-hookean", scheme, a, b)
     assert type(stepper).__name__ == "NewtonDynamicStepper"  # the path under test

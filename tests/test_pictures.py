@@ -1,5 +1,6 @@
-"""Pictures a surgeon reads (issue 30): checked on the figure objects, not on pixels. The
+"""Pictures a surgeon reads: checked on the figure objects, not on pixels. The
 facts are the run's own files (probes.csv, summary.json) and hand-picked numbers."""
+
 from __future__ import annotations
 
 import json
@@ -25,21 +26,25 @@ def figures(monkeypatch):
         saved.append(self)
         self.canvas.draw()  # (layout done: the boxes below are final)
         return original(self, *args, **kwargs)
+
     monkeypatch.setattr(Figure, "savefig", keep)
     monkeypatch.setattr("matplotlib.pyplot.close", lambda *a, **k: None)
     return saved
 
 
-@pytest.mark.parametrize("value, top", [(1.9737, 2.0), (7.01, 10.0), (2.5, 2.5), (0.0123, 0.02), (20.75, 25.0),
-                                        (0.0, 1.0)])
+@pytest.mark.parametrize(
+    "value, top", [(1.9737, 2.0), (7.01, 10.0), (2.5, 2.5), (0.0123, 0.02), (20.75, 25.0), (0.0, 1.0)]
+)
 def test_a_colour_bar_runs_from_zero_to_a_round_number(value, top):
     assert pictures.nice_ceiling(value) == pytest.approx(top)
 
 
 def _probes_folder(tmp_path, names, times):
     header = ["t", "level"] + [f"{n}_{c}" for n in names for c in "xyz"]
-    rows = [[t, 0.02] + [(-1e-3 * (i + 1) * t if c == "z" else 0.0) for i in range(len(names)) for c in "xyz"]
-            for t in times]
+    rows = [
+        [t, 0.02] + [(-1e-3 * (i + 1) * t if c == "z" else 0.0) for i in range(len(names)) for c in "xyz"]
+        for t in times
+    ]
     np.savetxt(tmp_path / "probes.csv", np.array(rows), delimiter=",", header=",".join(header), comments="")
     return tmp_path
 
@@ -48,8 +53,9 @@ def test_many_probes_are_named_beside_the_plot_and_settled_states_are_points(tmp
     """With 20 markups the legend covered the plot and its title; three settled states were
     joined by lines as if the shift grew linearly in time; the title cited the paper."""
     names = [f"F-{i}" for i in range(20)]
-    pictures.probe_plot(_probes_folder(tmp_path, names, [0.0, 10.0, 16.0]), [0, 0, -9.81], title="my scene: probes",
-                        settled=True)
+    pictures.probe_plot(
+        _probes_folder(tmp_path, names, [0.0, 10.0, 16.0]), [0, 0, -9.81], title="my scene: probes", settled=True
+    )
     fig = figures[-1]
     ax = fig.axes[0]
     legend = ax.get_legend().get_window_extent()
@@ -73,8 +79,13 @@ def test_a_dynamic_run_draws_its_probes_as_lines(tmp_path, figures):
 def test_the_surface_error_map_names_its_axes_in_ras(tmp_path, figures):
     """compare.png had no axis labels or orientation."""
     grid = np.linspace(-0.02, 0.02, 5)
-    se = {"error": np.zeros((5, 5)).tolist(), "grid_a": grid.tolist(), "grid_b": grid.tolist(), "height_axis": "y",
-          "mae": 0.0005}
+    se = {
+        "error": np.zeros((5, 5)).tolist(),
+        "grid_a": grid.tolist(),
+        "grid_b": grid.tolist(),
+        "height_axis": "y",
+        "mae": 0.0005,
+    }
     pictures.surface_error_plot(tmp_path / "compare.png", se)
     ax = figures[-1].axes[0]
     assert ax.get_xlabel() == "x: R+ / L- (mm)" and ax.get_ylabel() == "z: S+ / I- (mm)"
@@ -108,8 +119,9 @@ def test_the_deformed_picture_starts_its_colour_bar_at_zero_and_draws_the_probes
     import subprocess
     import sys
 
-    from conftest import subprocess_env
     from fenics_brainshift import load_scene, run
+
+    from conftest import subprocess_env
 
     pytest.importorskip("pyvista")
     import meshio
@@ -121,9 +133,19 @@ def test_the_deformed_picture_starts_its_colour_bar_at_zero_and_draws_the_probes
     box = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))])
     meshio.write(str(tmp_path / "skull.stl"), meshio.Mesh(corners, [("triangle", box)]))
     out = tmp_path / "out"
-    run(load_scene("cube", ["mesh.cells=[4, 4, 2]", "time.mode=quasi-static", "output.pictures=false",
-                            f"skull.file='{tmp_path / 'skull.stl'}'"]), out)
-    from fenics_brainshift.meshing.voxelize import read_surface
+    run(
+        load_scene(
+            "cube",
+            [
+                "mesh.cells=[4, 4, 2]",
+                "time.mode=quasi-static",
+                "output.pictures=false",
+                f"skull.file='{tmp_path / 'skull.stl'}'",
+            ],
+        ),
+        out,
+    )
+    from fenics_brainshift.surfaces.files import read_surface
 
     written, _ = read_surface(out / "skull.stl", 1e-3)  # the skull the run used, mm RAS for Slicer
     np.testing.assert_allclose(written.min(axis=0), lo, atol=1e-6)

@@ -1,14 +1,16 @@
 """The scene planner: what it decides, that it says so, and that each skip keeps the answer."""
+
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from conftest import COMM, column_dict
+from fenics_brainshift.runner import run
 from fenics_brainshift.runner.build import mesh_from_spec as build_mesh
 from fenics_brainshift.runner.plan import make_plan
 from fenics_brainshift.scene import scene_from_dict
-from fenics_brainshift.runner import run
+
+from conftest import COMM, column_dict
 
 pytestmark = pytest.mark.mpi
 
@@ -40,11 +42,14 @@ def test_slow_drain_is_solved_quasi_statically():
     assert "change slowly" in plan.reasons[0]
 
 
-@pytest.mark.parametrize("level, extra, mode, reason", [
-    ([[0.0, 0.03], [0.2, 0.0]], {}, "dynamic", "lowest periods"),
-    ([[0.0, 0.03], [2.0, 0.0]], {"remove": [{"at": 1.0, "where": "z > 0.015"}]}, "dynamic", "[[remove]]"),
-    ([[0.0, 0.03], [2.0, 0.0]], {"fixed": []}, "dynamic", "no [[fixed]]"),
-])
+@pytest.mark.parametrize(
+    "level, extra, mode, reason",
+    [
+        ([[0.0, 0.03], [0.2, 0.0]], {}, "dynamic", "lowest periods"),
+        ([[0.0, 0.03], [2.0, 0.0]], {"remove": [{"at": 1.0, "where": "z > 0.015"}]}, "dynamic", "[[remove]]"),
+        ([[0.0, 0.03], [2.0, 0.0]], {"fixed": []}, "dynamic", "no [[fixed]]"),
+    ],
+)
 def test_fast_changes_removal_or_no_support_need_dynamics(level, extra, mode, reason):
     plan = plan_of(cube(level, **extra))
     assert plan.mode == mode and reason in plan.reasons[0]
@@ -93,8 +98,7 @@ def test_reusing_the_fluid_load_keeps_the_answer():
     """A body resting at its (follower) equilibrium under a constant level: the surface does
     does not move, so the load assembled for the static answer serves every step; without
     reuse every step reassembles it. The answers agree to the follower tolerance."""
-    from fenics_brainshift.runner import build_model
-    from fenics_brainshift.runner import Simulation
+    from fenics_brainshift.runner import Simulation, build_model
 
     finals, counts = {}, {}
     for tol in (0.0, 1e-8):

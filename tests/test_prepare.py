@@ -1,7 +1,8 @@
 """`brainshift prepare` (patients/): a patient's T1 to a scene, checked on synthetic patients.
 
 The synthetic patient is the ICBM152 T1 inside FSL's whole MNI152 head (scalp, skull, neck), seen
-by a scanner (patients/synthetic.py): a head 0.9 times the template's size, turned by (8, -6, 10) degrees and shifted, deformed by a known
+by a scanner (patients/synthetic.py): a head 0.9 times the template's size, turned by (8, -6, 10)
+degrees and shifted, deformed by a known
 smooth field of 3 mm, with a bias field and noise, on an oblique 2.5 x 2.5 x 3 mm grid (small,
 for speed), written as an MR DICOM series. The truth each check compares with is that known
 transform, never the registration's own output:
@@ -14,6 +15,7 @@ transform, never the registration's own output:
 - the prepared scene runs (and on 2 ranks: the mpi pass);
 - a skull-stripped T1 goes the brain-to-brain way, and finds its brain too.
 """
+
 from __future__ import annotations
 
 import json
@@ -24,12 +26,14 @@ import pytest
 import SimpleITK as sitk
 from scipy import ndimage
 
-from conftest import COMM, shared_tmp  # noqa: F401  (fixture)
 from fenics_brainshift.cli import main
+from fenics_brainshift.data.templates import mni_brain_mask, mni_head, mni_t1
+
 # PETSc starts on every rank here, not on rank 0 alone inside the fixture's prepare: its start
 # is collective, and rank 1 waiting in a broadcast meanwhile had its stack smashed
 from fenics_brainshift.runner import run
-from fenics_brainshift.data.templates import mni_brain_mask, mni_head, mni_t1
+
+from conftest import COMM
 
 SPACING, SIZE = (2.5, 2.5, 3.0), (80, 92, 64)
 SPACING_STRIPPED = (3.0, 3.0, 3.0)
@@ -43,8 +47,12 @@ def _head_template():
     """The template with a head around its brain, as a scanner's T1 shows one."""
     from fenics_brainshift.patients.synthetic import with_head
 
-    return with_head(_template(), sitk.ReadImage(str(mni_head()), sitk.sitkFloat32),
-                     sitk.ReadImage(str(mni_head(brain_mask=True))), sitk.ReadImage(str(mni_brain_mask())))
+    return with_head(
+        _template(),
+        sitk.ReadImage(str(mni_head()), sitk.sitkFloat32),
+        sitk.ReadImage(str(mni_head(brain_mask=True))),
+        sitk.ReadImage(str(mni_brain_mask())),
+    )
 
 
 @pytest.fixture(scope="module")
@@ -69,11 +77,12 @@ def patient(tmp_path_factory):
 def _prepare(argv: list[str]) -> int:
     from argparse import Namespace
 
-    from fenics_brainshift.cli import _parser
-    from fenics_brainshift.patients.command import prepare_command
+    from fenics_brainshift.cli import parser
+    from fenics_brainshift.patients.prepare import prepare
 
-    args: Namespace = _parser().parse_args(["prepare", *argv])
-    return prepare_command(args)  # the command itself: the CLI refuses to prepare on 2 ranks
+    args: Namespace = parser().parse_args(["prepare", *argv])
+    prepare(args)  # the preparation itself: the CLI refuses to prepare on 2 ranks
+    return 0
 
 
 def _truth_mask(base: Path) -> np.ndarray:
@@ -153,12 +162,13 @@ def test_gravity_follows_the_head_and_the_level_the_craniotomy(patient):
 @pytest.mark.usefixtures("serial_only")
 def test_the_inner_skull_stands_the_gap_out_from_the_mesh_nodes(patient):
     """Every node of the voxel mesh `run` builds is inside the skull, by about the gap (3 mm):
-    the exact distance from each voxel corner to the STL's triangles (physics/skull.py's
+    the exact distance from each voxel corner to the STL's triangles (surfaces/skull.py's
     point-to-triangle search, not the grid the surface was made on)."""
     import meshio
 
     from fenics_brainshift.meshing.voxelize import voxelize
-    from fenics_brainshift.physics.skull import RigidSkull, closed_surface_problem
+    from fenics_brainshift.surfaces.skull import RigidSkull
+    from fenics_brainshift.surfaces.triangles import closed_surface_problem
 
     folder = patient / "P"
     model = voxelize(folder / "anatomy.seg.nrrd", 5e-3, 1e-3, 0.5, 1, ["brain", "occipital_pole", "brain_stem"])
@@ -231,11 +241,13 @@ def test_a_dicom_seg_lands_on_the_voxels_of_its_nifti_export(patient, tmp_path):
     t1 = sitk.ReadImage(str(patient / "P" / "t1.nii.gz"))
     binary = read_dicom_seg(write_dicom_seg(spheres, patient / "dicom", tmp_path / "seg.dcm"), t1, "--tumour")
     disjoint = {"tumour": spheres["tumour"], "oedema": spheres["oedema"] & ~spheres["tumour"]}
-    labelmap = read_dicom_seg(write_dicom_seg(disjoint, patient / "dicom", tmp_path / "labelmap.dcm", "LABELMAP"),
-                              t1, "--tumour")
+    labelmap = read_dicom_seg(
+        write_dicom_seg(disjoint, patient / "dicom", tmp_path / "labelmap.dcm", "LABELMAP"), t1, "--tumour"
+    )
     probabilities = {name: np.where(mask, 0.9, 0.3) for name, mask in spheres.items()}
-    fractional = read_dicom_seg(write_dicom_seg(probabilities, patient / "dicom", tmp_path / "fractional.dcm",
-                                                "FRACTIONAL"), t1, "--tumour")
+    fractional = read_dicom_seg(
+        write_dicom_seg(probabilities, patient / "dicom", tmp_path / "fractional.dcm", "FRACTIONAL"), t1, "--tumour"
+    )
     for name in spheres:
         exported = sitk.ReadImage(str(_as_nifti(spheres[name], patient, tmp_path / f"{name}.nii.gz")))
         assert np.array_equal(binary[name], sitk.GetArrayFromImage(exported) > 0), name
@@ -244,8 +256,9 @@ def test_a_dicom_seg_lands_on_the_voxels_of_its_nifti_export(patient, tmp_path):
     assert spheres["tumour"].sum() > 100 and (spheres["oedema"].sum(axis=(1, 2)) > 0).sum() < t1.GetSize()[2]
     one_plane = np.zeros_like(spheres["tumour"])  # a SEG of a single frame (pydicom gives it as 2-D)
     one_plane[30] = spheres["oedema"][30]
-    single = read_dicom_seg(write_dicom_seg({"tumour": one_plane}, patient / "dicom", tmp_path / "one.dcm"), t1,
-                            "--tumour")
+    single = read_dicom_seg(
+        write_dicom_seg({"tumour": one_plane}, patient / "dicom", tmp_path / "one.dcm"), t1, "--tumour"
+    )
     assert one_plane.sum() > 10 and np.array_equal(single["tumour"], one_plane)
 
 
@@ -256,8 +269,20 @@ def test_a_tumour_lands_on_its_voxels(patient, tmp_path):
 
     spheres = _spheres(patient)
     write_dicom_seg(spheres, patient / "dicom", tmp_path / "seg.dcm")
-    code = _prepare([str(patient / "dicom"), "-o", str(tmp_path / "P"), "--voxel", "8",
-                     "--tumour", str(tmp_path / "seg.dcm"), "--tumour-segment", "tumour", "--affine-only"])
+    code = _prepare(
+        [
+            str(patient / "dicom"),
+            "-o",
+            str(tmp_path / "P"),
+            "--voxel",
+            "8",
+            "--tumour",
+            str(tmp_path / "seg.dcm"),
+            "--tumour-segment",
+            "tumour",
+            "--affine-only",
+        ]
+    )
     assert code == 0
     sphere = spheres["tumour"]
     labels = sitk.GetArrayFromImage(sitk.ReadImage(str(tmp_path / "P" / "labels.nii.gz")))
@@ -293,8 +318,7 @@ def test_a_skull_stripped_t1_is_registered_brain_to_brain(tmp_path):
     from fenics_brainshift.patients.synthetic import synthetic_patient
 
     tool = _stripping_tool(-40.0)
-    stripped = synthetic_patient(_template(), spacing=(3.0, 3.0, 3.0), size=(66, 76, 64), warp_mm=0.0,
-                                 stripped_by=tool)
+    stripped = synthetic_patient(_template(), spacing=(3.0, 3.0, 3.0), size=(66, 76, 64), warp_mm=0.0, stripped_by=tool)
     assert not shows_head(stripped.image)
     assert shows_head(synthetic_patient(_head_template(), spacing=(3.0, 3.0, 3.0), size=(66, 76, 64)).image)
     sitk.WriteImage(stripped.image, str(tmp_path / "t1.nii.gz"))
@@ -310,8 +334,12 @@ def test_a_skull_stripped_t1_is_registered_brain_to_brain(tmp_path):
     assert 2.0 * (truth & found).sum() / (truth.sum() + found.sum()) >= 0.95
     assert found.sum() == pytest.approx(truth.sum(), rel=0.03)
     # the brain stem: the bundled scene's region carried by the known transform, then 10 mm
-    stem = sitk.GetArrayFromImage(sitk.Resample(sitk.Cast(_template_stem(), sitk.sitkFloat32), grid, stripped.known,
-                                                sitk.sitkLinear, 0.0)) >= 0.5
+    stem = (
+        sitk.GetArrayFromImage(
+            sitk.Resample(sitk.Cast(_template_stem(), sitk.sitkFloat32), grid, stripped.known, sitk.sitkLinear, 0.0)
+        )
+        >= 0.5
+    )
     assert not (stem & truth).any()  # cut away by the tool
     kept = labels == record["labels"]["brain_stem"]
     distance = ndimage.distance_transform_edt(~stem, sampling=np.array(SPACING_STRIPPED)[::-1])
@@ -321,8 +349,9 @@ def test_a_skull_stripped_t1_is_registered_brain_to_brain(tmp_path):
     assert kept.sum() * np.prod(SPACING_STRIPPED) > 1000.0  # a face of the brain, not a pin (1 ml and more)
     assert 'label = "brain_stem"' in (tmp_path / "P" / "scene.toml").read_text()
 
-    high = synthetic_patient(_template(), spacing=(3.0, 3.0, 3.0), size=(66, 76, 64), warp_mm=0.0,
-                             stripped_by=_stripping_tool(0.0))
+    high = synthetic_patient(
+        _template(), spacing=(3.0, 3.0, 3.0), size=(66, 76, 64), warp_mm=0.0, stripped_by=_stripping_tool(0.0)
+    )
     sitk.WriteImage(high.image, str(tmp_path / "high.nii.gz"))
     from fenics_brainshift.errors import InputError
 
@@ -349,7 +378,9 @@ def _bad_inputs(base: Path, tmp: Path) -> dict:
     t1 = sitk.ReadImage(str(base / "P" / "t1.nii.gz"))
     sitk.WriteImage(t1[:, :, 30], str(tmp / "slice.nii.gz"))
     sitk.WriteImage(sitk.JoinSeries([t1, t1]), str(tmp / "four.nii.gz"))
-    sitk.WriteImage(sitk.Cast(sitk.ReadImage(str(base / "P" / "labels.nii.gz")), sitk.sitkUInt8), str(tmp / "mask.nii.gz"))
+    sitk.WriteImage(
+        sitk.Cast(sitk.ReadImage(str(base / "P" / "labels.nii.gz")), sitk.sitkUInt8), str(tmp / "mask.nii.gz")
+    )
     noise = sitk.GetImageFromArray(np.random.default_rng(1).random(sitk.GetArrayFromImage(t1).shape).astype(np.float32))
     noise.CopyInformation(t1)
     sitk.WriteImage(noise, str(tmp / "noise.nii.gz"))
@@ -364,13 +395,17 @@ def _bad_inputs(base: Path, tmp: Path) -> dict:
     spheres = _spheres(base)
     write_dicom_seg(spheres, base / "dicom", tmp / "two.dcm")
     write_dicom_series(small.image, tmp / "small")
-    write_dicom_seg({"tumour": np.ones(sitk.GetArrayFromImage(small.image).shape, bool)}, tmp / "small",
-                    tmp / "other_series.dcm")
+    write_dicom_seg(
+        {"tumour": np.ones(sitk.GetArrayFromImage(small.image).shape, bool)}, tmp / "small", tmp / "other_series.dcm"
+    )
     _as_nifti(spheres["tumour"] * 1 + spheres["oedema"], base, tmp / "two_labels.nii.gz")
     import pydicom
 
     drifting = pydicom.dcmread(write_dicom_seg({"tumour": spheres["tumour"]}, base / "dicom", tmp / "drift.dcm"))
-    drifting.SharedFunctionalGroupsSequence[0].PixelMeasuresSequence[0].PixelSpacing = [2.5125, 2.5125]  # 0.5 %: 0.45 voxel
+    drifting.SharedFunctionalGroupsSequence[0].PixelMeasuresSequence[0].PixelSpacing = [
+        2.5125,
+        2.5125,
+    ]  # 0.5 %: 0.45 voxel
     drifting.save_as(tmp / "drift.dcm")
     striped = spheres["tumour"].copy()
     striped[1::2] = False  # frames on every second plane: drawn on slices twice as thick
@@ -391,8 +426,10 @@ def _bad_inputs(base: Path, tmp: Path) -> dict:
         "a mask as T1": ([str(tmp / "mask.nii.gz")], "segmentation"),
         "no such file": ([str(tmp / "nothing.nii.gz")], "no file"),
         "craniotomy over no tumour": ([dicom, "--craniotomy", "tumour"], "give the tumour's segmentation"),
-        "tumour off the brain": ([dicom, "--tumour", str(tmp / "corner.nii.gz"), "--craniotomy", "tumour"],
-                                 "none of the tumour lies in the brain found"),
+        "tumour off the brain": (
+            [dicom, "--tumour", str(tmp / "corner.nii.gz"), "--craniotomy", "tumour"],
+            "none of the tumour lies in the brain found",
+        ),
         "tumour on another grid": ([dicom, "--tumour", str(tmp / "tumour_elsewhere.nii.gz")], "another grid"),
         "DICOM-SEG of another series": ([dicom, "--tumour", str(tmp / "other_series.dcm")], "another grid"),
         "DICOM-SEG of two segments": ([dicom, "--tumour", str(tmp / "two.dcm")], "'tumour', 'oedema'"),
@@ -431,11 +468,26 @@ def test_bad_input_is_one_line_and_writes_nothing(patient, tmp_path, capsys):
     assert (tmp_path / "notes" / "a.txt").read_text() == "mine"
 
 
-@pytest.mark.parametrize("name, contrast", [
-    ("t1_mpr_tra_gk_v4", "t1"), ("AXIAL-T1-POST-GD", "t1c"), ("T1 SE +C", "t1c"), ("3D_T1_TFE_post", "t1c"),
-    ("brain1_T1post.nrrd", "t1c"), ("T1_MPRAGE_KM", "t1c"), ("t2_space_sag", "t2"), ("T2w.nii.gz", "t2"),
-    ("sample1_FLAIR", "flair"), ("chris_PD.nii.gz", "pd"), ("t1_MPRAGEcr_noGRAPPA_19", "t1"),
-    ("patient12.nii.gz", None), ("T1_MPRAGE_PAT2.nii.gz", "t1"), ("mprage_iPAT2_sag", "t1"), ("scan.nii.gz", None)])
+@pytest.mark.parametrize(
+    "name, contrast",
+    [
+        ("t1_mpr_tra_gk_v4", "t1"),
+        ("AXIAL-T1-POST-GD", "t1c"),
+        ("T1 SE +C", "t1c"),
+        ("3D_T1_TFE_post", "t1c"),
+        ("brain1_T1post.nrrd", "t1c"),
+        ("T1_MPRAGE_KM", "t1c"),
+        ("t2_space_sag", "t2"),
+        ("T2w.nii.gz", "t2"),
+        ("sample1_FLAIR", "flair"),
+        ("chris_PD.nii.gz", "pd"),
+        ("t1_MPRAGEcr_noGRAPPA_19", "t1"),
+        ("patient12.nii.gz", None),
+        ("T1_MPRAGE_PAT2.nii.gz", "t1"),
+        ("mprage_iPAT2_sag", "t1"),
+        ("scan.nii.gz", None),
+    ],
+)
 def test_the_contrast_is_read_from_a_name(name, contrast):
     """Names as scanners and people write them, labelled by hand: t1/t2 inside a longer word or
     number ("patient12", Siemens' "iPAT2") name nothing."""
@@ -536,13 +588,29 @@ def test_a_craniotomy_over_the_tumour_and_one_on_the_lower_side(patient, tmp_pat
     as the head lies (supine: up is anterior), checked against a search by hand over the
     surface of the brain found; a centre on the brain's lower side is warned of."""
     import logging
-    from fenics_brainshift.patients.carry import index_to_lps
+
     from fenics_brainshift.images.frames import LPS_TO_RAS
+    from fenics_brainshift.patients.carry import index_to_lps
 
     spheres = _spheres(patient)
     tumour = _as_nifti(spheres["tumour"], patient, tmp_path / "tumour.nii.gz")
-    assert _prepare([str(patient / "dicom"), "-o", str(tmp_path / "P"), "--voxel", "8", "--tumour", str(tumour),
-                     "--craniotomy", "tumour", "--affine-only"]) == 0
+    assert (
+        _prepare(
+            [
+                str(patient / "dicom"),
+                "-o",
+                str(tmp_path / "P"),
+                "--voxel",
+                "8",
+                "--tumour",
+                str(tumour),
+                "--craniotomy",
+                "tumour",
+                "--affine-only",
+            ]
+        )
+        == 0
+    )
     record = json.loads((tmp_path / "P" / "prepare.json").read_text())
     up = -np.array(record["gravity"]) / 9.81
     t1 = sitk.ReadImage(str(tmp_path / "P" / "t1.nii.gz"))
@@ -560,8 +628,21 @@ def test_a_craniotomy_over_the_tumour_and_one_on_the_lower_side(patient, tmp_pat
     logger = logging.getLogger("fenics_brainshift")  # (it does not propagate once the CLI configured it)
     logger.addHandler(caplog.handler)
     try:
-        assert _prepare([str(patient / "dicom"), "-o", str(tmp_path / "Q"), "--voxel", "8", "--affine-only",
-                         "--craniotomy", ",".join(f"{v:.1f}" for v in bottom)]) == 0
+        assert (
+            _prepare(
+                [
+                    str(patient / "dicom"),
+                    "-o",
+                    str(tmp_path / "Q"),
+                    "--voxel",
+                    "8",
+                    "--affine-only",
+                    "--craniotomy",
+                    ",".join(f"{v:.1f}" for v in bottom),
+                ]
+            )
+            == 0
+        )
     finally:
         logger.removeHandler(caplog.handler)
     assert any("lies on the brain's lower side" in r.getMessage() for r in caplog.records)
@@ -610,16 +691,24 @@ def test_a_support_by_label_holds_the_nodes_its_voxels_hold(shared_tmp):
     COMM.barrier()
 
     def settled(fixed):
-        data = {"name": "block", "mesh": {"file": str(path), "unit": "mm", "voxel": 0.005, "labels": ["tissue", "base"]},
-                "material": {"E": 3000.0, "nu": 0.45, "density": 1000.0}, "gravity": {"vector": [0.0, 0.0, -9.81]},
-                "fixed": [fixed], "time": {"mode": "quasi-static"}, "solver": {"kind": "cholesky"}}
+        data = {
+            "name": "block",
+            "mesh": {"file": str(path), "unit": "mm", "voxel": 0.005, "labels": ["tissue", "base"]},
+            "material": {"E": 3000.0, "nu": 0.45, "density": 1000.0},
+            "gravity": {"vector": [0.0, 0.0, -9.81]},
+            "fixed": [fixed],
+            "time": {"mode": "quasi-static"},
+            "solver": {"kind": "cholesky"},
+        }
         sim = Simulation(scene_from_dict(data), COMM)
         sim.solve_to_settled(0.0)
         owned = sim.model.V.dofmap.index_map.size_local * sim.model.V.dofmap.index_map_bs
         held = sum(int(np.sum(np.asarray(bc.dof_indices()[0]) < owned)) for bc in sim.model.bcs)
         u = sim.u.x.array[:owned]  # (the partition differs run to run: compare global measures)
-        return (np.array([COMM.allreduce(float(u @ u)), COMM.allreduce(float(np.abs(u).max()), op=MPI.MAX)]),
-                COMM.allreduce(held))
+        return (
+            np.array([COMM.allreduce(float(u @ u)), COMM.allreduce(float(np.abs(u).max()), op=MPI.MAX)]),
+            COMM.allreduce(held),
+        )
 
     by_label, held_label = settled({"label": "base"})
     by_where, held_where = settled({"where": "z < 0.007"})

@@ -1,14 +1,15 @@
 """The fast paths of a dynamic step give the same numbers as the plain ones."""
+
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from conftest import COMM, column_dict
-from fenics_brainshift.runner import build_model
 from fenics_brainshift.linalg import PairProduct
+from fenics_brainshift.runner import Simulation, build_model
 from fenics_brainshift.scene import scene_from_dict
-from fenics_brainshift.runner import Simulation
+
+from conftest import COMM, column_dict
 
 pytestmark = pytest.mark.mpi
 

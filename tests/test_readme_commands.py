@@ -4,6 +4,7 @@ The commands are read from README.md itself (the ```sh block after "Then:"), so 
 that is changed there is run as changed; each gets only the overrides that make it small
 (coarse meshes, short times), and the files it names (a mask, a T1, point lists, surfaces)
 are made here. A command this test does not know fails it: add its smoke size below."""
+
 from __future__ import annotations
 
 import json
@@ -17,8 +18,9 @@ import nibabel as nib
 import numpy as np
 import pytest
 
-from conftest import ROOT, mpirun, subprocess_env
 from fenics_brainshift.cli import main
+
+from conftest import ROOT, mpirun, subprocess_env
 
 SMALL_BRAIN = ["--set", "mesh.voxel=0.015", "--set", "output.pictures=false"]
 SMALL_CUBE = ["--set", "mesh.cells=[4, 4, 2]", "--set", "output.pictures=false"]
@@ -65,10 +67,12 @@ def _inputs(folder: Path) -> None:
     t1_affine = np.diag([4.0, 4.0, 4.0, 1.0])
     t1_affine[:3, 3] = [-90.0, -126.0, -72.0]
     rng = np.random.default_rng(0)
-    nib.save(nib.Nifti1Image(rng.uniform(0, 1000, (46, 55, 46)).astype(np.float32), t1_affine),
-             str(folder / "T1.nii.gz"))
-    pre, intra = measurements(SMALL_BRAIN[1::2] + ["time.mode=quasi-static"],
-                              {"fluid.level": 0.04, "material.G": 3000.0}, 12, 0.5e-3, seed=1)
+    nib.save(
+        nib.Nifti1Image(rng.uniform(0, 1000, (46, 55, 46)).astype(np.float32), t1_affine), str(folder / "T1.nii.gz")
+    )
+    pre, intra = measurements(
+        SMALL_BRAIN[1::2] + ["time.mode=quasi-static"], {"fluid.level": 0.04, "material.G": 3000.0}, 12, 0.5e-3, seed=1
+    )
     labels = [f"P{i}" for i in range(len(pre))]
     write_markups(folder / "pre.mrk.json", labels, pre * 1e3)
     write_markups(folder / "intra.mrk.json", labels, intra * 1e3)
@@ -88,7 +92,7 @@ def test_every_quick_start_command_runs_at_smoke_size(tmp_path, monkeypatch, ser
     for words in commands:
         assert "brainshift" in " ".join(words[:4]), words
         at = next(i for i, w in enumerate(words) if w.endswith("brainshift"))
-        argv = smoke_size(words[at + 1:])
+        argv = smoke_size(words[at + 1 :])
         if words[0] == "mpirun":  # as written: mpirun -n 2 .venv/bin/brainshift ...
             cmd = mpirun()[:1] + words[1:at] + ["--oversubscribe", str(brainshift), "--no-progress", *argv]
             proc = subprocess.run(cmd, capture_output=True, text=True, env=subprocess_env(), timeout=900)
@@ -97,10 +101,18 @@ def test_every_quick_start_command_runs_at_smoke_size(tmp_path, monkeypatch, ser
         else:
             assert main(["--log-level", "WARNING", "--no-progress", *argv]) == 0, words
     # what the commands wrote, as the README says they do
-    for written in ("out_cube/summary.json", "out_cube_hypre/summary.json", "out_brain_nh/summary.json",
-                    "out_brain_skull/summary.json", "out_mesh/brain5.xdmf", "out_warp/T1_intra.nii.gz",
-                    "out_warp/warp.h5", "out_fit/fit.json", "out_compare/compare.json",
-                    "out_bench/time_vs_error_cube.csv"):
+    for written in (
+        "out_cube/summary.json",
+        "out_cube_hypre/summary.json",
+        "out_brain_nh/summary.json",
+        "out_brain_skull/summary.json",
+        "out_mesh/brain5.xdmf",
+        "out_warp/T1_intra.nii.gz",
+        "out_warp/warp.h5",
+        "out_fit/fit.json",
+        "out_compare/compare.json",
+        "out_bench/time_vs_error_cube.csv",
+    ):
         assert Path(written).is_file(), written
     # every output in a folder of its own that git ignores (out_*/), none in the checkout's root
     assert all(p.name.startswith("out_") for p in Path(".").iterdir() if p.is_dir()), sorted(Path(".").iterdir())
@@ -116,7 +128,7 @@ def test_every_bench_configuration_is_a_scene_that_loads():
     from fenics_brainshift.bench.sweep import LEVELS
     from fenics_brainshift.scene import load_scene
 
-    for bench, make in BENCHES.items():
+    for _bench, make in BENCHES.items():
         for level in LEVELS:
             scene_file, base, _, reference, configs = make(level)
             for config in (reference, *configs):

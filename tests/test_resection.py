@@ -6,6 +6,7 @@ piece above is then free: its mass-weighted mean acceleration must be g dry and
 exactly in Newmark's arithmetic. The piece below must move as a 20 mm block that never had
 anything above it.
 """
+
 from __future__ import annotations
 
 import json
@@ -14,11 +15,11 @@ import numpy as np
 import pytest
 from mpi4py import MPI
 
-from conftest import COMM
-from fenics_brainshift.runner import build_model
 from fenics_brainshift.errors import InputError
+from fenics_brainshift.runner import Simulation, build_model, run
 from fenics_brainshift.scene import scene_from_dict
-from fenics_brainshift.runner import Simulation, run
+
+from conftest import COMM
 
 pytestmark = pytest.mark.mpi
 W, RHO_S, G = 0.02, 1000.0, 9.81
@@ -69,8 +70,12 @@ def _run(data: dict):
 
 
 def test_free_piece_falls_with_g_when_dry_and_stays_unstrained():
-    corners = {f"p{i}": [x, y, z] for i, (x, y, z) in enumerate(
-        [(0, 0, 0.03), (W, 0, 0.03), (0, W, 0.06), (W, W, 0.06), (W / 2, W / 2, 0.045), (0, W / 2, 0.05)])}
+    corners = {
+        f"p{i}": [x, y, z]
+        for i, (x, y, z) in enumerate(
+            [(0, 0, 0.03), (W, 0, 0.03), (0, W, 0.06), (W, W, 0.06), (W / 2, W / 2, 0.045), (0, W / 2, 0.05)]
+        )
+    }
     sim = _run(block(0.06, 6, remove=[CUT], probes=corners))
     t = sim.t
     values = sim.probe_values()
@@ -101,13 +106,21 @@ def test_piece_below_is_the_block_that_never_had_a_top(fluid):
 
 
 def test_thirty_percent_removed_in_three_cuts_runs_to_the_end(shared_tmp):
-    cuts = [{"at": 0.03, "where": "(x - 0.01)**2 + (y - 0.01)**2 + (z - 0.06)**2 < 0.008**2"},
-            {"at": 0.05, "where": "x > 0.014 and z > 0.03"},
-            {"at": 0.08, "where": "y < 0.006 and z < 0.045"}]
-    data = block(0.06, 6, fluid={"density": 1030.0, "level": [[0.0, 0.07], [0.1, 0.02]]},
-                 remove=cuts, time={"mode": "dynamic", "dt": 0.005, "end": 0.15},
-                 mesh={"shape": "box", "size": [W, W, 0.06], "cells": [4, 4, 12]},
-                 damping={"a": 5.0}, solver={"kind": "cg-gamg", "rtol": 1e-10})
+    cuts = [
+        {"at": 0.03, "where": "(x - 0.01)**2 + (y - 0.01)**2 + (z - 0.06)**2 < 0.008**2"},
+        {"at": 0.05, "where": "x > 0.014 and z > 0.03"},
+        {"at": 0.08, "where": "y < 0.006 and z < 0.045"},
+    ]
+    data = block(
+        0.06,
+        6,
+        fluid={"density": 1030.0, "level": [[0.0, 0.07], [0.1, 0.02]]},
+        remove=cuts,
+        time={"mode": "dynamic", "dt": 0.005, "end": 0.15},
+        mesh={"shape": "box", "size": [W, W, 0.06], "cells": [4, 4, 12]},
+        damping={"a": 5.0},
+        solver={"kind": "cg-gamg", "rtol": 1e-10},
+    )
     summary = run(scene_from_dict(data), shared_tmp / "out", COMM).summary
     assert summary["status"] == "ok"
     assert summary["removed_fraction"] >= 0.30
@@ -131,8 +144,12 @@ def test_removal_by_label_of_the_label_volume(shared_tmp):
         labels[5:9, 5:9, 9:11] = 2
         nib.save(nib.Nifti1Image(labels, np.diag([2.0, 2.0, 2.0, 1.0])), str(shared_tmp / "seg.nii.gz"))
     COMM.barrier()
-    data = block(0.02, 2, remove=[{"at": 0.0, "label": 2}], mesh={"file": str(shared_tmp / "seg.nii.gz"),
-                                                                 "voxel": 0.004, "unit": "mm"})
+    data = block(
+        0.02,
+        2,
+        remove=[{"at": 0.0, "label": 2}],
+        mesh={"file": str(shared_tmp / "seg.nii.gz"), "voxel": 0.004, "unit": "mm"},
+    )
     data["fixed"] = [{"where": "z < 0.0041"}]
     sim = Simulation(scene_from_dict(data), COMM)
     sim.setup()
@@ -141,10 +158,13 @@ def test_removal_by_label_of_the_label_volume(shared_tmp):
     sim.step()
 
 
-@pytest.mark.parametrize("region, message", [
-    ("z > 1.0", "selects no cell"),
-    ("z > -1.0", "would remove every remaining cell"),
-])
+@pytest.mark.parametrize(
+    "region, message",
+    [
+        ("z > 1.0", "selects no cell"),
+        ("z > -1.0", "would remove every remaining cell"),
+    ],
+)
 def test_removal_that_selects_nothing_or_everything_is_refused(region, message):
     with pytest.raises(InputError, match=message):
         build_model(scene_from_dict(block(0.02, 2, remove=[{"at": 0.0, "where": region}])), COMM)
@@ -155,8 +175,12 @@ def test_cells_left_hanging_by_an_edge_go_with_the_cut():
     upper corner tetrahedra touching the rest by edges only: they are removed with it; the
     lower two keep a face on the voxel below and stay."""
     h = 0.01
-    data = block(2 * h, 2, remove=[{"at": 0.0, "where": f"sqrt((x - {h / 2})**2 + (y - {h / 2})**2 + (z - {1.5 * h})**2) < {h / 10}"}],
-                 mesh={"shape": "box", "size": [h, h, 2 * h], "cells": [1, 1, 2]})
+    data = block(
+        2 * h,
+        2,
+        remove=[{"at": 0.0, "where": f"sqrt((x - {h / 2})**2 + (y - {h / 2})**2 + (z - {1.5 * h})**2) < {h / 10}"}],
+        mesh={"shape": "box", "size": [h, h, 2 * h], "cells": [1, 1, 2]},
+    )
     sim = Simulation(scene_from_dict(data), COMM)
     sim.setup()
     assert sim.dynamic.removals[0]["cells"] == 1 and sim.dynamic.removals[0]["isolated_cells"] == 2
@@ -167,8 +191,13 @@ def test_cells_left_hanging_by_an_edge_go_with_the_cut():
 
 DAMPED_OR_HYPERELASTIC = [
     pytest.param({"damping": {"a": 0.5, "b": 0.02}}, id="linear-stiffness-damped"),
-    pytest.param({"material": {"E": 3000.0, "nu": 0.45, "density": RHO_S, "model": "neo-hookean"},
-                  "damping": {"a": 0.5, "b": 0.02}}, id="neo-hookean"),
+    pytest.param(
+        {
+            "material": {"E": 3000.0, "nu": 0.45, "density": RHO_S, "model": "neo-hookean"},
+            "damping": {"a": 0.5, "b": 0.02},
+        },
+        id="neo-hookean",
+    ),
 ]
 
 
@@ -206,8 +235,13 @@ def test_a_piece_cut_free_mid_run_falls_with_g(model):
     u0 + v0 (t - tc) - g (t - tc)^2 / 2 from its mean state at the cut, exactly in Newmark's
     arithmetic (internal and stiffness-damping forces cancel over a free piece)."""
     tc = 5 * DT
-    data = block(0.06, 6, remove=[{"at": tc, "where": "0.02 < z < 0.03"}], damping={"b": 0.02},
-                 material={"E": 3000.0, "nu": 0.45, "density": RHO_S, "model": model})
+    data = block(
+        0.06,
+        6,
+        remove=[{"at": tc, "where": "0.02 < z < 0.03"}],
+        damping={"b": 0.02},
+        material={"E": 3000.0, "nu": 0.45, "density": RHO_S, "model": model},
+    )
     sim = Simulation(scene_from_dict(data), COMM)
     sim.setup()
     for _ in range(5):

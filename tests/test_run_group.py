@@ -1,6 +1,7 @@
 """conftest.run_group, the tests' way to run mpirun: a command past its timeout is stopped with
 its ranks (subprocess.run's timeout killed mpirun alone, and two ranks went on spinning for 40
 minutes of a CI run), and the test fails with what it had said."""
+
 from __future__ import annotations
 
 import sys

@@ -15,22 +15,25 @@
 - A septum that holds no node is refused, as a support that holds nothing is; bad keys are one
   line; --set septum.NAME.enabled=false leaves it out.
 """
+
 from __future__ import annotations
 
 import numpy as np
 import pytest
 import ufl
-from dolfinx import fem, io, mesh as dmesh
+from dolfinx import fem, io
+from dolfinx import mesh as dmesh
 from dolfinx.fem.petsc import assemble_vector
 from mpi4py import MPI
 from scipy.optimize import brentq
 
-from conftest import COMM, shared_tmp  # noqa: F401  (fixture)
 from fenics_brainshift.errors import InputError
 from fenics_brainshift.physics.material import lame_parameters
 from fenics_brainshift.physics.surface import surface_facets
 from fenics_brainshift.runner import Simulation, run
 from fenics_brainshift.scene import load_scene, scene_from_dict
+
+from conftest import COMM
 
 pytestmark = pytest.mark.mpi
 E_MOD, NU, RHO = 3000.0, 0.3, 1000.0
@@ -40,11 +43,15 @@ PLANES = [("x", [1.0, 0.0, 0.0]), ("y", [0.0, 1.0, 0.0]), ("z", [0.0, 0.0, 1.0])
 
 
 def _box_scene(septa: bool, model: str, mode: str):
-    data = {"name": "septa", "mesh": {"shape": "box", "size": [0.05, 0.04, 0.03], "cells": [5, 4, 3]},
-            "material": {"E": E_MOD, "nu": 0.45, "model": model},
-            "gravity": {"vector": [0.0, 0.0, -9.81]},
-            "fluid": {"level": [[0.0, 0.04], [1.0, 0.01]], "follower": True},
-            "time": {"mode": mode, "end": 1.0, "dt": 0.1}, "solver": {"kind": "cholesky"}}
+    data = {
+        "name": "septa",
+        "mesh": {"shape": "box", "size": [0.05, 0.04, 0.03], "cells": [5, 4, 3]},
+        "material": {"E": E_MOD, "nu": 0.45, "model": model},
+        "gravity": {"vector": [0.0, 0.0, -9.81]},
+        "fluid": {"level": [[0.0, 0.04], [1.0, 0.01]], "follower": True},
+        "time": {"mode": mode, "end": 1.0, "dt": 0.1},
+        "solver": {"kind": "cholesky"},
+    }
     if septa:
         data["septum"] = [{"name": f"wall_{a}", "point": [0, 0, 0], "normal": n} for a, n in PLANES]
     else:
@@ -52,8 +59,10 @@ def _box_scene(septa: bool, model: str, mode: str):
     return scene_from_dict(data)
 
 
-@pytest.mark.parametrize("model, mode", [("linear", "quasi-static"), ("linear", "dynamic"),
-                                         ("neo-hookean", "quasi-static"), ("neo-hookean", "dynamic")])
+@pytest.mark.parametrize(
+    "model, mode",
+    [("linear", "quasi-static"), ("linear", "dynamic"), ("neo-hookean", "quasi-static"), ("neo-hookean", "dynamic")],
+)
 def test_an_axis_septum_is_the_sliding_support_of_its_plane(model, mode):
     sliding, septum = (run(_box_scene(s, model, mode), raise_on_stop=True) for s in (False, True))
     a, b = _by_position(sliding.displacement), _by_position(septum.displacement)
@@ -93,15 +102,24 @@ def _confined_scene(path: str, model: str, theta: float):
     R = _rotation()
     ex, ey, ez = R.T  # the block's axes, turned
     half = R @ (SIZE / 2)
-    septa = [{"name": "low_end", "point": [0.0, 0.0, 0.0], "normal": ex.tolist()},
-             {"name": "high_end", "point": (R @ [SIZE[0], 0, 0]).tolist(), "normal": ex.tolist()},
-             {"name": "mid_y", "point": half.tolist(), "normal": ey.tolist()},
-             {"name": "mid_z", "point": half.tolist(), "normal": ez.tolist()}]
-    return scene_from_dict({"name": "confined", "mesh": {"file": path},
-                            "material": {"E": E_MOD, "nu": NU, "density": RHO, "model": model},
-                            "gravity": {"vector": [0.0, 0.0, 0.0]}, "septum": septa,
-                            "swelling": [{"where": "x < 1", "volume_change": theta}],
-                            "time": {"mode": "quasi-static"}, "solver": {"kind": "cholesky"}})
+    septa = [
+        {"name": "low_end", "point": [0.0, 0.0, 0.0], "normal": ex.tolist()},
+        {"name": "high_end", "point": (R @ [SIZE[0], 0, 0]).tolist(), "normal": ex.tolist()},
+        {"name": "mid_y", "point": half.tolist(), "normal": ey.tolist()},
+        {"name": "mid_z", "point": half.tolist(), "normal": ez.tolist()},
+    ]
+    return scene_from_dict(
+        {
+            "name": "confined",
+            "mesh": {"file": path},
+            "material": {"E": E_MOD, "nu": NU, "density": RHO, "model": model},
+            "gravity": {"vector": [0.0, 0.0, 0.0]},
+            "septum": septa,
+            "swelling": [{"where": "x < 1", "volume_change": theta}],
+            "time": {"mode": "quasi-static"},
+            "solver": {"kind": "cholesky"},
+        }
+    )
 
 
 def _stretch_and_end_traction(model: str, theta: float) -> tuple[float, float]:
@@ -115,8 +133,9 @@ def _stretch_and_end_traction(model: str, theta: float) -> tuple[float, float]:
 
     def sigma(s, i):
         stretch = (1.0 / g, s / g)[i]
-        J = s * s / g ** 3
-        return MU / J * (stretch ** 2 - 1.0) + LMBDA * np.log(J) / J
+        J = s * s / g**3
+        return MU / J * (stretch**2 - 1.0) + LMBDA * np.log(J) / J
+
     s = brentq(lambda s: sigma(s, 1), 0.5, 2.0, xtol=1e-15)
     return s, -sigma(s, 0) * s * s  # the first Piola traction: J sigma_xx / F_xx
 
@@ -175,14 +194,20 @@ def _check_distribution(sim, traction: float, R: np.ndarray) -> None:
 
 
 def test_a_floor_septum_carries_the_weight_less_the_buoyancy():
-    data = {"name": "floor", "mesh": {"shape": "box", "size": [0.04, 0.03, 0.02], "cells": [4, 3, 2]},
-            "material": {"E": E_MOD, "nu": 0.45, "density": 1040.0},
-            "gravity": {"vector": [0.0, 0.0, -9.81]},
-            "fluid": {"density": 1000.0, "level": 0.012, "follower": False},
-            "septum": [{"name": "floor", "point": [0, 0, 0], "normal": [0, 0, 1]},
-                       {"name": "side_x", "point": [0, 0, 0], "normal": [1, 0, 0]},
-                       {"name": "side_y", "point": [0, 0, 0], "normal": [0, 1, 0]}],
-            "time": {"mode": "quasi-static"}, "solver": {"kind": "cholesky"}}
+    data = {
+        "name": "floor",
+        "mesh": {"shape": "box", "size": [0.04, 0.03, 0.02], "cells": [4, 3, 2]},
+        "material": {"E": E_MOD, "nu": 0.45, "density": 1040.0},
+        "gravity": {"vector": [0.0, 0.0, -9.81]},
+        "fluid": {"density": 1000.0, "level": 0.012, "follower": False},
+        "septum": [
+            {"name": "floor", "point": [0, 0, 0], "normal": [0, 0, 1]},
+            {"name": "side_x", "point": [0, 0, 0], "normal": [1, 0, 0]},
+            {"name": "side_y", "point": [0, 0, 0], "normal": [0, 1, 0]},
+        ],
+        "time": {"mode": "quasi-static"},
+        "solver": {"kind": "cholesky"},
+    }
     sim = Simulation(scene_from_dict(data), COMM)
     sim.solve_to_settled(0.0)
     report = {r["name"]: r for r in sim.septa_report()}
@@ -195,9 +220,13 @@ def test_a_floor_septum_carries_the_weight_less_the_buoyancy():
 
 
 def test_a_septum_that_holds_nothing_is_refused():
-    data = {"name": "outside", "mesh": {"shape": "box", "size": [0.04, 0.03, 0.02], "cells": [2, 2, 2]},
-            "material": {"E": E_MOD, "nu": 0.45}, "fixed": [{"where": "z < 1e-9"}],
-            "septum": [{"name": "away", "point": [0.0, 0.0, 0.5], "normal": [0, 0, 1]}]}
+    data = {
+        "name": "outside",
+        "mesh": {"shape": "box", "size": [0.04, 0.03, 0.02], "cells": [2, 2, 2]},
+        "material": {"E": E_MOD, "nu": 0.45},
+        "fixed": [{"where": "z < 1e-9"}],
+        "septum": [{"name": "away", "point": [0.0, 0.0, 0.5], "normal": [0, 0, 1]}],
+    }
     with pytest.raises(InputError, match=r"\[\[septum\]\] away holds no node"):
         Simulation(scene_from_dict(data), COMM)
     data["septum"] = [{"name": "cut_off", "point": [0.02, 0, 0], "normal": [1, 0, 0], "where": "z > 1"}]
@@ -205,30 +234,40 @@ def test_a_septum_that_holds_nothing_is_refused():
         Simulation(scene_from_dict(data), COMM)
 
 
-@pytest.mark.parametrize("septum, message", [
-    ({"point": [0, 0, 0]}, "exactly one of normal"),
-    ({"normal": [1, 0, 0]}, "needs point"),
-    ({"normal": [0, 0, 0], "point": [0, 0, 0]}, "must not be zero"),
-    ({"normal": [1, 0, 0], "file": "a.stl", "point": [0, 0, 0]}, "exactly one of"),
-    ({"label": 3}, "needs \\[mesh\\] file to be a label volume"),
-    ({"file": "no_such.stl"}, "file not found"),
-    ({"normal": [1, 0, 0], "point": [0, 0, 0], "reach": -1}, "reach must be > 0"),
-    ({"normal": [1, 0, 0], "point": [0, 0, 0], "name": "two words"}, "name must be a word"),
-    ({"normal": [1, 0, 0], "point": [0, 0, 0], "where": "import os"}, "where"),
-    ({"normal": [1, 0, 0], "point": [0, 0, 0], "colour": "red"}, "unknown key 'colour'")])
+@pytest.mark.parametrize(
+    "septum, message",
+    [
+        ({"point": [0, 0, 0]}, "exactly one of normal"),
+        ({"normal": [1, 0, 0]}, "needs point"),
+        ({"normal": [0, 0, 0], "point": [0, 0, 0]}, "must not be zero"),
+        ({"normal": [1, 0, 0], "file": "a.stl", "point": [0, 0, 0]}, "exactly one of"),
+        ({"label": 3}, "needs \\[mesh\\] file to be a label volume"),
+        ({"file": "no_such.stl"}, "file not found"),
+        ({"normal": [1, 0, 0], "point": [0, 0, 0], "reach": -1}, "reach must be > 0"),
+        ({"normal": [1, 0, 0], "point": [0, 0, 0], "name": "two words"}, "name must be a word"),
+        ({"normal": [1, 0, 0], "point": [0, 0, 0], "where": "import os"}, "where"),
+        ({"normal": [1, 0, 0], "point": [0, 0, 0], "colour": "red"}, "unknown key 'colour'"),
+    ],
+)
 def test_bad_septa_are_one_line(septum, message):
-    data = {"mesh": {"shape": "box", "size": [0.04, 0.03, 0.02], "cells": [2, 2, 2]},
-            "material": {"E": E_MOD, "nu": 0.45}, "fixed": [{"where": "z < 1e-9"}], "septum": [septum]}
+    data = {
+        "mesh": {"shape": "box", "size": [0.04, 0.03, 0.02], "cells": [2, 2, 2]},
+        "material": {"E": E_MOD, "nu": 0.45},
+        "fixed": [{"where": "z < 1e-9"}],
+        "septum": [septum],
+    }
     with pytest.raises(InputError, match=message):
         scene_from_dict(data)
 
 
 def test_set_turns_a_named_septum_off(tmp_path):
     path = tmp_path / "scene.toml"
-    path.write_text('[mesh]\nshape = "box"\nsize = [0.04, 0.03, 0.02]\ncells = [2, 2, 2]\n'
-                    '[material]\nE = 3000.0\n[[fixed]]\nwhere = "z < 1e-9"\n'
-                    '[[septum]]\nname = "falx"\npoint = [0.02, 0, 0]\nnormal = [1, 0, 0]\n'
-                    '[[septum]]\nname = "tent"\npoint = [0, 0, 0.01]\nnormal = [0, 0, 1]\n')
+    path.write_text(
+        '[mesh]\nshape = "box"\nsize = [0.04, 0.03, 0.02]\ncells = [2, 2, 2]\n'
+        '[material]\nE = 3000.0\n[[fixed]]\nwhere = "z < 1e-9"\n'
+        '[[septum]]\nname = "falx"\npoint = [0.02, 0, 0]\nnormal = [1, 0, 0]\n'
+        '[[septum]]\nname = "tent"\npoint = [0, 0, 0.01]\nnormal = [0, 0, 1]\n'
+    )
     assert [s.name for s in load_scene(path).septa] == ["falx", "tent"]
     assert [s.name for s in load_scene(path, ["septum.falx.enabled=false"]).septa] == ["tent"]
     assert load_scene(path, ["septum.tent.normal=[0, 1, 0]"]).septa[1].normal == (0.0, 1.0, 0.0)
@@ -237,9 +276,14 @@ def test_set_turns_a_named_septum_off(tmp_path):
 
 
 def _block(**sections) -> dict:
-    data = {"name": "block", "mesh": {"shape": "box", "size": [0.04, 0.03, 0.02], "cells": [4, 3, 2]},
-            "material": {"E": E_MOD, "nu": 0.45, "density": RHO}, "gravity": {"vector": [0.0, 0.0, -9.81]},
-            "time": {"mode": "quasi-static"}, "solver": {"kind": "cholesky"}}
+    data = {
+        "name": "block",
+        "mesh": {"shape": "box", "size": [0.04, 0.03, 0.02], "cells": [4, 3, 2]},
+        "material": {"E": E_MOD, "nu": 0.45, "density": RHO},
+        "gravity": {"vector": [0.0, 0.0, -9.81]},
+        "time": {"mode": "quasi-static"},
+        "solver": {"kind": "cholesky"},
+    }
     data.update(sections)
     return data
 
@@ -253,10 +297,15 @@ def test_a_septum_and_the_skull_share_the_load(mode):
     point solves with a factor of K and the pressed nodes' blocks: they must be projected
     too), the septa hold to round-off as well."""
     g = np.array([-4.0, 0.0, -8.0])
-    data = _block(gravity={"vector": g.tolist()}, skull={"gap": 1e-4, "tolerance": 1e-7},
-                  swelling=[{"where": "x < 1", "volume_change": 0.05}],
-                  septum=[{"name": n, "point": [0, 0, 0], "normal": v}
-                          for n, v in (("x0", [1, 0, 0]), ("y0", [0, 1, 0]), ("floor", [0, 0, 1]))])
+    data = _block(
+        gravity={"vector": g.tolist()},
+        skull={"gap": 1e-4, "tolerance": 1e-7},
+        swelling=[{"where": "x < 1", "volume_change": 0.05}],
+        septum=[
+            {"name": n, "point": [0, 0, 0], "normal": v}
+            for n, v in (("x0", [1, 0, 0]), ("y0", [0, 1, 0]), ("floor", [0, 0, 1]))
+        ],
+    )
     if mode == "dynamic":
         data["time"] = {"mode": "dynamic", "scheme": "generalized-alpha", "rho_inf": 0.5, "dt": 0.05, "end": 0.3}
         data["damping"] = {"a": 5.0, "b": 0.01}
@@ -288,9 +337,16 @@ def test_a_septum_within_reach_of_a_face_holds_it(shared_tmp):
     reached = run(scene_from_dict(_block(septum=rollers + [reach])), raise_on_stop=True)
     stl = shared_tmp / "floor.stl"
     if COMM.rank == 0:
-        stl.write_text("solid floor\n" + "".join(
-            f"facet normal 0 0 1\nouter loop\n" + "".join(f"vertex {x} {y} 0\n" for x, y in tri) + "endloop\nendfacet\n"
-            for tri in (((-1, -1), (1, -1), (1, 1)), ((-1, -1), (1, 1), (-1, 1)))) + "endsolid floor\n")
+        stl.write_text(
+            "solid floor\n"
+            + "".join(
+                "facet normal 0 0 1\nouter loop\n"
+                + "".join(f"vertex {x} {y} 0\n" for x, y in tri)
+                + "endloop\nendfacet\n"
+                for tri in (((-1, -1), (1, -1), (1, 1)), ((-1, -1), (1, 1), (-1, 1)))
+            )
+            + "endsolid floor\n"
+        )
     COMM.barrier()
     surface = run(scene_from_dict(_block(septum=rollers + [{"name": "floor", "file": str(stl)}])), raise_on_stop=True)
     a = _by_position(plane.displacement)
@@ -313,10 +369,15 @@ def test_the_boundary_of_a_label_is_a_septum(shared_tmp):
         nib.save(nib.Nifti1Image(labels, np.diag([2.0, 2.0, 2.0, 1.0])), str(shared_tmp / "halves.nii.gz"))
     COMM.barrier()
     inner = "abs(x - 0.023) < 0.0005 and y > 0.0125 and y < 0.0255 and z > 0.0125 and z < 0.0255"
-    data = {"mesh": {"file": str(shared_tmp / "halves.nii.gz"), "labels": [1, 3], "voxel": 0.002, "unit": "mm"},
-            "material": {"E": E_MOD, "nu": 0.45, "density": RHO}, "gravity": {"vector": [9.81, 9.81, 0.0]},
-            "fixed": [{"where": "z > 0.0269"}], "time": {"mode": "quasi-static"}, "solver": {"kind": "cholesky"},
-            "septum": [{"name": "between", "label": 3, "where": inner}]}
+    data = {
+        "mesh": {"file": str(shared_tmp / "halves.nii.gz"), "labels": [1, 3], "voxel": 0.002, "unit": "mm"},
+        "material": {"E": E_MOD, "nu": 0.45, "density": RHO},
+        "gravity": {"vector": [9.81, 9.81, 0.0]},
+        "fixed": [{"where": "z > 0.0269"}],
+        "time": {"mode": "quasi-static"},
+        "solver": {"kind": "cholesky"},
+        "septum": [{"name": "between", "label": 3, "where": inner}],
+    }
     held = run(scene_from_dict(data), comm=COMM, raise_on_stop=True)
     septum = held.summary["septa"][0]
     assert septum["nodes"] == 7 * 7  # the face's interior nodes, 13 .. 25 mm in y and z
@@ -326,8 +387,9 @@ def test_the_boundary_of_a_label_is_a_septum(shared_tmp):
     free = run(scene_from_dict(data), comm=COMM, raise_on_stop=True)
     X = free.displacement.function_space.tabulate_dof_coordinates()
     face = (np.abs(X[:, 0] - 0.023) < 5e-4) & (np.abs(X[:, 1] - 0.019) < 6.5e-3) & (np.abs(X[:, 2] - 0.019) < 6.5e-3)
-    swing = COMM.allreduce(float(np.abs(free.displacement.x.array.reshape(-1, 3)[face, 0]).max(initial=0.0)),
-                           op=MPI.MAX)
+    swing = COMM.allreduce(
+        float(np.abs(free.displacement.x.array.reshape(-1, 3)[face, 0]).max(initial=0.0)), op=MPI.MAX
+    )
     assert swing > 1e-4  # without it the face moves across by a tenth of a millimetre or more
 
 
@@ -335,10 +397,15 @@ def test_a_resection_beside_a_septum_keeps_it_held():
     """Cells removed at a septum leave nodes with no tissue (their rows get a unit diagonal,
     then the projection): the run goes on, the septum still holds, and the removed piece's
     weight is gone from what the floor carries."""
-    data = _block(septum=[{"name": n, "point": [0, 0, 0], "normal": v}
-                          for n, v in (("x0", [1, 0, 0]), ("y0", [0, 1, 0]), ("floor", [0, 0, 1]))],
-                  remove=[{"at": 0.1, "where": "x < 0.0101 and y < 0.0101"}],
-                  time={"mode": "dynamic", "dt": 0.05, "end": 1.5}, damping={"a": 20.0, "b": 0.005})
+    data = _block(
+        septum=[
+            {"name": n, "point": [0, 0, 0], "normal": v}
+            for n, v in (("x0", [1, 0, 0]), ("y0", [0, 1, 0]), ("floor", [0, 0, 1]))
+        ],
+        remove=[{"at": 0.1, "where": "x < 0.0101 and y < 0.0101"}],
+        time={"mode": "dynamic", "dt": 0.05, "end": 1.5},
+        damping={"a": 20.0, "b": 0.005},
+    )
     summary = run(scene_from_dict(data), raise_on_stop=True).summary
     septa = {s["name"]: s for s in summary["septa"]}
     assert all(s["largest_motion_across_m"] <= 1e-12 for s in septa.values())
@@ -374,9 +441,14 @@ def test_septa_that_leave_a_rigid_motion_free_are_refused():
     floor = {"name": "floor", "point": [0, 0, 0], "normal": [0, 0, 1]}
     with pytest.raises(InputError, match=r"free to move along"):
         Simulation(scene_from_dict(_block(septum=[floor], gravity={"vector": [1.0, 0.0, -9.81]})), COMM)
-    sides = [{"name": "x0", "point": [0, 0, 0], "normal": [1, 0, 0]}, {"name": "y0", "point": [0, 0, 0], "normal": [0, 1, 0]}]
+    sides = [
+        {"name": "x0", "point": [0, 0, 0], "normal": [1, 0, 0]},
+        {"name": "y0", "point": [0, 0, 0], "normal": [0, 1, 0]},
+    ]
     with pytest.raises(InputError, match=r"free to move along \(0, 1, 0\)"):  # nothing holds y
-        Simulation(scene_from_dict(_block(septum=[floor, sides[0], dict(sides[0], name="x1", point=[0.04, 0, 0])])), COMM)
+        Simulation(
+            scene_from_dict(_block(septum=[floor, sides[0], dict(sides[0], name="x1", point=[0.04, 0, 0])])), COMM
+        )
     held = [{"where": "x < 1e-9 and y < 1e-9 and z < 1e-9"}]  # one corner pinned: the block turns about it
     with pytest.raises(InputError, match=r"free to turn about an axis along"):
         Simulation(scene_from_dict(_block(fixed=held)), COMM)
@@ -395,14 +467,34 @@ def test_an_open_patch_holds_only_the_tissue_under_it(shared_tmp):
     stl = shared_tmp / "patch.stl"
     if COMM.rank == 0:
         corners = ((0.0105, -0.01, -0.01), (0.0105, 0.0075, -0.01), (0.0105, 0.0075, 0.04), (0.0105, -0.01, 0.04))
-        stl.write_text("solid patch\n" + "".join(
-            "facet normal 1 0 0\nouter loop\n" + "".join(f"vertex {x} {y} {z}\n" for x, y, z in (corners[a], corners[b], corners[c]))
-            + "endloop\nendfacet\n" for a, b, c in ((0, 1, 2), (0, 2, 3))) + "endsolid patch\n")
+        stl.write_text(
+            "solid patch\n"
+            + "".join(
+                "facet normal 1 0 0\nouter loop\n"
+                + "".join(f"vertex {x} {y} {z}\n" for x, y, z in (corners[a], corners[b], corners[c]))
+                + "endloop\nendfacet\n"
+                for a, b, c in ((0, 1, 2), (0, 2, 3))
+            )
+            + "endsolid patch\n"
+        )
     COMM.barrier()
-    cube = {"mesh": {"shape": "box", "size": [0.02, 0.02, 0.02], "cells": [4, 4, 4]}, "gravity": {"vector": [-9.81, 0, 0]}}
-    patch = run(scene_from_dict(_block(septum=rollers + [{"name": "patch", "file": str(stl)}], **cube)), raise_on_stop=True)
-    plane = run(scene_from_dict(_block(septum=rollers + [{"name": "patch", "point": [0.0105, 0, 0], "normal": [1, 0, 0],
-                                                           "where": "y < 0.0075"}], **cube)), raise_on_stop=True)
+    cube = {
+        "mesh": {"shape": "box", "size": [0.02, 0.02, 0.02], "cells": [4, 4, 4]},
+        "gravity": {"vector": [-9.81, 0, 0]},
+    }
+    patch = run(
+        scene_from_dict(_block(septum=rollers + [{"name": "patch", "file": str(stl)}], **cube)), raise_on_stop=True
+    )
+    plane = run(
+        scene_from_dict(
+            _block(
+                septum=rollers
+                + [{"name": "patch", "point": [0.0105, 0, 0], "normal": [1, 0, 0], "where": "y < 0.0075"}],
+                **cube,
+            )
+        ),
+        raise_on_stop=True,
+    )
     assert patch.summary["septa"][2]["nodes"] == plane.summary["septa"][2]["nodes"] == 2 * 5
     a, b = _by_position(plane.displacement), _by_position(patch.displacement)
     assert np.abs(a - b).max() <= 1e-10 * np.abs(a).max()
@@ -420,9 +512,15 @@ def test_a_support_carries_what_it_holds_before_a_septum_does():
 @pytest.mark.parametrize("normal", [[1e200, 0.0, 0.0], [1e-170, 0.0, 0.0], [1e308, 1e308, 0.0]])
 def test_a_normal_of_any_size_is_its_direction(normal):
     """[1e200, 0, 0] overflowed to a zero normal, so its nodes were held along nothing."""
-    sim = Simulation(scene_from_dict(_block(septum=[{"name": "s", "point": [0.02, 0, 0], "normal": normal}],
-                                            fixed=[{"where": "z < 1e-9"}])), COMM)
-    direction = np.array(normal) / np.linalg.norm(np.array(normal) / 1e200) / 1e200 if normal[0] > 1 else np.array([1.0, 0, 0])
+    sim = Simulation(
+        scene_from_dict(
+            _block(septum=[{"name": "s", "point": [0.02, 0, 0], "normal": normal}], fixed=[{"where": "z < 1e-9"}])
+        ),
+        COMM,
+    )
+    direction = (
+        np.array(normal) / np.linalg.norm(np.array(normal) / 1e200) / 1e200 if normal[0] > 1 else np.array([1.0, 0, 0])
+    )
     c = sim.model.constraints
     assert len(c.nodes) > 0
     for dirs in c.directions:
@@ -435,4 +533,6 @@ def test_an_empty_septum_file_is_one_line(shared_tmp):
         stl.write_text("solid x\nendsolid x\n")
     COMM.barrier()
     with pytest.raises(InputError, match=r"\[\[septum\]\] s file: .*(holds no triangles|could not be read)"):
-        Simulation(scene_from_dict(_block(septum=[{"name": "s", "file": str(stl)}], fixed=[{"where": "z < 1e-9"}])), COMM)
+        Simulation(
+            scene_from_dict(_block(septum=[{"name": "s", "file": str(stl)}], fixed=[{"where": "z < 1e-9"}])), COMM
+        )

@@ -1,17 +1,19 @@
-"""The skull's distance field (physics/skull.py) is exact on closed surfaces whose triangles
+"""The skull's distance field (surfaces/skull.py) is exact on closed surfaces whose triangles
 differ in size and shape: a fine wall beside a floor of long strips (a decimated scan), a dome
 closed by a flat cap of long slivers. Distances and sides are checked against the box's
 closed form, against every triangle at once (brute force), and against the winding number
 (the solid angle the surface subtends: 1 inside, 0 outside), which knows nothing of nearest
 triangles."""
+
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
 from fenics_brainshift.data import MESHES
-from fenics_brainshift.meshing.voxelize import read_surface
-from fenics_brainshift.physics.skull import RigidSkull, closed_surface_problem, closest_points_on_triangles, outward
+from fenics_brainshift.surfaces.files import read_surface
+from fenics_brainshift.surfaces.skull import RigidSkull
+from fenics_brainshift.surfaces.triangles import closed_surface_problem, closest_points_on_triangles, outward
 
 W, D, H = 0.15, 0.15, 0.10  # a skull-sized box, m
 
@@ -50,16 +52,27 @@ def capped_dome(radius: float = 0.08, rings: int = 16, segments: int = 64) -> tu
     a flat cap: a fan of long slivers from the centre (80 mm by 8 mm at the rim)."""
     theta = np.linspace(0.0, 0.5 * np.pi, rings + 1)[1:]  # from the pole's first ring to the equator
     phi = np.linspace(0.0, 2 * np.pi, segments, endpoint=False)
-    ring = np.stack([np.outer(np.sin(theta), np.cos(phi)), np.outer(np.sin(theta), np.sin(phi)),
-                     np.outer(np.cos(theta), np.ones_like(phi))], axis=-1).reshape(-1, 3) * radius
+    ring = (
+        np.stack(
+            [
+                np.outer(np.sin(theta), np.cos(phi)),
+                np.outer(np.sin(theta), np.sin(phi)),
+                np.outer(np.cos(theta), np.ones_like(phi)),
+            ],
+            axis=-1,
+        ).reshape(-1, 3)
+        * radius
+    )
     pole, centre = len(ring), len(ring) + 1
     points = np.vstack([ring, [[0.0, 0.0, radius], [0.0, 0.0, 0.0]]])
     k = np.arange(segments)
     at = lambda r, s: r * segments + s % segments  # noqa: E731
     triangles = [np.stack([np.full(segments, pole), at(0, k), at(0, k + 1)], axis=1)]
     for r in range(rings - 1):
-        triangles += [np.stack([at(r, k), at(r + 1, k), at(r + 1, k + 1)], axis=1),
-                      np.stack([at(r, k), at(r + 1, k + 1), at(r, k + 1)], axis=1)]
+        triangles += [
+            np.stack([at(r, k), at(r + 1, k), at(r + 1, k + 1)], axis=1),
+            np.stack([at(r, k), at(r + 1, k + 1), at(r, k + 1)], axis=1),
+        ]
     triangles.append(np.stack([np.full(segments, centre), at(rings - 1, k + 1), at(rings - 1, k)], axis=1))
     triangles = np.concatenate(triangles)
     return points, outward(points, triangles)
@@ -70,7 +83,7 @@ def brute_force(points, triangles, y) -> np.ndarray:
     tri = points[triangles]
     best = np.full(len(y), np.inf)
     for start in range(0, len(tri), 500):
-        t = tri[start:start + 500]
+        t = tri[start : start + 500]
         q = closest_points_on_triangles(y[:, None], t[None, :, 0], t[None, :, 1], t[None, :, 2])
         best = np.minimum(best, np.linalg.norm(q - y[:, None], axis=2).min(axis=1))
     return best
@@ -82,11 +95,11 @@ def winding_number(points, triangles, y) -> np.ndarray:
     tri = points[triangles]
     out = np.zeros(len(y))
     for start in range(0, len(y), 100):
-        a, b, c = (tri[None, :, i] - y[start:start + 100, None] for i in range(3))
+        a, b, c = (tri[None, :, i] - y[start : start + 100, None] for i in range(3))
         la, lb, lc = (np.linalg.norm(v, axis=2) for v in (a, b, c))
         dot = lambda u, v: np.einsum("nti,nti->nt", u, v)  # noqa: E731
         omega = 2 * np.arctan2(dot(a, np.cross(b, c)), la * lb * lc + dot(a, b) * lc + dot(a, c) * lb + dot(b, c) * la)
-        out[start:start + 100] = omega.sum(axis=1) / (4 * np.pi)
+        out[start : start + 100] = omega.sum(axis=1) / (4 * np.pi)
     return out
 
 
@@ -158,8 +171,9 @@ def test_any_number_of_triangles(n):
     points = rng.normal(size=(n + 2, 3))
     triangles = np.stack([np.zeros(n, int), np.arange(1, n + 1), np.arange(2, n + 2)], axis=1)
     y = rng.normal(size=(200, 3))
-    np.testing.assert_allclose(RigidSkull(points, triangles).distance(y)[0], brute_force(points, triangles, y),
-                               rtol=0, atol=1e-15)
+    np.testing.assert_allclose(
+        RigidSkull(points, triangles).distance(y)[0], brute_force(points, triangles, y), rtol=0, atol=1e-15
+    )
 
 
 def test_over_a_face_next_to_its_edge_the_direction_is_the_face_normal():
@@ -199,7 +213,7 @@ def test_a_point_the_box_tree_leaves_without_candidates_keeps_its_own_distance(m
     """Far out the box tree's rounding can leave a point no candidate triangle (seen on two
     ranks: 642 distances for 643 points, a crash): it then takes its first triangle's
     distance, and every other point keeps its own (against brute force)."""
-    from fenics_brainshift.physics import skull as skull_module
+    from fenics_brainshift.surfaces import skull as skull_module
 
     points, triangles = strip_floor_box()
     skull = RigidSkull(points, triangles)
@@ -253,6 +267,7 @@ def test_a_point_beyond_any_body_is_not_a_number_not_a_crash():
     traceback instead of the run's "no longer finite" guard): it is NaN, as an infinite one."""
     points, triangles = lattice_box(*(np.linspace(0.0, s, 4) for s in (W, D, H)))
     distance, side, direction = RigidSkull(points, triangles).distance(
-        np.array([[1e160, 0.0, 0.0], [W / 2, D / 2, H / 2], [np.inf, 0.0, 0.0]]))
+        np.array([[1e160, 0.0, 0.0], [W / 2, D / 2, H / 2], [np.inf, 0.0, 0.0]])
+    )
     assert np.isnan(distance[[0, 2]]).all() and np.isnan(direction[[0, 2]]).all()
     assert distance[1] == pytest.approx(min(W, D, H) / 2) and side[1] == -1.0

@@ -1,5 +1,6 @@
 """Files 3D Slicer reads and writes: RAS and LPS, NIfTI and NRRD grids, segmentations by name,
 markups as probes. References: SimpleITK's own reading of the grids, hand-written values."""
+
 from __future__ import annotations
 
 import json
@@ -9,9 +10,9 @@ import nrrd
 import numpy as np
 import pytest
 import SimpleITK
+from test_warp import _oblique_affine, _smooth_image
 
 from fenics_brainshift.images import read_markups, read_volume, write_like, write_markups
-from test_warp import _oblique_affine, _smooth_image
 
 
 def test_markups_round_trip_and_the_lps_convention(tmp_path):
@@ -60,10 +61,16 @@ def _segmentation(path):
     labels = np.zeros((20, 16, 12), dtype=np.uint8)
     labels[2:12, 2:12, 2:10] = 1
     labels[12:18, 4:10, 3:9] = 2
-    header = {"space": "left-posterior-superior", "space directions": np.diag([2.0, 2.0, 2.0]),
-              "space origin": [10.0, 20.0, -5.0], "kinds": ["domain"] * 3,
-              "Segment0_Name": "brain", "Segment0_LabelValue": "1", "Segment1_Name": "tumour",
-              "Segment1_LabelValue": "2"}
+    header = {
+        "space": "left-posterior-superior",
+        "space directions": np.diag([2.0, 2.0, 2.0]),
+        "space origin": [10.0, 20.0, -5.0],
+        "kinds": ["domain"] * 3,
+        "Segment0_Name": "brain",
+        "Segment0_LabelValue": "1",
+        "Segment1_Name": "tumour",
+        "Segment1_LabelValue": "2",
+    }
     nrrd.write(str(path), labels, header)
     return labels
 
@@ -74,8 +81,21 @@ def test_a_segmentation_is_meshed_by_segment_name(tmp_path, serial_only):
     from fenics_brainshift.cli import main
 
     _segmentation(tmp_path / "head.seg.nrrd")
-    assert main(["mesh", str(tmp_path / "head.seg.nrrd"), "--voxel", "2", "--labels", "tumour",
-                 "-o", str(tmp_path / "tumour.xdmf")]) == 0
+    assert (
+        main(
+            [
+                "mesh",
+                str(tmp_path / "head.seg.nrrd"),
+                "--voxel",
+                "2",
+                "--labels",
+                "tumour",
+                "-o",
+                str(tmp_path / "tumour.xdmf"),
+            ]
+        )
+        == 0
+    )
     from dolfinx.io import XDMFFile
     from mpi4py import MPI
 
@@ -85,8 +105,16 @@ def test_a_segmentation_is_meshed_by_segment_name(tmp_path, serial_only):
         mesh = f.read_mesh(name="mesh")
     points = mesh.geometry.x
     corners = points[compat.geometry_dofmap(mesh)]
-    volume = np.abs(np.einsum("ij,ij->i", np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]),
-                              corners[:, 3] - corners[:, 0])).sum() / 6
+    volume = (
+        np.abs(
+            np.einsum(
+                "ij,ij->i",
+                np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]),
+                corners[:, 3] - corners[:, 0],
+            )
+        ).sum()
+        / 6
+    )
     assert volume == pytest.approx(6 * 6 * 6 * 8e-9, rel=1e-9)
     # voxel 12 along i lies at L = 10 + 24 mm, i.e. x = -34 mm (RAS); its lower face half a voxel before
     assert points[:, 0].max() == pytest.approx(-0.034 + 0.001, abs=1e-9)
@@ -108,8 +136,21 @@ def test_an_unknown_segment_name_is_one_line(tmp_path, capsys, serial_only):
     from fenics_brainshift.cli import main
 
     _segmentation(tmp_path / "head.seg.nrrd")
-    assert main(["mesh", str(tmp_path / "head.seg.nrrd"), "--voxel", "2", "--labels", "lesion",
-                 "-o", str(tmp_path / "x.xdmf")]) == 2
+    assert (
+        main(
+            [
+                "mesh",
+                str(tmp_path / "head.seg.nrrd"),
+                "--voxel",
+                "2",
+                "--labels",
+                "lesion",
+                "-o",
+                str(tmp_path / "x.xdmf"),
+            ]
+        )
+        == 2
+    )
     err = capsys.readouterr().err.strip()
     assert "no segment 'lesion'" in err and "'brain', 'tumour'" in err and len(err.splitlines()) == 1
     assert not (tmp_path / "x.xdmf").exists()
@@ -118,9 +159,10 @@ def test_an_unknown_segment_name_is_one_line(tmp_path, capsys, serial_only):
 def test_markups_are_probes_and_come_back_moved(tmp_path):
     """[probes] markups: every point of a Slicer point list is a probe (mm -> m); the run writes
     probes_final.mrk.json with each point plus its displacement (summary.json), in LPS."""
+    import tomllib
+
     from fenics_brainshift import run
     from fenics_brainshift.scene.toml import scene_from_dict
-    import tomllib
 
     points_mm = np.array([[25.0, 25.0, 25.0], [10.0, 40.0, 20.0]])  # in the cube (50 x 50 x 25 mm)
     write_markups(tmp_path / "landmarks.mrk.json", ["top", "side"], points_mm)
@@ -157,11 +199,21 @@ def _layered_segmentation(path):
     layers[1, 6:10, 6:10, 4:8] = 1  # the tumour, inside the brain: 4 x 4 x 4
     directions = np.full((4, 3), np.nan)
     directions[1:] = np.diag([2.0, 2.0, 2.0])
-    header = {"space": "left-posterior-superior", "space directions": directions,
-              "space origin": [10.0, 20.0, -5.0], "kinds": ["list", "domain", "domain", "domain"]}
+    header = {
+        "space": "left-posterior-superior",
+        "space directions": directions,
+        "space origin": [10.0, 20.0, -5.0],
+        "kinds": ["list", "domain", "domain", "domain"],
+    }
     for n, (name, layer, value) in enumerate((("skull", 0, 2), ("brain", 0, 1), ("tumour", 1, 1))):
-        header.update({f"Segment{n}_Name": name, f"Segment{n}_Layer": str(layer),
-                       f"Segment{n}_LabelValue": str(value), f"Segment{n}_ID": f"Segment_{n}"})
+        header.update(
+            {
+                f"Segment{n}_Name": name,
+                f"Segment{n}_Layer": str(layer),
+                f"Segment{n}_LabelValue": str(value),
+                f"Segment{n}_ID": f"Segment_{n}",
+            }
+        )
     nrrd.write(str(path), layers, header)
 
 
@@ -199,13 +251,28 @@ def test_a_value_that_is_several_layers_segments_needs_the_name(tmp_path, capsys
     from fenics_brainshift.cli import main
 
     _layered_segmentation(tmp_path / "head.seg.nrrd")
-    assert main(["mesh", str(tmp_path / "head.seg.nrrd"), "--voxel", "2", "--labels", "1", "-o",
-                 str(tmp_path / "x.xdmf")]) == 2
+    assert (
+        main(["mesh", str(tmp_path / "head.seg.nrrd"), "--voxel", "2", "--labels", "1", "-o", str(tmp_path / "x.xdmf")])
+        == 2
+    )
     err = capsys.readouterr().err.strip()
     assert "label 1 of 'head.seg.nrrd' is each of the segments 'brain', 'tumour'" in err, err
     assert len(err.splitlines()) == 1 and not (tmp_path / "x.xdmf").exists()
-    assert main(["mesh", str(tmp_path / "head.seg.nrrd"), "--voxel", "2", "--labels", "2", "-o",
-                 str(tmp_path / "skull.xdmf")]) == 0
+    assert (
+        main(
+            [
+                "mesh",
+                str(tmp_path / "head.seg.nrrd"),
+                "--voxel",
+                "2",
+                "--labels",
+                "2",
+                "-o",
+                str(tmp_path / "skull.xdmf"),
+            ]
+        )
+        == 0
+    )
 
 
 def test_warp_refuses_a_layered_segmentation_in_one_line(tmp_path):
@@ -223,8 +290,16 @@ def _mesh_volume(path) -> float:
     with XDMFFile(MPI.COMM_SELF, str(path), "r") as f:
         mesh = f.read_mesh(name="mesh")
     corners = mesh.geometry.x[compat.geometry_dofmap(mesh)]
-    return float(np.abs(np.einsum("ij,ij->i", np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]),
-                                  corners[:, 3] - corners[:, 0])).sum() / 6)
+    return float(
+        np.abs(
+            np.einsum(
+                "ij,ij->i",
+                np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]),
+                corners[:, 3] - corners[:, 0],
+            )
+        ).sum()
+        / 6
+    )
 
 
 def _read_model_as_slicer_does(path) -> np.ndarray:
@@ -234,7 +309,7 @@ def _read_model_as_slicer_does(path) -> np.ndarray:
     header = raw[:80].decode("ascii", "replace")
     count = int(np.frombuffer(raw[80:84], "<u4")[0])
     record = np.dtype([("normal", "<f4", 3), ("vertices", "<f4", (3, 3)), ("attribute", "<u2")])
-    vertices = np.frombuffer(raw[84:84 + count * record.itemsize], record)["vertices"].reshape(-1, 3).astype(float)
+    vertices = np.frombuffer(raw[84 : 84 + count * record.itemsize], record)["vertices"].reshape(-1, 3).astype(float)
     return vertices if "SPACE=RAS" in header else vertices * [-1.0, -1.0, 1.0]
 
 

@@ -1,12 +1,14 @@
 """PETSc options pass through under the brainshift_ prefix; failures are named."""
+
 from __future__ import annotations
 
 import pytest
 
-from conftest import COMM, column_dict
-from fenics_brainshift.scene import scene_from_dict
-from fenics_brainshift.runner import Simulation
 from fenics_brainshift.errors import InputError, SolverError
+from fenics_brainshift.runner import Simulation
+from fenics_brainshift.scene import scene_from_dict
+
+from conftest import COMM, column_dict
 
 pytestmark = pytest.mark.mpi
 
@@ -55,11 +57,14 @@ def test_a_factor_package_petsc_lacks_is_bad_input():
         _static({"kind": "cholesky", "options": {"pc_factor_mat_solver_type": "no-such-package"}})
 
 
-@pytest.mark.parametrize("options, message", [
-    ({"ksp_max_it": "many"}, r"\[solver\] options: PETSc could not read them"),
-    ({"ksp_bogus_option": 1}, r"PETSc used none of ksp_bogus_option with kind = \"cg-gamg\""),
-    ({"pc_hypre_boomeramg_P_max": 2}, r"PETSc used none of pc_hypre_boomeramg_P_max"),  # another kind's option
-])
+@pytest.mark.parametrize(
+    "options, message",
+    [
+        ({"ksp_max_it": "many"}, r"\[solver\] options: PETSc could not read them"),
+        ({"ksp_bogus_option": 1}, r"PETSc used none of ksp_bogus_option with kind = \"cg-gamg\""),
+        ({"pc_hypre_boomeramg_P_max": 2}, r"PETSc used none of pc_hypre_boomeramg_P_max"),  # another kind's option
+    ],
+)
 def test_malformed_or_unused_options_are_bad_input(options, message):
     with pytest.raises(InputError, match=message):
         _static({"kind": "cg-gamg", "options": options})
@@ -68,7 +73,6 @@ def test_malformed_or_unused_options_are_bad_input(options, message):
 def test_viewers_read_only_at_solve_time_are_accepted():
     sim = _static({"kind": "cholesky", "options": {"ksp_converged_reason": True}})
     sim.solve_to_settled(0.0)
-
 
 
 def test_cg_hypre_gives_the_direct_answer():

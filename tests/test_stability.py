@@ -6,16 +6,17 @@
 - nu up to 0.4999 with P1 and P2: finite answers, Krylov iterations within bounds.
 - A body at rest in equilibrium stays there for 10^4 undamped steps (no drift).
 """
+
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from conftest import COMM, column_dict
 from fenics_brainshift import compat
-from fenics_brainshift.runner import build_model
+from fenics_brainshift.runner import Simulation, build_model
 from fenics_brainshift.scene import scene_from_dict
-from fenics_brainshift.runner import Simulation
+
+from conftest import COMM, column_dict
 
 pytestmark = pytest.mark.mpi
 

@@ -4,19 +4,20 @@ linear run, the Cauchy stress of a hyperelastic one, the tissue's after a resect
 References written out here with numpy, independent of the UFL forms: the linear stress
 2 mu eps + lambda tr(eps) I, the neo-Hookean Cauchy stress mu / J (B - I) + lambda ln(J) / J I,
 Saint Venant-Kirchhoff's F (lambda tr(E) I + 2 mu E) F^T / J; and simple shear in closed form."""
+
 from __future__ import annotations
 
 import meshio
 import numpy as np
 import pytest
-from dolfinx import fem
 from scipy.optimize import brentq
 
-from conftest import COMM, shared_tmp  # noqa: F401  (fixture)
 from fenics_brainshift.outputs.xdmf import FieldWriter
 from fenics_brainshift.physics.material import lame_parameters
 from fenics_brainshift.runner import Simulation, run
 from fenics_brainshift.scene import scene_from_dict
+
+from conftest import COMM
 
 pytestmark = pytest.mark.mpi
 E_MOD, NU = 3000.0, 0.45
@@ -40,10 +41,15 @@ def von_mises(sigma: np.ndarray) -> float:
 
 
 def _box(model: str, **sections) -> dict:
-    data = {"name": "box", "mesh": {"shape": "box", "size": [0.02, 0.02, 0.02], "cells": [2, 2, 2]},
-            "material": {"E": E_MOD, "nu": NU, "density": 1000.0, "model": model},
-            "fixed": [{"where": "z < 1e-9"}], "time": {"mode": "quasi-static"}, "solver": {"kind": "cholesky"},
-            "output": {"fields": ["displacement", "von_mises"], "pictures": False}}
+    data = {
+        "name": "box",
+        "mesh": {"shape": "box", "size": [0.02, 0.02, 0.02], "cells": [2, 2, 2]},
+        "material": {"E": E_MOD, "nu": NU, "density": 1000.0, "model": model},
+        "fixed": [{"where": "z < 1e-9"}],
+        "time": {"mode": "quasi-static"},
+        "solver": {"kind": "cholesky"},
+        "output": {"fields": ["displacement", "von_mises"], "pictures": False},
+    }
     data.update(sections)
     return data
 
@@ -108,9 +114,12 @@ def test_a_run_writes_its_own_material_stress(model, shared_tmp):
 def test_removed_cells_carry_no_stress_and_the_rest_the_tissue_s(shared_tmp):
     """After a resection the stress is the tissue's: zero in the removed cells (the plain
     G and lambda gave them the stress of their leftover strain)."""
-    data = _box("linear", gravity={"vector": [0.0, 0.0, -9.81]},
-                remove=[{"at": 0.0, "where": "z > 0.015"}],
-                time={"mode": "dynamic", "dt": 0.01, "end": 0.05})
+    data = _box(
+        "linear",
+        gravity={"vector": [0.0, 0.0, -9.81]},
+        remove=[{"at": 0.0, "where": "z > 0.015"}],
+        time={"mode": "dynamic", "dt": 0.01, "end": 0.05},
+    )
     data["mesh"]["cells"] = [2, 2, 4]
     run(scene_from_dict(data), out=shared_tmp / "r")
     if COMM.rank:

@@ -10,6 +10,7 @@
 - The neo-Hookean answer tends to the linear one for small volume changes (a first-order gap).
 - A schedule: settled states at its breakpoints; a time-stepped, damped run ends at them.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -18,11 +19,12 @@ import ufl
 from dolfinx import fem
 from mpi4py import MPI
 
-from conftest import COMM, shared_tmp  # noqa: F401  (fixture)
 from fenics_brainshift.errors import InputError
 from fenics_brainshift.physics.material import lame_parameters
 from fenics_brainshift.runner import Simulation, run
 from fenics_brainshift.scene import scene_from_dict
+
+from conftest import COMM
 
 pytestmark = pytest.mark.mpi
 E_MOD, NU = 3000.0, 0.3
@@ -32,9 +34,17 @@ ROLLERS = [{"where": "x < 1e-9", "axes": "x"}, {"where": "y < 1e-9", "axes": "y"
 
 
 def _scene(mesh: dict, swelling: list, model: str = "linear", degree: int = 1, **sections):
-    data = {"name": "swelling", "mesh": mesh, "material": {"E": E_MOD, "nu": NU, "density": 1000.0, "model": model},
-            "gravity": {"vector": [0.0, 0.0, 0.0]}, "fixed": ROLLERS, "swelling": swelling,
-            "time": {"mode": "quasi-static"}, "solver": {"kind": "cholesky"}, "element": {"degree": degree}}
+    data = {
+        "name": "swelling",
+        "mesh": mesh,
+        "material": {"E": E_MOD, "nu": NU, "density": 1000.0, "model": model},
+        "gravity": {"vector": [0.0, 0.0, 0.0]},
+        "fixed": ROLLERS,
+        "swelling": swelling,
+        "time": {"mode": "quasi-static"},
+        "solver": {"kind": "cholesky"},
+        "element": {"degree": degree},
+    }
     data.update(sections)
     return scene_from_dict(data)
 
@@ -55,11 +65,18 @@ def _volume(sim, deformed: bool) -> float:
 BLOCK = {"shape": "box", "size": [0.02, 0.03, 0.01], "cells": [2, 3, 2]}
 
 
-@pytest.mark.parametrize("model, degree, theta", [("linear", 1, 0.05), ("neo-hookean", 1, -0.04),
-                                                  ("neo-hookean", 2, 0.05), ("saint-venant-kirchhoff", 1, 0.03)])
+@pytest.mark.parametrize(
+    "model, degree, theta",
+    [("linear", 1, 0.05), ("neo-hookean", 1, -0.04), ("neo-hookean", 2, 0.05), ("saint-venant-kirchhoff", 1, 0.03)],
+)
 def test_a_free_block_takes_its_new_volume_without_stress(model, degree, theta, shared_tmp):
-    scene = _scene(BLOCK, [{"where": "z > -1", "volume_change": theta}], model, degree,
-                   output={"fields": ["displacement", "von_mises"], "pictures": False})
+    scene = _scene(
+        BLOCK,
+        [{"where": "z > -1", "volume_change": theta}],
+        model,
+        degree,
+        output={"fields": ["displacement", "von_mises"], "pictures": False},
+    )
     result = run(scene, out=shared_tmp / model)
     sim = result.simulation
     g = (1 + theta) ** (1 / 3)
@@ -70,8 +87,9 @@ def test_a_free_block_takes_its_new_volume_without_stress(model, degree, theta, 
     written = sim  # the von Mises field the run wrote: the stress with the growth taken off
     from fenics_brainshift.outputs.xdmf import FieldWriter
 
-    writer = FieldWriter(shared_tmp / f"{model}-vm", written.model.mesh, written.model.V, ("von_mises",),
-                         written.model.constitutive)
+    writer = FieldWriter(
+        shared_tmp / f"{model}-vm", written.model.mesh, written.model.V, ("von_mises",), written.model.constitutive
+    )
     writer.write(0.0, sim.u, sim.state.v)
     writer.close()
     assert np.abs(writer.von_mises.x.array).max() < 1e-6 * MU * abs(theta)
@@ -121,8 +139,10 @@ def _interface_and_pressure(sim, theta: float) -> tuple[float, float]:
     e = (1 + theta) ** (1 / 3) - 1
     core = (sim.model.growth.stretch - 1.0) / e  # 1 in the core, 0 in the shell
     mesh = sim.model.mesh
-    integrals = [COMM.allreduce(fem.assemble_scalar(fem.form(f * ufl.dx(domain=mesh))), op=MPI.SUM)
-                 for f in (core * ufl.div(sim.u), core)]
+    integrals = [
+        COMM.allreduce(fem.assemble_scalar(fem.form(f * ufl.dx(domain=mesh))), op=MPI.SUM)
+        for f in (core * ufl.div(sim.u), core)
+    ]
     mean_strain = integrals[0] / integrals[1] / 3
     return error, -(3 * LMBDA + 2 * MU) * (mean_strain - e)
 
@@ -135,8 +155,13 @@ def test_a_swelling_sphere_in_a_shell_against_the_lame_solution(degree, shared_t
         path = shared_tmp / f"octant_{h}.msh"
         if not path.exists():
             _octant_of_a_shell(path, h)
-        sim = _settled(_scene({"file": str(path)}, [{"where": f"x**2 + y**2 + z**2 < {A_CORE**2}",
-                                                     "volume_change": theta}], degree=degree))
+        sim = _settled(
+            _scene(
+                {"file": str(path)},
+                [{"where": f"x**2 + y**2 + z**2 < {A_CORE**2}", "volume_change": theta}],
+                degree=degree,
+            )
+        )
         error, pressure = _interface_and_pressure(sim, theta)
         errors.append(error)
         pressures.append(pressure)
@@ -152,6 +177,7 @@ def test_the_neo_hookean_answer_tends_to_the_linear_one_for_small_volume_changes
     path = shared_tmp / "octant_0.004.msh"
     if not path.exists():
         _octant_of_a_shell(path, 0.004)
+
     def nodal(sim) -> np.ndarray:
         """Every node's displacement, gathered and ordered by position (partitions differ)."""
         n = sim.model.V.dofmap.index_map.size_local
@@ -161,9 +187,18 @@ def test_the_neo_hookean_answer_tends_to_the_linear_one_for_small_volume_changes
 
     gaps = []
     for theta in (2e-3, 1e-3):
-        answers = [nodal(_settled(_scene({"file": str(path)}, [{"where": f"x**2 + y**2 + z**2 < {A_CORE**2}",
-                                                                "volume_change": theta}], model)))
-                   for model in ("linear", "neo-hookean")]
+        answers = [
+            nodal(
+                _settled(
+                    _scene(
+                        {"file": str(path)},
+                        [{"where": f"x**2 + y**2 + z**2 < {A_CORE**2}", "volume_change": theta}],
+                        model,
+                    )
+                )
+            )
+            for model in ("linear", "neo-hookean")
+        ]
         gaps.append(np.abs(answers[1] - answers[0]).max() / np.abs(answers[0]).max())
     assert gaps[1] < 1e-3
     assert gaps[0] / gaps[1] == pytest.approx(2.0, rel=0.05)  # the relative gap is first order in theta
@@ -179,19 +214,32 @@ def test_a_schedule_gives_settled_states_at_its_breakpoints_and_time_steps_follo
     corners = np.array(result.history.probes)[:, 0, 0]
     expected = [0.02 * ((1 + f * theta) ** (1 / 3) - 1) for f in (0.0, 0.5, 1.0)]
     np.testing.assert_allclose(corners, expected, atol=1e-12)
-    dynamic = run(_scene(BLOCK, region, probes={"corner": [0.02, 0.03, 0.01]}, damping={"a": 20.0},
-                         time={"mode": "dynamic", "dt": 0.05, "end": 4.0}))
+    dynamic = run(
+        _scene(
+            BLOCK,
+            region,
+            probes={"corner": [0.02, 0.03, 0.01]},
+            damping={"a": 20.0},
+            time={"mode": "dynamic", "dt": 0.05, "end": 4.0},
+        )
+    )
     assert dynamic.summary["probes"]["corner"][0] == pytest.approx(expected[-1], rel=1e-3)
     assert "swelling" in dynamic.summary["plan"] and "eigenstrain" in dynamic.summary["plan"]["swelling"]
 
 
-@pytest.mark.parametrize("swelling, message", [
-    ({"where": "z > -1", "volume_change": 5.0}, "between -1 and 1"),
-    ({"where": "z > 1.0", "volume_change": 0.05}, "selects no cell"),
-    ({"label": 2, "volume_change": 0.05}, "needs [mesh] file to be a label volume"),
-    ({"where": "z > -1", "volume_change": 0.05, "schedule": [[0.0, 0.0], [60.0, 5.0]]}, "a fraction of volume_change"),
-    ({"volume_change": 0.05}, "exactly one of where"),
-])
+@pytest.mark.parametrize(
+    "swelling, message",
+    [
+        ({"where": "z > -1", "volume_change": 5.0}, "between -1 and 1"),
+        ({"where": "z > 1.0", "volume_change": 0.05}, "selects no cell"),
+        ({"label": 2, "volume_change": 0.05}, "needs [mesh] file to be a label volume"),
+        (
+            {"where": "z > -1", "volume_change": 0.05, "schedule": [[0.0, 0.0], [60.0, 5.0]]},
+            "a fraction of volume_change",
+        ),
+        ({"volume_change": 0.05}, "exactly one of where"),
+    ],
+)
 def test_bad_swelling_input_is_refused_naming_the_field(swelling, message):
     with pytest.raises(InputError, match=message.replace("[", r"\[").replace("]", r"\]")) as info:
         _settled(_scene(BLOCK, [swelling]))
@@ -238,10 +286,15 @@ def test_a_swelling_block_presses_the_skull_under_a_falling_csf_level(model):
     around it (follower load): it reaches the skull, which holds it within the tolerance, so
     its corner moves less than the free swelling would take it."""
     theta = 0.05
-    scene = _scene(BLOCK, [{"where": "z > -1", "volume_change": theta}], model,
-                   gravity={"vector": [0.0, 0.0, -9.81]},
-                   fluid={"density": 1000.0, "level": [[0.0, 0.012], [1.0, 0.004]]},
-                   skull={"gap": 1e-4}, probes={"corner": [0.02, 0.03, 0.01]})
+    scene = _scene(
+        BLOCK,
+        [{"where": "z > -1", "volume_change": theta}],
+        model,
+        gravity={"vector": [0.0, 0.0, -9.81]},
+        fluid={"density": 1000.0, "level": [[0.0, 0.012], [1.0, 0.004]]},
+        skull={"gap": 1e-4},
+        probes={"corner": [0.02, 0.03, 0.01]},
+    )
     result = run(scene)
     contact = result.summary["skull_contact"]
     assert result.summary["status"] == "ok" and contact["pressed_nodes"] > 0
@@ -257,10 +310,14 @@ def test_removed_cells_do_not_grow_and_what_is_left_swells_freely():
     cells push nothing (their growth load carries the tissue indicator). Generalized-alpha
     damps the plate's thickness modes, which dt does not resolve and Newmark keeps."""
     theta = 0.04
-    scene = _scene(BLOCK, [{"where": "z > -1", "volume_change": theta}], damping={"a": 20.0},
-                   remove=[{"at": 0.0, "where": "z > 0.005"}], probes={"corner": [0.02, 0.03, 0.005]},
-                   time={"mode": "dynamic", "dt": 0.02, "end": 3.0, "scheme": "generalized-alpha", "rho_inf": 0.5})
+    scene = _scene(
+        BLOCK,
+        [{"where": "z > -1", "volume_change": theta}],
+        damping={"a": 20.0},
+        remove=[{"at": 0.0, "where": "z > 0.005"}],
+        probes={"corner": [0.02, 0.03, 0.005]},
+        time={"mode": "dynamic", "dt": 0.02, "end": 3.0, "scheme": "generalized-alpha", "rho_inf": 0.5},
+    )
     result = run(scene)
     g = (1 + theta) ** (1 / 3)
-    np.testing.assert_allclose(result.summary["probes"]["corner"], (g - 1) * np.array([0.02, 0.03, 0.005]),
-                               rtol=1e-4)
+    np.testing.assert_allclose(result.summary["probes"]["corner"], (g - 1) * np.array([0.02, 0.03, 0.005]), rtol=1e-4)

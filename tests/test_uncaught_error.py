@@ -1,6 +1,7 @@
 """errors.abort_on_uncaught: under mpirun, a bug that raises on one rank ends the job with its
 traceback, instead of leaving the other rank waiting in a collective for ever (a 2-rank demo
 hung for 15 minutes of a CI run with its last words unread)."""
+
 from __future__ import annotations
 
 import sys

@@ -1,8 +1,10 @@
-"""atlas/active_set.py's solvers, and atlas/combine.py's problems, on small random problems of the update's shape (a convex family
+"""atlas/active_set.py's solvers, and atlas/combine.py's problems, on small random problems of
+the update's shape (a convex family
 of correlated states, bounded swelling amplitudes, the family's sum fixed or within a range,
 data rows from 20 points): the constrained least squares against brute force, and the
 warm-started refits of cross-validation, leave-one-out and the bootstrap against a solve from
 scratch by Lawson and Hanson's NNLS."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -15,8 +17,9 @@ from fenics_brainshift.atlas.combine import Problem, weight_constraints
 pytestmark = pytest.mark.usefixtures("serial_only")
 
 
-def _problem(total: tuple[float, float], seed: int = 0, family_size: int = 40, swelling: int = 3,
-             points: int = 20) -> Problem:
+def _problem(
+    total: tuple[float, float], seed: int = 0, family_size: int = 40, swelling: int = 3, points: int = 20
+) -> Problem:
     rng = np.random.default_rng(seed)
     m = family_size + swelling
     family = np.zeros(m, dtype=bool)
@@ -36,8 +39,8 @@ def _problem(total: tuple[float, float], seed: int = 0, family_size: int = 40, s
 
 def _hessian(problem: Problem, alpha: float, rows: np.ndarray):
     A, b = problem.A[rows], problem.b[rows]
-    H = A.T @ A / problem.noise ** 2 + alpha / 1e-6 * problem.gram
-    g = A.T @ b / problem.noise ** 2 + alpha / 1e-6 * problem.cross
+    H = A.T @ A / problem.noise**2 + alpha / 1e-6 * problem.gram
+    g = A.T @ b / problem.noise**2 + alpha / 1e-6 * problem.cross
     H[np.diag_indices_from(H)] += 1e-9 * np.trace(H) / len(H)
     return H, g
 
@@ -53,9 +56,14 @@ def test_the_least_distance_solve_is_the_constrained_minimiser(total):
     objective = lambda x: x @ H @ x - 2 * g @ x  # noqa: E731
     for seed in range(3):
         start = np.random.default_rng(seed).uniform(0, 0.2, len(g))
-        other = minimize(objective, start, jac=lambda x: 2 * (H @ x - g), method="SLSQP",
-                         constraints=[{"type": "ineq", "fun": lambda x: problem.C @ x - problem.d,
-                                       "jac": lambda x: problem.C}], options={"ftol": 1e-14, "maxiter": 500})
+        other = minimize(
+            objective,
+            start,
+            jac=lambda x: 2 * (H @ x - g),
+            method="SLSQP",
+            constraints=[{"type": "ineq", "fun": lambda x: problem.C @ x - problem.d, "jac": lambda x: problem.C}],
+            options={"ftol": 1e-14, "maxiter": 500},
+        )
         assert objective(c) <= objective(other.x) + 1e-9 * abs(objective(c))
 
 
@@ -91,8 +99,9 @@ def test_any_feasible_start_reaches_the_minimiser_and_an_infeasible_one_is_refus
     for start in (vertex, centre):
         assert np.all(problem.C @ start - problem.d >= -1e-12)
         for iterations in (2, 200):
-            c = solve_on_active(H, g, *problem.unit_rows, start, problem.partner, iterations=iterations,
-                                bounds=problem.bounds)
+            c = solve_on_active(
+                H, g, *problem.unit_rows, start, problem.partner, iterations=iterations, bounds=problem.bounds
+            )
             assert c is None or np.abs(c - exact).max() <= 1e-9 * np.abs(exact).max()
             reached += c is not None
     assert reached >= 2  # with room to iterate, both starts get there
@@ -103,27 +112,38 @@ def test_any_feasible_start_reaches_the_minimiser_and_an_infeasible_one_is_refus
 
 def test_rows_of_any_scale_and_every_weight_pinned():
     """An equality written as two rows of different scale (r.c >= 1, -s r.c >= -s) and a
-    problem whose bounds fix every weight: the warm start gives the exact answer (found by a
-    review: the pair was held as two inequalities, a singular system solved to a wrong,
-    feasible c; with no free weight the empty system raised)."""
+    problem whose bounds fix every weight: the warm start gives the exact answer (the pair was
+    held as two inequalities, a singular system solved to a wrong, feasible c; with no free
+    weight the empty system raised)."""
     H, g = np.eye(2), np.zeros(2)
     r = np.array([0.3, 0.7])
     exact = r / (r @ r)  # the nearest point of the line r.c = 1
     for scale in (0.37, 4.1355, 1e3):
         C, d = np.vstack([r, -scale * r]), np.array([1.0, -scale])
-        problem = Problem(np.zeros((3, 2)), np.zeros(3), np.zeros(3, dtype=int), 1.0, np.eye(2) * 1e-12,
-                          np.zeros(2), C, d)
-        c = solve_on_active(H, g, *problem.unit_rows, np.array([1.0 / 0.3, 0.0]), problem.partner,
-                            bounds=problem.bounds)
+        problem = Problem(
+            np.zeros((3, 2)), np.zeros(3), np.zeros(3, dtype=int), 1.0, np.eye(2) * 1e-12, np.zeros(2), C, d
+        )
+        c = solve_on_active(
+            H, g, *problem.unit_rows, np.array([1.0 / 0.3, 0.0]), problem.partner, bounds=problem.bounds
+        )
         assert c is not None and np.allclose(c, exact, atol=1e-12), scale
-    twice = Problem(np.zeros((3, 2)), np.zeros(3), np.zeros(3, dtype=int), 1.0, np.eye(2), np.zeros(2),
-                    np.vstack([r, 2.0 * r]), np.array([1.0, 2.0]))  # one constraint written twice, both active
+    twice = Problem(
+        np.zeros((3, 2)),
+        np.zeros(3),
+        np.zeros(3, dtype=int),
+        1.0,
+        np.eye(2),
+        np.zeros(2),
+        np.vstack([r, 2.0 * r]),
+        np.array([1.0, 2.0]),
+    )  # one constraint written twice, both active
     c = solve_on_active(H, g, *twice.unit_rows, np.array([1.0 / 0.3, 0.0]), twice.partner, bounds=twice.bounds)
     assert c is not None and np.allclose(c, exact, atol=1e-12)  # (the singular start: its rows join one by one)
     pinned = np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]]), np.array([1.0, -1.0, 0.25, -0.25])
     problem = Problem(np.zeros((3, 2)), np.zeros(3), np.zeros(3, dtype=int), 1.0, np.eye(2), np.zeros(2), *pinned)
-    c = solve_on_active(np.eye(2), np.zeros(2), *problem.unit_rows, np.array([1.0, 0.25]), problem.partner,
-                        bounds=problem.bounds)
+    c = solve_on_active(
+        np.eye(2), np.zeros(2), *problem.unit_rows, np.array([1.0, 0.25]), problem.partner, bounds=problem.bounds
+    )
     assert c is not None and np.allclose(c, [1.0, 0.25])
 
 
@@ -182,9 +202,14 @@ def test_with_hundreds_of_skull_rows_the_refits_start_from_an_exact_vertex(alpha
     assert np.count_nonzero(np.abs(C[-300:] @ c - d[-300:]) < 1e-9) >= 3  # skull rows hold it
     H, g = _hessian(problem, alpha, np.arange(len(problem.b)))
     objective = lambda x: x @ H @ x - 2 * g @ x  # noqa: E731
-    other = minimize(objective, c + 1e-3, jac=lambda x: 2 * (H @ x - g), method="SLSQP",
-                     constraints=[{"type": "ineq", "fun": lambda x: problem.C @ x - problem.d,
-                                   "jac": lambda x: problem.C}], options={"ftol": 1e-15, "maxiter": 1000})
+    other = minimize(
+        objective,
+        c + 1e-3,
+        jac=lambda x: 2 * (H @ x - g),
+        method="SLSQP",
+        constraints=[{"type": "ineq", "fun": lambda x: problem.C @ x - problem.d, "jac": lambda x: problem.C}],
+        options={"ftol": 1e-15, "maxiter": 1000},
+    )
     assert objective(c) <= objective(other.x) + 1e-9 * abs(objective(c))
     calls = []
     monkeypatch.setattr(combine, "least_distance", lambda *a: calls.append(1) or least_distance(*a))
@@ -211,8 +236,7 @@ def test_a_start_a_little_past_its_rows_reaches_the_minimiser():
     start[:40] /= start[:40].sum()  # (the family's weights kept a convex combination)
     past = -(C @ start - d).min()
     assert past > 1e-9  # the start is past some rows
-    c = solve_on_active(H, g, C, d, start, problem.partner, iterations=400, bounds=problem.bounds,
-                        infeasible=2 * past)
+    c = solve_on_active(H, g, C, d, start, problem.partner, iterations=400, bounds=problem.bounds, infeasible=2 * past)
     assert c is not None and np.abs(c - exact).max() <= 1e-6 * max(np.abs(exact).max(), 1.0)
     assert (C @ c - d).min() >= -1e-12
     assert solve_on_active(H, g, C, d, start, problem.partner, bounds=problem.bounds, infeasible=0.5 * past) is None
@@ -238,8 +262,8 @@ def _random_qp(seed: int, duplicated: bool):
 def test_a_start_past_dependent_rows_never_ends_past_them(seed):
     """A start past rows some of which are written twice (the first working set is then
     singular, and its general rows leave it): the answer is the minimiser or None, never a
-    point past those rows below the minimum (a stranger's review: seed 1036 ended 0.025 past
-    two rows, its objective under the true minimum)."""
+    point past those rows below the minimum (seed 1036 ended 0.025 past two rows, its objective
+    under the true minimum)."""
     from fenics_brainshift.atlas.active_set import partners
 
     rng, H, g, C, d, exact = _random_qp(seed, duplicated=True)
@@ -255,7 +279,8 @@ def test_a_start_past_dependent_rows_never_ends_past_them(seed):
 
 def test_the_point_nearest_a_start_inside_the_rows_on_the_way_from_an_anchor():
     """combine.towards by hand: the triangle x >= 0, y >= 0, x + y <= 1; from (0.25, 0.25) to
-    (1, 1) the way leaves it at (0.5, 0.5), to (-1, 3) (past two rows) at (0, 0.8); a start inside is itself; an anchor outside, None."""
+    (1, 1) the way leaves it at (0.5, 0.5), to (-1, 3) (past two rows) at (0, 0.8); a start inside
+    is itself; an anchor outside, None."""
     from fenics_brainshift.atlas.combine import towards
 
     C, d = np.array([[1.0, 0.0], [0.0, 1.0], [-1.0, -1.0]]), np.array([0.0, 0.0, -1.0])
@@ -283,14 +308,26 @@ def test_a_start_past_rows_it_cannot_hold_goes_in_from_the_anchor(vertex, monkey
     start = np.eye(len(exact))[vertex]  # one state of the family alone: past many skull rows
     C, d = problem.unit_rows
     assert (C @ start - d).min() < -0.2  # (past them: farther than the warm start takes in)
-    assert solve_on_active(H, g, C, d, start, problem.partner, bounds=problem.bounds, infeasible=combine.INFEASIBLE) \
+    assert (
+        solve_on_active(H, g, C, d, start, problem.partner, bounds=problem.bounds, infeasible=combine.INFEASIBLE)
         is None
+    )
 
     def no_nnls(*_):
         raise AssertionError("NNLS was called")
+
     monkeypatch.setattr(combine, "least_distance", no_nnls)
-    anchored = Problem(problem.A, problem.b, problem.groups, problem.noise, problem.gram, problem.cross,
-                       problem.C, problem.d, anchor=anchor)
+    anchored = Problem(
+        problem.A,
+        problem.b,
+        problem.groups,
+        problem.noise,
+        problem.gram,
+        problem.cross,
+        problem.C,
+        problem.d,
+        anchor=anchor,
+    )
     c = anchored.solve(alpha, near=start)
     assert np.abs(c - exact).max() <= 1e-6 * max(np.abs(exact).max(), 1.0)
     assert (C @ c - d).min() >= -1e-12
@@ -312,8 +349,10 @@ def test_each_row_s_partner_is_the_last_row_that_is_its_negative():
     C[21], d[21] = -0.0, -0.0  # zero rows are each other's negative
     C[30], d[30] = -C[31] * (1 + 1e-10), -d[31]  # nearly, not: no partner
     rows = np.round(np.column_stack([C, d]), 12) + 0.0
-    expected = [max([j for j in range(len(rows)) if np.array_equal(rows[j], -rows[i] + 0.0)], default=-1)
-                for i in range(len(rows))]
+    expected = [
+        max([j for j in range(len(rows)) if np.array_equal(rows[j], -rows[i] + 0.0)], default=-1)
+        for i in range(len(rows))
+    ]
     assert partners(C, d).tolist() == expected
     assert expected[3] == 5 and expected[5] == 9 and expected[7] == 13 and expected[30] == -1
 
@@ -343,20 +382,21 @@ def test_the_posterior_spread_by_hand_on_a_two_state_family():
         problem = Problem(A, b, np.repeat(np.arange(points), 3), noise, gram, gram @ truth, C, d)
         c = problem.solve(alpha)
         assert c[2] == 0.0 and 0 < c[0] < 1
-        H = A.T @ A / noise ** 2 + alpha / 1e-6 * gram
+        H = A.T @ A / noise**2 + alpha / 1e-6 * gram
         e = np.array([1.0, -1.0, 0.0])
         variance = 1.0 / (e @ H @ e)
         r = A @ c - b
-        factor = max(1.0, (r @ r) / noise ** 2 / (len(b) - 1))  # (rows minus the face's dimension, 1)
+        factor = max(1.0, (r @ r) / noise**2 / (len(b) - 1))  # (rows minus the face's dimension, 1)
         expected = np.linalg.norm(modes[0] - modes[1], axis=1) * np.sqrt(variance * factor)
         got = posterior.spread(problem, alpha, c, modes)
         assert np.allclose(got, expected, rtol=1e-6, atol=0.0)
         assert (factor > 1.5) == (excess > 1.0)  # (both branches of the scale)
         # a general inequality the fit presses (a skull's row through it, t <= t*): it bounds the
         # posterior on one side, it does not pin it (held as an equality, the face was the point
-        # and the spread 0: a review)
-        pressed = Problem(A, b, problem.groups, noise, gram, gram @ truth, np.vstack([C, [-1.0, 1.0, 0.0]]),
-                          np.r_[d, c[1] - c[0]])  # (-t + (1 - t) >= its value at t*: t <= t*)
+        # and the spread 0)
+        pressed = Problem(
+            A, b, problem.groups, noise, gram, gram @ truth, np.vstack([C, [-1.0, 1.0, 0.0]]), np.r_[d, c[1] - c[0]]
+        )  # (-t + (1 - t) >= its value at t*: t <= t*)
         assert np.allclose(pressed.solve(alpha), c, atol=1e-9)
         assert np.allclose(posterior.spread(pressed, alpha, c, modes), expected, rtol=1e-6, atol=0.0)
 
@@ -380,10 +420,10 @@ def test_cross_validation_is_the_k_fold_error_and_stops_past_its_minimum():
         brute.append(float(np.sqrt(np.mean(np.concatenate(errors) ** 2)) * 1e3))
     alpha, curve, whole = combine.choose_alpha(problem, near=problem.solve(alphas[0]))
     got = [p["cv_rms_mm"] for p in curve]
-    assert np.allclose(got, brute[:len(got)], rtol=1e-6)
+    assert np.allclose(got, brute[: len(got)], rtol=1e-6)
     rises = [b > (1 + combine.RISE) * a for a, b in zip(brute, brute[1:])]
     R = combine.RISES  # (rises[i]: at alpha i + 1; a stop after alpha j leaves j + 1 in the curve)
-    stop = next((j + 1 for j in range(R, len(brute)) if all(rises[j - R:j])), len(alphas))
+    stop = next((j + 1 for j in range(R, len(brute)) if all(rises[j - R : j])), len(alphas))
     assert len(curve) == stop
     assert stop < len(alphas)  # (this problem's curve does rise: the stop is tested)
     assert alpha == alphas[int(np.argmin(brute))]  # (U-shaped here: the whole grid's choice)
@@ -408,5 +448,9 @@ def test_the_posterior_spread_is_that_of_the_exact_vertex_from_an_answer_of_nnls
         at_bound = exact == 0
         assert at_bound.sum() > 10
         rough[at_bound] += rng.uniform(-2e-10, 2e-8, at_bound.sum())
-        assert np.allclose(posterior.spread(problem, alpha, rough, modes), posterior.spread(problem, alpha, exact, modes),
-                           rtol=1e-4, atol=0.0)
+        assert np.allclose(
+            posterior.spread(problem, alpha, rough, modes),
+            posterior.spread(problem, alpha, exact, modes),
+            rtol=1e-4,
+            atol=0.0,
+        )

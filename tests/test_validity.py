@@ -1,22 +1,23 @@
 """The small-strain check: largest principal Green-Lagrange strain and rotation, against
 homogeneous deformations worked by hand, and the warning a linear run gets past the limit."""
+
 from __future__ import annotations
 
 import numpy as np
 import pytest
 from dolfinx import fem
-
 from mpi4py import MPI
 from scipy.integrate import quad
 from scipy.optimize import brentq
 
-from conftest import COMM, column_dict
 from fenics_brainshift import compat
 from fenics_brainshift.outputs.validity import STRAIN_LIMIT, StrainMeter
 from fenics_brainshift.physics.material import lame_parameters
 from fenics_brainshift.runner import run
 from fenics_brainshift.runner.build import mesh_from_spec
 from fenics_brainshift.scene import MeshSpec, scene_from_dict
+
+from conftest import COMM, column_dict
 
 pytestmark = pytest.mark.mpi
 STIFF_PINNED_E = 1.5e5  # Pa: a block hung from three pins strains past 5 % only next to them (8 %)
@@ -67,7 +68,6 @@ def test_a_compressed_column_is_measured_against_its_closed_form():
     """The laterally confined column (E = 5 kPa) is compressed by up to 13 % at its foot, in
     bulk: the check reports that strain (it took only the most positive principal strain and
     said 0.1 %), where it is, and the volume past the limit, cell by cell from the closed form."""
-    from fenics_brainshift.runner import Simulation
 
     data = column_dict(4, degree=2)
     result = run(scene_from_dict(data))
@@ -93,12 +93,21 @@ def test_a_local_concentration_is_a_note_and_bulk_strain_a_warning():
     """A block hung from three corner nodes: the strain past the limit sits in the few cells
     at the pins (well under 1 % of the volume) - the run is told so in a note, not warned;
     the same block soft enough to strain in bulk is warned."""
+
     def block(E):
-        pins = " or ".join(f"(abs(x - {x}) < 1e-9 and abs(y - {y}) < 1e-9 and z < 1e-9)"
-                           for x, y in ((0.0, 0.0), (0.04, 0.0), (0.0, 0.04)))
-        return {"name": "pinned", "mesh": {"shape": "box", "size": [0.04, 0.04, 0.02], "cells": [8, 8, 4]},
-                "material": {"E": E, "nu": 0.3, "density": 1000.0}, "fixed": [{"where": pins}],
-                "time": {"mode": "quasi-static"}, "solver": {"kind": "cholesky"}}
+        pins = " or ".join(
+            f"(abs(x - {x}) < 1e-9 and abs(y - {y}) < 1e-9 and z < 1e-9)"
+            for x, y in ((0.0, 0.0), (0.04, 0.0), (0.0, 0.04))
+        )
+        return {
+            "name": "pinned",
+            "mesh": {"shape": "box", "size": [0.04, 0.04, 0.02], "cells": [8, 8, 4]},
+            "material": {"E": E, "nu": 0.3, "density": 1000.0},
+            "fixed": [{"where": pins}],
+            "time": {"mode": "quasi-static"},
+            "solver": {"kind": "cholesky"},
+        }
+
     stiff = run(scene_from_dict(block(STIFF_PINNED_E))).summary["validity"]
     assert abs(stiff["max_green_lagrange_strain"]) > STRAIN_LIMIT, stiff
     assert 0 < stiff["volume_past_limit"] <= 0.01 and stiff["max_strain_near"] == "next to a support", stiff
@@ -116,8 +125,9 @@ def test_a_linear_run_past_the_limit_is_reported_and_a_small_one_is_not(shared_t
 
 
 def test_auto_material_keeps_linear_when_valid_and_switches_when_not():
-    stiff = run(scene_from_dict(column_dict(4, material={"E": 5e5, "nu": 0.3, "density": 1000.0,
-                                                         "model": "auto"}))).summary
+    stiff = run(
+        scene_from_dict(column_dict(4, material={"E": 5e5, "nu": 0.3, "density": 1000.0, "model": "auto"}))
+    ).summary
     assert stiff["validity"]["model"] == "linear" and stiff["plan"]["material"].startswith("linear: ")
     # the column compressed by 13 % in bulk: the linear top sag is 9 % off the neo-Hookean
     # 1-D equilibrium, and "auto" now solves the neo-Hookean column

@@ -1,4 +1,5 @@
 """The embedding mesher and the fine surface that follows the coarse model."""
+
 from __future__ import annotations
 
 import json
@@ -9,13 +10,14 @@ import numpy as np
 import pytest
 from mpi4py import MPI
 
-from conftest import COMM, ROOT, mpirun, subprocess_env
-from fenics_brainshift.data import scene_path
 from fenics_brainshift import compat
 from fenics_brainshift.cli import main
-from fenics_brainshift.runner.build import mesh_from_spec as build_mesh
+from fenics_brainshift.data import scene_path
 from fenics_brainshift.meshing.voxelize import largest_parts, voxelize
+from fenics_brainshift.runner.build import mesh_from_spec as build_mesh
 from fenics_brainshift.scene import MeshSpec
+
+from conftest import COMM, ROOT, mpirun, subprocess_env
 
 R = 30.0  # mm
 
@@ -57,8 +59,11 @@ def _conforming(model) -> None:
     assert counts.max() == 2  # every interior face shared by exactly two tetrahedra
     # the boundary is the voxels' exposed faces, two triangles each
     v = {tuple(x) for x in model.voxels}
-    exposed = sum((tuple(np.add(x, d)) not in v) for x in v for d in
-                  [(1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1), (0, 0, -1)])
+    exposed = sum(
+        (tuple(np.add(x, d)) not in v)
+        for x in v
+        for d in [(1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1), (0, 0, -1)]
+    )
     assert (counts == 1).sum() == 2 * exposed
     p = model.points[t]
     vol = np.einsum("ij,ij->i", np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), p[:, 3] - p[:, 0]) / 6
@@ -108,9 +113,12 @@ def test_gifti_surface(tmp_path, serial_only):
 
     stl = _surface(tmp_path / "s.stl", _sphere_mask())
     m = meshio.read(stl)
-    gii = nib.gifti.GiftiImage(darrays=[
-        nib.gifti.GiftiDataArray(m.points.astype(np.float32), intent="NIFTI_INTENT_POINTSET"),
-        nib.gifti.GiftiDataArray(m.cells_dict["triangle"].astype(np.int32), intent="NIFTI_INTENT_TRIANGLE")])
+    gii = nib.gifti.GiftiImage(
+        darrays=[
+            nib.gifti.GiftiDataArray(m.points.astype(np.float32), intent="NIFTI_INTENT_POINTSET"),
+            nib.gifti.GiftiDataArray(m.cells_dict["triangle"].astype(np.int32), intent="NIFTI_INTENT_TRIANGLE"),
+        ]
+    )
     nib.save(gii, str(tmp_path / "s.gii"))
     a, b = voxelize(stl, 0.005), voxelize(tmp_path / "s.gii", 0.005)
     assert len(a.voxels) == len(b.voxels) and a.volume_m3 == b.volume_m3
@@ -157,8 +165,8 @@ def test_same_mesh_on_one_and_two_ranks(tmp_path_factory, shape):
         if shape == "pinched":  # staircases of blocks meeting along edges and at corners
             mask = np.zeros((60, 60, 60), bool)
             for k in range(6):
-                mask[10 * k:10 * k + 10, 10 * k:10 * k + 10, 0:10] = True
-                mask[10 * k:10 * k + 10, 0:10, 10 * k:10 * k + 10] = True
+                mask[10 * k : 10 * k + 10, 10 * k : 10 * k + 10, 0:10] = True
+                mask[10 * k : 10 * k + 10, 0:10, 10 * k : 10 * k + 10] = True
         _nifti(path, mask)
     COMM.barrier()
     serial = voxelize(path, 0.005)
@@ -166,8 +174,8 @@ def test_same_mesh_on_one_and_two_ranks(tmp_path_factory, shape):
     _conforming(serial)
     assert mesh.topology.index_map(0).size_global == len(serial.points)
     assert mesh.topology.index_map(3).size_global == len(serial.tets)
-    from dolfinx import fem
     import ufl
+    from dolfinx import fem
 
     vol = COMM.allreduce(fem.assemble_scalar(fem.form(fem.Constant(mesh, 1.0) * ufl.dx(domain=mesh))))
     assert vol == pytest.approx(serial.volume_m3, rel=1e-12)
@@ -178,9 +186,9 @@ def test_embedding_reproduces_any_affine_displacement_exactly():
     """Fine-surface points inside and just outside the coarse voxel mesh."""
     from dolfinx import fem
 
-    from fenics_brainshift.outputs.fine_surface import SurfaceEmbedding
     from fenics_brainshift.meshing import mesh_from_arrays
     from fenics_brainshift.meshing.hexgrid import voxel_mesh
+    from fenics_brainshift.outputs.fine_surface import SurfaceEmbedding
 
     mask = np.ones((3, 3, 2), bool)
     mask[0, 0, 1] = False
@@ -226,8 +234,17 @@ def test_brain_demo_serial_and_mpi(tmp_path, serial_only):
     results = {}
     for ranks in (1, 2):
         out = tmp_path / f"r{ranks}"
-        cmd = [sys.executable, str(ROOT / "demos" / "brain.py"), "--quasi-static", "--out", str(out),
-               "--set", "mesh.voxel=0.010", "--set", "fixed.0.where=y < -0.095"]
+        cmd = [
+            sys.executable,
+            str(ROOT / "demos" / "brain.py"),
+            "--quasi-static",
+            "--out",
+            str(out),
+            "--set",
+            "mesh.voxel=0.010",
+            "--set",
+            "fixed.0.where=y < -0.095",
+        ]
         cmd = (mpirun() + cmd) if ranks > 1 else cmd
         proc = subprocess.run(cmd, capture_output=True, text=True, env=subprocess_env(), cwd=ROOT, timeout=900)
         assert proc.returncode == 0, proc.stderr[-3000:]

@@ -3,6 +3,7 @@
 Independent references: SimpleITK's resampling with the written transform; scipy's
 map_coordinates with the closed-form inverse of an affine map; DOLFINx's point evaluation of
 the run's displacement."""
+
 from __future__ import annotations
 
 import subprocess
@@ -14,15 +15,17 @@ import pytest
 import SimpleITK
 from scipy import ndimage
 
+from fenics_brainshift.images import read_volume
+from fenics_brainshift.warp import DeformedMesh, Warp, check_size, write_itk_transform
+
 from conftest import mpirun, subprocess_env
-from fenics_brainshift.images import DeformedMesh, Warp, read_volume, write_itk_transform
-from fenics_brainshift.images.warp import check_size
 
 
 def _oblique_affine(spacing=(1.0, 1.2, 0.9), angle=0.3, origin=(-20.0, 15.0, -8.0)) -> np.ndarray:
     c, s = np.cos(angle), np.sin(angle)
     rotation = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ np.array(
-        [[1.0, 0.0, 0.0], [0.0, np.cos(0.2), -np.sin(0.2)], [0.0, np.sin(0.2), np.cos(0.2)]])
+        [[1.0, 0.0, 0.0], [0.0, np.cos(0.2), -np.sin(0.2)], [0.0, np.sin(0.2), np.cos(0.2)]]
+    )
     affine = np.eye(4)
     affine[:3, :3] = rotation * np.array(spacing)
     affine[:3, 3] = origin
@@ -35,6 +38,7 @@ def _smooth_image(shape, seed=0) -> np.ndarray:
 
 
 # -- the warp -------------------------------------------------------------------------------------
+
 
 def _box_mesh(lo, hi, n):
     """A structured tetrahedral mesh of a box (six tetrahedra per cube)."""
@@ -97,7 +101,7 @@ def test_labels_stay_labels_and_the_run_inverse_is_exact(tmp_path, cube_run):
     shape = tuple(int(s) for s in np.ceil((hi - lo + 12.0) / 0.7))
     labels = np.zeros(shape, dtype=np.int16)
     labels[: shape[0] // 2] = 3
-    labels[shape[0] // 2:, : shape[1] // 3] = 7
+    labels[shape[0] // 2 :, : shape[1] // 3] = 7
     nib.save(nib.Nifti1Image(labels, affine), str(tmp_path / "labels.nii.gz"))
     volume = read_volume(tmp_path / "labels.nii.gz")
     warp = Warp.compute(volume, body, labels=True)
@@ -134,8 +138,19 @@ def test_warp_command_serial_and_two_ranks_agree_and_bad_input_is_one_line(tmp_p
     results = {}
     for ranks in (1, 2):
         target = tmp_path / f"warped{ranks}.nrrd"
-        command = [sys.executable, "-m", "fenics_brainshift.cli", "warp", str(out), "--image",
-                   str(tmp_path / "pre.nii.gz"), "-o", str(target), "--transform", str(tmp_path / f"t{ranks}.h5")]
+        command = [
+            sys.executable,
+            "-m",
+            "fenics_brainshift.cli",
+            "warp",
+            str(out),
+            "--image",
+            str(tmp_path / "pre.nii.gz"),
+            "-o",
+            str(target),
+            "--transform",
+            str(tmp_path / f"t{ranks}.h5"),
+        ]
         if ranks > 1:
             command = mpirun() + ["-n", "2"] + command
         done = subprocess.run(command, capture_output=True, text=True, env=subprocess_env(), timeout=300)
@@ -145,20 +160,50 @@ def test_warp_command_serial_and_two_ranks_agree_and_bad_input_is_one_line(tmp_p
     np.testing.assert_allclose(results[1].affine, affine, atol=1e-6)
     assert np.array_equal(results[1].data, results[2].data)
 
-    bad = [(["--image", str(tmp_path / "none.nii.gz"), "-o", str(tmp_path / "x.nii.gz")], "--image: no file"),
-           (["--image", str(tmp_path / "pre.nii.gz"), "-o", str(tmp_path / "x.png")], "-o 'x.png'"),
-           (["--image", str(tmp_path / "pre.nii.gz"), "-o", str(tmp_path / "x.nii.gz"), "--blend", "0"], "--blend"),
-           (["--image", str(tmp_path / "pre.nii.gz"), "-o", str(tmp_path / "x.nii.gz"), "--transform",
-             str(tmp_path / "t.txt")], "--transform")]
+    bad = [
+        (["--image", str(tmp_path / "none.nii.gz"), "-o", str(tmp_path / "x.nii.gz")], "--image: no file"),
+        (["--image", str(tmp_path / "pre.nii.gz"), "-o", str(tmp_path / "x.png")], "-o 'x.png'"),
+        (["--image", str(tmp_path / "pre.nii.gz"), "-o", str(tmp_path / "x.nii.gz"), "--blend", "0"], "--blend"),
+        (
+            [
+                "--image",
+                str(tmp_path / "pre.nii.gz"),
+                "-o",
+                str(tmp_path / "x.nii.gz"),
+                "--transform",
+                str(tmp_path / "t.txt"),
+            ],
+            "--transform",
+        ),
+    ]
     for args, words in bad:
-        done = subprocess.run([sys.executable, "-m", "fenics_brainshift.cli", "warp", str(out)] + args,
-                              capture_output=True, text=True, env=subprocess_env(), timeout=120)
+        done = subprocess.run(
+            [sys.executable, "-m", "fenics_brainshift.cli", "warp", str(out)] + args,
+            capture_output=True,
+            text=True,
+            env=subprocess_env(),
+            timeout=120,
+        )
         assert done.returncode == 2 and words in done.stderr and "Traceback" not in done.stderr, done.stderr
         assert len(done.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "x.nii.gz").exists()
-    done = subprocess.run([sys.executable, "-m", "fenics_brainshift.cli", "warp", str(tmp_path), "--image",
-                           str(tmp_path / "pre.nii.gz"), "-o", str(tmp_path / "x.nii.gz")],
-                          capture_output=True, text=True, env=subprocess_env(), timeout=120)
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "fenics_brainshift.cli",
+            "warp",
+            str(tmp_path),
+            "--image",
+            str(tmp_path / "pre.nii.gz"),
+            "-o",
+            str(tmp_path / "x.nii.gz"),
+        ],
+        capture_output=True,
+        text=True,
+        env=subprocess_env(),
+        timeout=120,
+    )
     assert done.returncode == 2 and "no displacement.xdmf" in done.stderr
 
 
@@ -243,7 +288,7 @@ def test_a_run_that_is_not_of_this_image_or_did_not_finish_is_refused(tmp_path, 
     inside = np.zeros(air.shape, bool)
     lo = np.floor(body.points.min(axis=0) - affine[:3, 3]).astype(int)
     hi = np.ceil(body.points.max(axis=0) - affine[:3, 3]).astype(int)
-    inside[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]] = True
+    inside[lo[0] : hi[0], lo[1] : hi[1], lo[2] : hi[2]] = True
     ct = np.where(inside, 30.0, -1000.0).astype(np.float32)
     ct[:3] = 1500.0
     nib.save(nib.Nifti1Image(ct, affine), str(tmp_path / "ct.nii.gz"))
@@ -252,8 +297,11 @@ def test_a_run_that_is_not_of_this_image_or_did_not_finish_is_refused(tmp_path, 
     aseg[:5] = 2035
     nib.save(nib.Nifti1Image(aseg, affine), str(tmp_path / "aseg.nii.gz"))
     Warp.compute(read_volume(tmp_path / "aseg.nii.gz"), body, labels=True)
-    with pytest.raises(InputError, match=r"0% of the run's mesh lies on the object in 'labels.nii.gz' \(its voxels "
-                                         r"labelled"):
+    with pytest.raises(
+        InputError,
+        match=r"0% of the run's mesh lies on the object in 'labels.nii.gz' \(its voxels "
+        r"labelled",
+    ):
         nib.save(nib.Nifti1Image(np.where(inside, 0, 3).astype(np.int16), affine), str(tmp_path / "labels.nii.gz"))
         Warp.compute(read_volume(tmp_path / "labels.nii.gz"), body, labels=True)
     # the cube inside a head's foreground (an ellipsoid 180 x 220 x 200 mm about it): on the
@@ -262,8 +310,10 @@ def test_a_run_that_is_not_of_this_image_or_did_not_finish_is_refused(tmp_path, 
     head_affine[:3, 3] = body.points.mean(axis=0) - 120.0
     ijk = np.indices((240, 240, 240)).reshape(3, -1).T - 120.0
     head = ((ijk / [90.0, 110.0, 100.0]) ** 2).sum(axis=1) < 1.0
-    nib.save(nib.Nifti1Image((200.0 * head).reshape(240, 240, 240).astype(np.float32), head_affine),
-             str(tmp_path / "head.nii.gz"))
+    nib.save(
+        nib.Nifti1Image((200.0 * head).reshape(240, 240, 240).astype(np.float32), head_affine),
+        str(tmp_path / "head.nii.gz"),
+    )
     head = read_volume(tmp_path / "head.nii.gz")
     Warp.compute(head, body)  # (Warp warps any mesh on any grid)
     with pytest.raises(InputError, match=r"the run's mesh is 75 mm across .*, the object in 'head.nii.gz' 3\d\d mm"):
@@ -303,8 +353,16 @@ def test_warp_writes_the_image_and_its_transform_both_or_neither(tmp_path, cube_
     _, out = cube_run
     _image_around(DeformedMesh.from_run(out), tmp_path / "pre.nii.gz")
     (tmp_path / "w" / "t.h5").mkdir(parents=True)  # the transform's name taken by a folder
-    args = ["warp", str(out), "--image", str(tmp_path / "pre.nii.gz"), "-o", str(tmp_path / "w" / "intra.nii.gz"),
-            "--transform", str(tmp_path / "w" / "t.h5")]
+    args = [
+        "warp",
+        str(out),
+        "--image",
+        str(tmp_path / "pre.nii.gz"),
+        "-o",
+        str(tmp_path / "w" / "intra.nii.gz"),
+        "--transform",
+        str(tmp_path / "w" / "t.h5"),
+    ]
     (tmp_path / "w" / "intra.nii.gz").write_bytes(b"an earlier warp")
     assert main(args) == 1
     err = capsys.readouterr().err.strip().splitlines()
@@ -327,7 +385,7 @@ def test_warp_of_a_run_that_stopped_says_which_state_it_warps(tmp_path, cube_run
     import shutil
 
     from fenics_brainshift.cli import main
-    from fenics_brainshift.images import command
+    from fenics_brainshift.commands import warp as command
 
     _, out = cube_run
     _image_around(DeformedMesh.from_run(out), tmp_path / "pre.nii.gz")
@@ -343,10 +401,24 @@ def test_warp_of_a_run_that_stopped_says_which_state_it_warps(tmp_path, cube_run
 
     def full(volume, data, path):
         raise OSError(errno.ENOSPC, "No space left on device", str(path))
+
     monkeypatch.setattr(command, "write_like", full)
     target = tmp_path / "full" / "w.nii.gz"
-    assert main(["warp", str(out), "--image", str(tmp_path / "pre.nii.gz"), "-o", str(target), "--transform",
-                 str(tmp_path / "full" / "t.h5")]) == 1
+    assert (
+        main(
+            [
+                "warp",
+                str(out),
+                "--image",
+                str(tmp_path / "pre.nii.gz"),
+                "-o",
+                str(target),
+                "--transform",
+                str(tmp_path / "full" / "t.h5"),
+            ]
+        )
+        == 1
+    )
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "No space left on device" in err[0] and "summary.json" not in err[0], err
     assert list((tmp_path / "full").iterdir()) == []

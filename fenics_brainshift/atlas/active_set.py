@@ -8,6 +8,7 @@ algorithm 16.3), a few small KKT solves over the free weights. H is that of the 
 and regulariser (DataHessian), never formed on the refits' hot path. combine.py poses the
 problems; this module only solves them.
 """
+
 from __future__ import annotations
 
 from math import sqrt
@@ -33,7 +34,7 @@ class DataHessian:
     within a refit (a weight freed and fixed again comes back to an earlier set)."""
 
     def __init__(self, A: np.ndarray, noise: float, gram: np.ndarray, s: float):
-        self.A, self.w, self.gram, self.s = A, 1.0 / noise ** 2, gram, s
+        self.A, self.w, self.gram, self.s = A, 1.0 / noise**2, gram, s
         self.AT = np.ascontiguousarray(A.T)  # (a weight's data column as a contiguous row)
         trace = self.w * float(np.einsum("ij,ij->", A, A)) + s * float(np.trace(gram))
         self.ridge = RIDGE * max(trace / len(gram), 1e-300)  # a numerically positive definite H
@@ -51,7 +52,7 @@ class DataHessian:
         if key not in self._blocks:
             AT_free, G_free = self.AT[free], self.gram[free]  # (G's rows: its columns, and contiguous)
             block = self.w * (AT_free @ AT_free.T) + self.s * G_free[:, free]
-            block.flat[::len(free) + 1] += self.ridge
+            block.flat[:: len(free) + 1] += self.ridge
             if len(self._blocks) > 64:
                 self._blocks.clear()
             self._blocks[key] = (block, AT_free, G_free)
@@ -61,6 +62,7 @@ class DataHessian:
             out = self.w * (self.AT @ (x @ AT_free)) + self.s * (x @ G_free)
             out[free] += self.ridge * x
             return out
+
         return block, times
 
     def dense(self) -> np.ndarray:
@@ -96,15 +98,26 @@ def least_distance(H: np.ndarray, g: np.ndarray, C: np.ndarray, d: np.ndarray) -
     u, _ = nnls(E, e, maxiter=50 * E.shape[1])
     r = E @ u - e
     if abs(r[-1]) < 1e-14:
-        raise SolverError("the update's constraints cannot all hold (the weights' bounds and the skull's rows "
-                          "exclude each other)")
+        raise SolverError(
+            "the update's constraints cannot all hold (the weights' bounds and the skull's rows exclude each other)"
+        )
     z = -r[:-1] / r[-1]
     return solve_triangular(R, z + f)
 
 
-def solve_on_active(H: np.ndarray, g: np.ndarray, C: np.ndarray, d: np.ndarray, start: np.ndarray,
-                    partner: np.ndarray, iterations: int = ITERATIONS, bounds: tuple | None = None, infeasible: float = 0.0,
-                    active: float = ACTIVE, slack: "Slack | None" = None):
+def solve_on_active(
+    H: np.ndarray,
+    g: np.ndarray,
+    C: np.ndarray,
+    d: np.ndarray,
+    start: np.ndarray,
+    partner: np.ndarray,
+    iterations: int = ITERATIONS,
+    bounds: tuple | None = None,
+    infeasible: float = 0.0,
+    active: float = ACTIVE,
+    slack: Slack | None = None,
+):
     """argmin c.H.c - 2 g.c subject to C c >= d by the primal active-set method (Nocedal and
     Wright, Numerical Optimization, 2006, algorithm 16.3) from a feasible `start` (a nearby
     problem's answer: the refits keep the constraints and change the data), its active
@@ -170,7 +183,7 @@ def solve_on_active(H: np.ndarray, g: np.ndarray, C: np.ndarray, d: np.ndarray, 
         worst = int(np.argmin(np.where(inequality, multipliers, np.inf))) if inequality.any() else -1
         if worst < 0 or multipliers[worst] >= -ACTIVE * scale:
             # (a start past dependent rows, which left the first working set, can end short of
-            # them, below the minimum: then NNLS; a stranger's review found it)
+            # them, below the minimum: then NNLS; tests/test_update_solver.py holds such a case)
             return c if np.all(slack(c) >= -tolerance) else None
         working[held[worst]] = False
     return None
@@ -218,7 +231,7 @@ def _held(working: np.ndarray, partner: np.ndarray, seconds: np.ndarray) -> np.n
 def bound_rows(C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """For each row, the one weight it bounds (a row +-e_k), or -1; and the row's sign there."""
     nonzero = C != 0
-    single = (nonzero.sum(axis=1) == 1)
+    single = nonzero.sum(axis=1) == 1
     column = np.argmax(nonzero, axis=1)
     value = C[np.arange(len(C)), column]
     unit = single & (np.abs(np.abs(value) - 1.0) < 1e-12)  # (rows of unit norm: unit_rows)
@@ -267,8 +280,11 @@ def _equality_solve(H, g, C, d, held, bound_of, sign):
         x = solution[:nf]
         size = max(sqrt(rhs @ rhs) + np.abs(kkt).sum(axis=0).max() * sqrt(x @ x), 1e-300)
         residual = kkt @ solution - rhs
-        if not np.isfinite(size) or not sqrt(residual @ residual) <= 1e-8 * size \
-                or (k and np.abs(solution[nf:]).max() > 1e8 * size):
+        if (
+            not np.isfinite(size)
+            or not sqrt(residual @ residual) <= 1e-8 * size
+            or (k and np.abs(solution[nf:]).max() > 1e8 * size)
+        ):
             return None
     x = solution[:nf]
     c[free] = x
@@ -284,6 +300,7 @@ def _equality_solve(H, g, C, d, held, bound_of, sign):
         out[~is_bound] = lam_general
         out[is_bound] = sign[bounds] * gradient
         return out
+
     return c, multipliers
 
 
@@ -301,7 +318,7 @@ def partners(C: np.ndarray, d: np.ndarray) -> np.ndarray:
     hi = np.searchsorted(sorted_key, -key + tolerance, side="right")
     for i in np.flatnonzero(hi > lo):  # (few: the bounds of a fixed weight, the family's sum)
         negated = np.round(-np.r_[C[i], d[i]], 12) + 0.0  # + 0.0: -0.0 and 0.0 alike
-        candidates = order[lo[i]:hi[i]]
+        candidates = order[lo[i] : hi[i]]
         alike = [j for j in candidates if np.array_equal(np.round(np.r_[C[j], d[j]], 12) + 0.0, negated)]
         if alike:
             out[i] = max(alike)

@@ -1,4 +1,4 @@
-"""`brainshift atlas SCENE -o ATLAS`: the settled states of a scene over its scenarios.
+"""An atlas: the settled states of a scene over its scenarios (`brainshift atlas`).
 
 The modes are solved on the scene's model once built: one factor of K serves every mode of a
 linear body (the loads change, K does not); each settled state starts from the last one (the
@@ -9,71 +9,38 @@ inside it; each pose's first (highest) level is solved from rest, the next ones 
 two extrapolated (predict_start), and the swelling modes from the prior state (docs/update.md,
 "The skull").
 """
+
 from __future__ import annotations
 
 import dataclasses
 import time
-from pathlib import Path
 
 import numpy as np
-from mpi4py import MPI
 
 from .. import compat, formats
-from ..errors import InputError, SolverError
+from ..errors import SolverError
 from ..logs import get_logger
-from ..outputs.files import check_writable
-from ..scene import load_scene
 from ..scene.body import Swelling
 from . import store
 from .locate import MeshLocator
 from .rows import SKULL_SLACK
-from .scenarios import clip_levels, family, parse_vary, stiffness, swelling_modes
+from .scenarios import clip_levels, family, stiffness, swelling_modes
 
 log = get_logger(__name__)
 WHOLE_BODY = "x > -1e6"  # the whole-brain region of a scene without [[swelling]]
 MODE_TOLERANCE = 0.5 * SKULL_SLACK  # m: the modes' contact tolerance (_mode_tolerance)
 # Newton's relative residual for the modes (a run's is 1e-9): on the 5 mm brain with a 3 mm gap the
 # modes of 13 levels at one pose move by 0.006 mm at most against 1e-6 (benchmarks/results/
-# skull_atlas.md; 0.011 mm on the 10 mm test atlas, a stranger's review): hundredths of a millimetre,
+# skull_atlas.md; 0.011 mm on the 10 mm test atlas): hundredths of a millimetre,
 # against the update's noise of tenths and the contact's tolerance of 0.05 mm, for 6.2 Newton
 # iterations a state against 8.9
 MODE_RTOL = 1e-4
 MAX_SKIPPED = 0.1  # of the family's modes that may be left out (settled neither way) before the atlas fails
 
 
-def atlas_command(args, comm) -> list[str]:
-    out = Path(args.output)
-    check_writable(out, comm, "atlas folder", "-o")
-    vary = parse_vary(args.vary)
-    scene = load_scene(args.scene, args.set + ["time.mode=quasi-static"])
-    if scene.skull is not None and scene.skull.glue is not None:
-        raise InputError("atlas: a [skull] with glue (fixed_where) holds the body by contact: give the support as "
-                         "[[fixed]] instead")
-    if scene.remove:
-        raise InputError("atlas: [[remove]] (a resection) is not an atlas scenario; build the atlas of the scene "
-                         "before the resection")
-    atlas, seconds = build(scene, vary, comm, args.scene, args.set)
-    if comm.rank == 0:  # (arrays first, then the index: each renamed into place)
-        store.write(out, atlas)
-    comm.barrier()
-    family_count = int(atlas.family.sum()) if comm.rank == 0 else 0
-    left_out = atlas.info["left_out"] if comm.rank == 0 else []
-    levels = sorted({s["values"]["fluid.level"] for s in atlas.scenarios if "fluid.level" in s.get("values", {})}) \
-        if comm.rank == 0 else []
-    drained = (atlas.info.get("prior") or {}).get("fluid.level") if comm.rank == 0 else None
-    span = ([f"  levels {levels[0]:.4g} to {levels[-1]:.4g} m along up: {(levels[0] - drained) * 1e3:+.0f} to "
-             f"{(levels[-1] - drained) * 1e3:+.0f} mm about the scene's drained level {drained:.4g} m"]
-            if levels and drained is not None else [])
-    return [f"atlas: {len(atlas.scenarios) if comm.rank == 0 else 0} modes ({family_count} drain/pose "
-            f"scenarios, {len(atlas.scenarios) - family_count if comm.rank == 0 else 0} swelling) of "
-            f"'{scene.name}' in {seconds['modes_s']:.1f} s after a {seconds['setup_s']:.1f} s setup; wrote "
-            f"{out}/atlas.h5 and atlas.json"] + (
-        [f"warning: {len(left_out)} scenario(s) left out, settled neither from the last mode nor from rest "
-         f"(atlas.json \"left_out\"): {', '.join(str(o['values']) for o in left_out[:3])}"] if left_out else []) + span
-
-
 def build(scene, vary: dict, comm, source: str = "", sets=()) -> tuple[store.Atlas | None, dict]:
-    """The atlas of a quasi-static scene (on rank 0; None elsewhere) and its timings."""
+    """The atlas of a quasi-static scene (on rank 0; None elsewhere) and its timings: the
+    family's drain/pose states, the scene's own (the prior) and one swelling mode a region."""
     from ..fit.forward import ForwardModel
     from .vertices import GlobalVertices
 
@@ -85,33 +52,85 @@ def build(scene, vary: dict, comm, source: str = "", sets=()) -> tuple[store.Atl
     if not scene.swelling:  # the whole body, held at no change in the family's modes
         solved = dataclasses.replace(solved, swelling=(Swelling(volume_change=swelling[0].mode, where=WHOLE_BODY),))
     forward = ForwardModel(solved, comm, newton_rtol=MODE_RTOL)
-    model = forward.model
-    regions = model.growth.regions
     t_end = scene.settled_time  # the drained state, whatever [time] end says
     priors = [float(r.at(t_end)) for r in scene.swelling] if scene.swelling else [0.0]
-    vertices = GlobalVertices(model.mesh)
+    vertices = GlobalVertices(forward.model.mesh)
     fine = forward._fine_surface()
     heights = forward.heights()
     grid = family(scene, vary, heights)
-    if not any(k in vary for k in ("fluid.level",)) and "fluid.level" in grid[0]:
+    if "fluid.level" not in vary and "fluid.level" in grid[0]:
         grid = clip_levels(grid, heights)
     setup_s = time.perf_counter() - start
 
-    def set_swelling(changes):
-        for i, value in enumerate(changes):
-            regions[i] = (regions[i][0], lambda t, v=value: v)
-
-    def state():
-        return vertices.values(forward.sim.u)
-
     start = time.perf_counter()
+    swell = _Swelling(forward.model.growth.regions, priors)
+    family_modes, scenarios, skipped = _family_states(forward, grid, vertices)
+    prior_values = {}  # the scene's own scenario: its final level, its pose
+    if scene.fluid is not None and scene.fluid.volume is None and scene.fluid.level:
+        prior_values["fluid.level"] = float(scene.fluid.level(t_end))
+    forward.from_rest = forward.sim.contact is not None
+    forward.solve(prior_values)
+    prior_vertex = vertices.values(forward.sim.u)
+    swollen = _swelling_states(forward, swelling, swell, prior_values, vertices, scenarios)
+    vertex_modes = list(family_modes)
+    if comm.rank == 0:
+        vertex_modes += [v - prior_vertex for v in swollen]
+    seconds = {"setup_s": setup_s, "modes_s": time.perf_counter() - start}
+    solves = forward.solves
+    skull = forward.sim.contact.skull if forward.sim.contact is not None else None
+    compliance = _compliance(forward)
+    fine_points = None if fine is None else (fine.points, fine.triangles)
+    forward.destroy()
+    if comm.rank != 0:
+        return None, seconds
+    atlas = _assembled(vertices, np.array(vertex_modes), prior_vertex, scenarios, fine_points, skull)
+    atlas.info = {
+        "scene": str(source),
+        "set": list(sets),
+        "scene_name": scene.name,
+        "ranks": comm.size,
+        "dolfinx_version": compat.DOLFINX_VERSION,
+        "material": scene.material.model,
+        "gravity": [float(c) for c in scene.gravity.vector],
+        "prior": prior_values,
+        "stiffness": stiff,
+        "probes": {k: [float(c) for c in v] for k, v in scene.probes.items()},
+        "frame": "RAS" if scene.mesh.file and formats.is_label_volume(scene.mesh.file) else None,
+        "settled_states": solves,
+        "left_out": [{"values": values, "why": why} for _, values, why in skipped],
+        "contact_tolerance_m": scene.skull.tolerance if scene.skull is not None else None,
+        "contact_compliance": compliance,
+        **{k: round(v, 3) for k, v in seconds.items()},
+    }
+    return atlas, seconds
+
+
+class _Swelling:
+    """The swelling regions' volume changes, set on the model: the scene's (the priors), or one
+    region's changed to its mode's."""
+
+    def __init__(self, regions: list, priors: list[float]):
+        self.regions, self.priors = regions, priors
+        self.set(priors)
+
+    def set(self, changes) -> None:
+        for i, value in enumerate(changes):
+            self.regions[i] = (self.regions[i][0], lambda t, v=value: v)
+
+
+def _family_states(forward, grid: list[dict], vertices) -> tuple[list, list[dict], list]:
+    """The settled state of every drain/pose scenario of the grid, at the vertices: (states,
+    scenarios, skipped as (index, values, why)). With the skull each pose's first level starts
+    from rest and the next ones from the last two states (predict_start); a mode that settles
+    neither way is left out, up to MAX_SKIPPED of them."""
     free, scenarios, skipped = [], [], []
-    set_swelling(priors)
     contact = forward.sim.contact is not None
     last = []  # the pose's last settled states (level, u, multipliers), for the next one's start
     for i, values in enumerate(grid):
         if contact:  # from rest at a new pose (a jump of the level from the bottom to the top), or after a skip
-            forward.from_rest = i == 0 or _pose(values) != _pose(grid[i - 1]) or bool(skipped and skipped[-1][0] == i - 1)
+            forward.from_rest = (
+                i == 0 or _pose(values) != _pose(grid[i - 1]) or bool(skipped and skipped[-1][0] == i - 1)
+            )
             last = [] if forward.from_rest else last
             if len(last) == 2 and not forward.continued:
                 predict_start(forward, last, values)
@@ -120,72 +139,80 @@ def build(scene, vary: dict, comm, source: str = "", sets=()) -> tuple[store.Atl
         except SolverError as exc:
             if not contact or forward.continued or len(skipped) + 1 > MAX_SKIPPED * len(grid):
                 raise  # (without the skull there is no other start to try: the failure stands)
-            log.warning("atlas: mode %d of %d %s left out: it did not settle from the last mode nor from rest (%s)",
-                        i + 1, len(grid), values, exc)
+            log.warning(
+                "atlas: mode %d of %d %s left out: it did not settle from the last mode nor from rest (%s)",
+                i + 1,
+                len(grid),
+                values,
+                exc,
+            )
             skipped.append((i, values, str(exc)))
             continue
         if contact:
             level = values.get("fluid.level")
             last = last[-1:] + [(level, forward.sim.u.x.array.copy(), forward.sim.contact.multipliers.copy())]
-        free.append(state())
+        free.append(vertices.values(forward.sim.u))
         scenarios.append({"kind": "family", "values": values})
         log.info("atlas: mode %d of %d %s", i + 1, len(grid), values)
-    prior_values = {}  # the scene's own scenario: its final level, its pose
-    if scene.fluid is not None and scene.fluid.volume is None and scene.fluid.level:
-        prior_values["fluid.level"] = float(scene.fluid.level(t_end))
-    forward.from_rest = contact
-    forward.solve(prior_values)
-    prior_free = state()
+    return free, scenarios, skipped
+
+
+def _swelling_states(
+    forward, swelling: list, swell: _Swelling, prior_values: dict, vertices, scenarios: list[dict]
+) -> list:
+    """Each swelling region's settled state with its volume change stepped, from the prior
+    state the forward model holds (solve_from_prior); its scenario appended to scenarios."""
+    contact = forward.sim.contact
     prior_u = forward.sim.u.x.array.copy()
-    prior_multipliers = forward.sim.contact.multipliers.copy() if contact else None
+    prior_multipliers = contact.multipliers.copy() if contact is not None else None
     swollen = []
-    for k, mode in enumerate(swelling):  # each region's perturbation, at the scene's scenario
-        changes = list(priors)
+    for k, mode in enumerate(swelling):
+        changes = list(swell.priors)
         changes[k] = mode.mode
-        set_swelling(changes)
+        swell.set(changes)
         solve_from_prior(forward, prior_values, prior_u, prior_multipliers)
-        swollen.append(state())
-        scenarios.append({"kind": "swelling", "region": mode.name, "index": mode.index, "prior": mode.prior,
-                          "step": mode.mode - mode.prior, "lower": mode.lower, "upper": mode.upper})
-    set_swelling(priors)
-    family_modes, prior_vertex, swollen_modes = free, prior_free, swollen
-    vertex_modes = list(family_modes)
-    if comm.rank == 0:
-        vertex_modes += [v - prior_vertex for v in swollen_modes]
-    modes_s = time.perf_counter() - start
-    solves = forward.solves
-    skull = forward.sim.contact.skull if contact else None
-    compliance = _compliance(forward)
-    fine_points = None if fine is None else (fine.points, fine.triangles)
-    forward.destroy()
-    seconds = {"setup_s": setup_s, "modes_s": modes_s}
-    if comm.rank != 0:
-        return None, seconds
-    U = np.array(vertex_modes)  # (M, N, 3)
+        swollen.append(vertices.values(forward.sim.u))
+        scenarios.append(
+            {
+                "kind": "swelling",
+                "region": mode.name,
+                "index": mode.index,
+                "prior": mode.prior,
+                "step": mode.mode - mode.prior,
+                "lower": mode.lower,
+                "upper": mode.upper,
+            }
+        )
+    swell.set(swell.priors)
+    return swollen
+
+
+def _assembled(
+    vertices, U: np.ndarray, prior_vertex: np.ndarray, scenarios: list[dict], fine_points, skull
+) -> store.Atlas:
+    """The atlas's arrays from its modes U (M, N, 3) at the vertices: the Gram matrices the
+    update solves with, the fine surface's modes (P1: barycentric in each point's cell) and the
+    skull's triangles."""
     flat = U.reshape(len(U), -1)
     n = len(vertices.points)
-    atlas = store.Atlas(vertices.points, vertices.tetrahedra, U, prior_vertex, flat @ flat.T / n,
-                        flat @ prior_vertex.ravel() / n, float(prior_vertex.ravel() @ prior_vertex.ravel() / n),
-                        scenarios)
-    if fine_points is not None:  # the fine surface follows the vertices as in a run (P1: barycentric)
+    atlas = store.Atlas(
+        vertices.points,
+        vertices.tetrahedra,
+        U,
+        prior_vertex,
+        flat @ flat.T / n,
+        flat @ prior_vertex.ravel() / n,
+        float(prior_vertex.ravel() @ prior_vertex.ravel() / n),
+        scenarios,
+    )
+    if fine_points is not None:  # the fine surface follows the vertices as in a run
         atlas.surface_points, atlas.surface_triangles = fine_points
         index, weight, _ = MeshLocator(atlas.points, atlas.tetrahedra).weights(fine_points[0])
         atlas.surface_modes = np.array([np.einsum("nj,njd->nd", weight, u[index]) for u in U])
         atlas.prior_surface = np.einsum("nj,njd->nd", weight, prior_vertex[index])
     if skull is not None:
         atlas.skull_triangles, atlas.skull_gap = skull.triangles, skull.gap
-    atlas.info = {"scene": str(source), "set": list(sets), "scene_name": scene.name, "ranks": comm.size,
-                  "dolfinx_version": compat.DOLFINX_VERSION, "material": scene.material.model,
-                  "gravity": [float(c) for c in scene.gravity.vector], "prior": prior_values,
-                  "stiffness": stiff,
-                  "probes": {k: [float(c) for c in v] for k, v in scene.probes.items()},
-                  "frame": "RAS" if scene.mesh.file and formats.is_label_volume(scene.mesh.file) else None,
-                  "settled_states": solves,
-                  "left_out": [{"values": values, "why": why} for _, values, why in skipped],
-                  "contact_tolerance_m": scene.skull.tolerance if scene.skull is not None else None,
-                  "contact_compliance": compliance,
-                  **{k: round(v, 3) for k, v in seconds.items()}}
-    return atlas, seconds
+    return atlas
 
 
 def _compliance(forward) -> dict | None:
@@ -206,8 +233,13 @@ def _mode_tolerance(scene):
     pass the skull by more than the rows allow."""
     if scene.skull is None or scene.skull.tolerance == MODE_TOLERANCE:
         return scene
-    log.info("atlas: the modes' contact settled to %g mm, not the scene's [skull] tolerance of %g mm (the update's "
-             "skull rows allow %g mm)", MODE_TOLERANCE * 1e3, scene.skull.tolerance * 1e3, SKULL_SLACK * 1e3)
+    log.info(
+        "atlas: the modes' contact settled to %g mm, not the scene's [skull] tolerance of %g mm (the update's "
+        "skull rows allow %g mm)",
+        MODE_TOLERANCE * 1e3,
+        scene.skull.tolerance * 1e3,
+        SKULL_SLACK * 1e3,
+    )
     return dataclasses.replace(scene, skull=dataclasses.replace(scene.skull, tolerance=MODE_TOLERANCE))
 
 
@@ -261,8 +293,8 @@ def solve_family_mode(forward, values: dict) -> None:
     """A drain/pose mode, from the last mode (or from rest, as forward.from_rest says). With the
     skull, one that does not settle from the last mode is solved again from rest: Newton's path
     from the last contact state can stall where the path from rest, along which the loads grow,
-    does not (the default atlas at 10 mm with a 3 mm gap, with the contact's scalar multiplier
-    before session 27: head turned -12 and 6 degrees, the level from 45 to 50 mm). A failure
+    does not (the default atlas at 10 mm with a 3 mm gap, when the contact's multiplier was a
+    scalar: head turned -12 and 6 degrees, the level from 45 to 50 mm). A failure
     from rest stands (the caller may leave the mode out)."""
     try:
         forward.solve(values)

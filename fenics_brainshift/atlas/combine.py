@@ -20,6 +20,7 @@ out), from a grid; leave-one-out errors and a bootstrap over the points (the spr
 displacement over refits, `brainshift update --bootstrap N`) come from the same solver; the
 default spread is the posterior's (posterior.py), without refits.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -29,13 +30,12 @@ import numpy as np
 
 from .active_set import ACTIVE, DataHessian, Slack, bound_rows, least_distance, partners, solve_on_active
 
-
 ALPHAS = tuple(10.0 ** np.arange(-4, 3.5, 1.0))  # the cross-validation grid of alpha (per mm^2)
 FOLDS = 5
 # the grid's scan stops once the error at points left out has grown this much (relative) at this many alphas in a
 # row: past the minimum, toward the prior, whose large alphas cost the most refit steps (the family's weights
 # freed one by one toward the prior's dense ones: a third of the cross-validation on the 5 mm skull atlas). Three,
-# not two: on random 8-point problems a review's scratch runs found two rises skipping a lower minimum in 11 of 200
+# not two: on random 8-point problems two rises skipped a lower minimum in 11 of 200
 # (a curve with two dips), three in none; on the 5 mm skull atlas neither ever changed the choice
 RISE, RISES = 0.01, 3
 MM2 = 1e-6  # R in mm^2
@@ -78,7 +78,7 @@ class Constraints:
         was a tenth of an update with the skull's rows when each refit made its own)."""
         return Slack(*self.unit_rows, *self.bounds)
 
-    def stacked(self, C: np.ndarray, d: np.ndarray) -> "Constraints":
+    def stacked(self, C: np.ndarray, d: np.ndarray) -> Constraints:
         return Constraints(np.vstack([self.C, C]), np.concatenate([self.d, d]))
 
 
@@ -87,6 +87,7 @@ class Problem:
     """The data (rows per point: `groups` says which point a row is of), the regulariser's
     quadratic form (m^2) and the constraints every fit keeps (C c >= d; `constraints`: the same
     with what is derived from them, if already made)."""
+
     A: np.ndarray
     b: np.ndarray
     groups: np.ndarray
@@ -109,33 +110,56 @@ class Problem:
     bounds = property(lambda self: self.constraints.bounds)
     slack = property(lambda self: self.constraints.slack)
 
-    def with_constraints(self, C: np.ndarray, d: np.ndarray) -> "Problem":
+    def with_constraints(self, C: np.ndarray, d: np.ndarray) -> Problem:
         return self.with_all(self.constraints.stacked(C, d))
 
-    def with_all(self, constraints: Constraints) -> "Problem":
+    def with_all(self, constraints: Constraints) -> Problem:
         """The same data with these constraints instead."""
-        return Problem(self.A, self.b, self.groups, self.noise, self.gram, self.cross, constraints.C, constraints.d,
-                       self.anchor, constraints)
+        return Problem(
+            self.A,
+            self.b,
+            self.groups,
+            self.noise,
+            self.gram,
+            self.cross,
+            constraints.C,
+            constraints.d,
+            self.anchor,
+            constraints,
+        )
 
     def solve(self, alpha: float, rows: np.ndarray | None = None, near: np.ndarray | None = None) -> np.ndarray:
         """The constrained minimiser with the data rows `rows` (default: all); `near`: weights
         whose active constraints are tried first (a refit of a nearby problem)."""
         A, b = (self.A, self.b) if rows is None else (self.A[rows], self.b[rows])
         H = DataHessian(A, self.noise, self.gram, alpha / MM2)
-        g = A.T @ b / self.noise ** 2 + (alpha / MM2) * self.cross
+        g = A.T @ b / self.noise**2 + (alpha / MM2) * self.cross
         if near is not None and WARM_START:
-            c = solve_on_active(H, g, *self.unit_rows, near, self.partner, bounds=self.bounds, infeasible=INFEASIBLE,
-                                slack=self.slack)
+            c = solve_on_active(
+                H, g, *self.unit_rows, near, self.partner, bounds=self.bounds, infeasible=INFEASIBLE, slack=self.slack
+            )
             if c is None and self.anchor is not None:  # from the point nearest `near` inside the rows
                 inside = towards(self.anchor, near, *self.unit_rows)
                 if inside is not None:
-                    c = solve_on_active(H, g, *self.unit_rows, inside, self.partner, bounds=self.bounds, slack=self.slack)
+                    c = solve_on_active(
+                        H, g, *self.unit_rows, inside, self.partner, bounds=self.bounds, slack=self.slack
+                    )
             if c is not None:
                 return c
         c = least_distance(H.dense(), g, self.C, self.d)
         if WARM_START:  # NNLS's answer polished into an exact vertex, that refits can start from
-            polished = solve_on_active(H, g, *self.unit_rows, c, self.partner, iterations=POLISH_ITERATIONS,
-                                       bounds=self.bounds, infeasible=INFEASIBLE, active=NNLS_ACCURACY, slack=self.slack)
+            polished = solve_on_active(
+                H,
+                g,
+                *self.unit_rows,
+                c,
+                self.partner,
+                iterations=POLISH_ITERATIONS,
+                bounds=self.bounds,
+                infeasible=INFEASIBLE,
+                active=NNLS_ACCURACY,
+                slack=self.slack,
+            )
             if polished is not None:
                 return polished
         return c
@@ -144,14 +168,15 @@ class Problem:
         """R(c) up to a constant (m^2): c.G.c - 2 cross.c."""
         return float(c @ (self.gram @ c) - 2.0 * self.cross @ c)
 
-    def objective(self, alpha: float, c: np.ndarray, rows: np.ndarray | None = None,
-                  regulariser: float | None = None) -> float:
+    def objective(
+        self, alpha: float, c: np.ndarray, rows: np.ndarray | None = None, regulariser: float | None = None
+    ) -> float:
         """What the fit with these data rows minimises, at c (up to a constant); `regulariser`:
         R(c) if already known (it does not depend on the rows)."""
         A, b = (self.A, self.b) if rows is None else (self.A[rows], self.b[rows])
         r = A @ c - b
         R = self.regulariser(c) if regulariser is None else regulariser
-        return float(r @ r) / self.noise ** 2 + (alpha / MM2) * R
+        return float(r @ r) / self.noise**2 + (alpha / MM2) * R
 
     def misfit(self, c: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
         """Each point's error (m): the norm of its rows' residuals."""
@@ -184,8 +209,9 @@ def fold_of(groups: np.ndarray, folds: int, seed: int = 0) -> np.ndarray:
     return deal[np.searchsorted(points, groups)]
 
 
-def choose_alpha(problem: Problem, alphas=ALPHAS, folds: int = FOLDS,
-                 near: np.ndarray | None = None) -> tuple[float, list[dict], np.ndarray]:
+def choose_alpha(
+    problem: Problem, alphas=ALPHAS, folds: int = FOLDS, near: np.ndarray | None = None
+) -> tuple[float, list[dict], np.ndarray]:
     """The alpha of least mean error at points left out (K-fold), the curve, and the fit to all
     the points at that alpha. `near`: weights to start from. The fit to all the points follows
     the grid from alpha to alpha, each from the last; each fold's fit starts from the better
@@ -204,24 +230,27 @@ def choose_alpha(problem: Problem, alphas=ALPHAS, folds: int = FOLDS,
         errors = []
         for k, rows in rows_of.items():
             start = whole
-            if k in last and problem.objective(alpha, last[k][0], rows, last[k][1]) < \
-                    problem.objective(alpha, whole, rows, R_whole):
+            if k in last and problem.objective(alpha, last[k][0], rows, last[k][1]) < problem.objective(
+                alpha, whole, rows, R_whole
+            ):
                 start = last[k][0]
             c = problem.solve(alpha, rows, near=start)
             last[k] = (c, problem.regulariser(c))
             errors.append(problem.misfit(c, np.flatnonzero(fold == k)))
         e = np.concatenate(errors)
-        curve.append({"alpha": float(alpha), "cv_rms_mm": float(np.sqrt(np.mean(e ** 2)) * 1e3)})
+        curve.append({"alpha": float(alpha), "cv_rms_mm": float(np.sqrt(np.mean(e**2)) * 1e3)})
         errors_so_far = [p["cv_rms_mm"] for p in curve]
-        if len(curve) > RISES and all(b > (1 + RISE) * a for a, b in zip(errors_so_far[-RISES - 1:-1],
-                                                                          errors_so_far[-RISES:])):
+        if len(curve) > RISES and all(
+            b > (1 + RISE) * a for a, b in zip(errors_so_far[-RISES - 1 : -1], errors_so_far[-RISES:])
+        ):
             break
     best = min(curve, key=lambda p: p["cv_rms_mm"])
     return best["alpha"], curve, fits[best["alpha"]]
 
 
-def leave_one_out(problem: Problem, alpha: float, most: int | None = None, seed: int = 2,
-                  near: np.ndarray | None = None) -> np.ndarray:
+def leave_one_out(
+    problem: Problem, alpha: float, most: int | None = None, seed: int = 2, near: np.ndarray | None = None
+) -> np.ndarray:
     """Each point's error (m) when the fit is made without it; with more points than `most`,
     a random sample of `most` of them (NaN for the others). `near`: the fit to all of them."""
     near = problem.solve(alpha) if near is None else near
@@ -237,8 +266,9 @@ def leave_one_out(problem: Problem, alpha: float, most: int | None = None, seed:
     return out
 
 
-def bootstrap(problem: Problem, alpha: float, samples: int, seed: int = 1,
-              near: np.ndarray | None = None) -> np.ndarray:
+def bootstrap(
+    problem: Problem, alpha: float, samples: int, seed: int = 1, near: np.ndarray | None = None
+) -> np.ndarray:
     """(samples, M) weights refitted to the points resampled with replacement. `near`: the fit
     to all of them."""
     near = problem.solve(alpha) if near is None else near
@@ -252,8 +282,9 @@ def bootstrap(problem: Problem, alpha: float, samples: int, seed: int = 1,
     return np.array(out)
 
 
-def weight_constraints(family: np.ndarray, lower: np.ndarray, upper: np.ndarray,
-                       total: tuple[float, float] = (1.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
+def weight_constraints(
+    family: np.ndarray, lower: np.ndarray, upper: np.ndarray, total: tuple[float, float] = (1.0, 1.0)
+) -> tuple[np.ndarray, np.ndarray]:
     """C c >= d for: the family's weights >= 0, their sum within `total` (1: a convex
     combination; G0/G for a stiffness G: u is proportional to 1/G), the other coefficients
     within [lower, upper] (entries of those arrays at the family's are unused)."""
@@ -265,6 +296,7 @@ def weight_constraints(family: np.ndarray, lower: np.ndarray, upper: np.ndarray,
     first = len(weights) + 2
     C[first + 2 * np.arange(len(others)), others] = 1.0
     C[first + 2 * np.arange(len(others)) + 1, others] = -1.0
-    d = np.concatenate([np.zeros(len(weights)), [total[0], -total[1]],
-                        np.column_stack([lower[others], -upper[others]]).ravel()])
+    d = np.concatenate(
+        [np.zeros(len(weights)), [total[0], -total[1]], np.column_stack([lower[others], -upper[others]]).ravel()]
+    )
     return C, d

@@ -3,12 +3,13 @@ point and its barycentric coordinates (a point just outside the mesh, as cortex 
 outside a voxel model's staircase, takes the nearest candidate cell and is extrapolated with
 its affine map, as the fine surface is); and the point of a triangulated surface nearest to
 each point, with its triangle and barycentric coordinates."""
+
 from __future__ import annotations
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..physics.skull import closest_points_on_triangles
+from ..surfaces.triangles import closest_points_on_triangles
 
 CANDIDATES = 24  # nearest cell centroids tried per point
 
@@ -66,7 +67,8 @@ class SurfaceLocator:
 
     def nearest(self, moved: np.ndarray, y: np.ndarray, k: int = 4):
         """(triangle (n,), barycentric (n, 3), the signed distance's gradient (n, 3; the outward
-        normal at a face), signed distance (n, + outside)) of each point y to the surface whose vertices are at `moved`; the
+        normal at a face), signed distance (n, + outside)) of each point y to the surface whose vertices
+        are at `moved`; the
         triangles tried are those around the k moved vertices nearest to y."""
         y = np.asarray(y, dtype=float).reshape(-1, 3)
         if moved is not self._tree_of:  # (a tree of the moved vertices: they moved farther than they are apart)
@@ -91,7 +93,7 @@ class SurfaceLocator:
         e1, e2, r = b - a, c - a, closest - a  # the closest point's coordinates in its triangle
         d11, d12, d22 = (np.einsum("ni,ni->n", u, v) for u, v in ((e1, e1), (e1, e2), (e2, e2)))
         r1, r2 = np.einsum("ni,ni->n", r, e1), np.einsum("ni,ni->n", r, e2)
-        det = d11 * d22 - d12 ** 2
+        det = d11 * d22 - d12**2
         s, t = (d22 * r1 - d12 * r2) / det, (d11 * r2 - d12 * r1) / det
         bary = np.stack([1.0 - s - t, s, t], axis=1)
         side = np.where(np.einsum("ni,ni->n", y - closest, normal) >= 0, 1.0, -1.0)

@@ -19,13 +19,14 @@ one small factorisation instead of 30 constrained fits.
 What it leaves out: the truncation by the inequalities the fit presses that are not bounds (the
 skull's rows, a sum at the end of its range) - they bound the posterior on one side only, and
 held as equalities they pinned every free weight where the fit sits at a vertex of them (a
-spread of exactly 0 in 2 of 40 updates on the 10 mm skull atlas, a review's scratch runs); so the spread
+spread of exactly 0 in 2 of 40 random updates on the 10 mm skull atlas); so the spread
 of a node pressed on the skull includes moving toward it. A weight at its bound that the data
-could free (the bootstrap sees that; 0.4-1.4x the truncated posterior's on the review's random problems).
+could free (the bootstrap sees that; 0.4-1.4x the truncated posterior's on random problems).
 The model's own error (an operation the atlas does not contain), unless the residual says so:
 when the fit's residual is larger than the noise explains, the covariance is scaled by the
 ratio (the reduced chi-square, as a weighted least-squares fit with an unknown noise scale does).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -63,7 +64,7 @@ def scale(problem, c: np.ndarray, dimension: int) -> float:
     at least 1)."""
     r = problem.A @ c - problem.b
     dof = max(len(r) - dimension, 1)
-    return max(1.0, float(r @ r) / problem.noise ** 2 / dof)
+    return max(1.0, float(r @ r) / problem.noise**2 / dof)
 
 
 def spread(problem, alpha: float, c: np.ndarray, modes: np.ndarray) -> np.ndarray:

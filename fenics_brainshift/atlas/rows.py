@@ -1,4 +1,5 @@
-"""The rows of the update's least-squares problem: what each measurement and the skull say about the weights c of the modes (u(c) = sum_k c_k U_k, linear in c).
+"""The rows of the update's least-squares problem: what each measurement and the skull say
+about the weights c of the modes (u(c) = sum_k c_k U_k, linear in c).
 
 - point to point: the predicted intra-operative position of a pre-operative point X is
   X + u(c)(X), u interpolated in X's tetrahedron: three rows A c = y - X, exact;
@@ -9,6 +10,7 @@
 - the skull: the room phi(X + u(c)) >= 0 of every boundary node, linearised where it is
   small: phi0 + grad phi . (u(c) - u(c0)) >= -SKULL_SLACK, one inequality row per node.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -30,9 +32,11 @@ class PointRows:
         far = np.flatnonzero(outside > OUTSIDE_CELLS * locator.cell_size)
         if len(far):
             names = ", ".join(labels[i] for i in far[:5])
-            raise InputError(f"--pre: {len(far)} point(s) ({names}) lie outside the atlas's body, farther than "
-                             f"{OUTSIDE_CELLS:g} cells from it: a frame or unit slip (RAS or LPS, mm)? or points "
-                             f"not on the brain")
+            raise InputError(
+                f"--pre: {len(far)} point(s) ({names}) lie outside the atlas's body, farther than "
+                f"{OUTSIDE_CELLS:g} cells from it: a frame or unit slip (RAS or LPS, mm)? or points "
+                f"not on the brain"
+            )
         self.pre, self.measured = pre, measured
 
     def at(self, field: np.ndarray) -> np.ndarray:

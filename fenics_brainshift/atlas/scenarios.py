@@ -24,6 +24,7 @@ a neo-Hookean brain's settled state is matched by a linear one 45 mm lower and t
 (`brainshift fit` finds that; with 25 mm below and G within 0.5-2x the update could not reach
 it: 0.83 mm deep error against the fit's 0.29, benchmarks/results/update.md).
 """
+
 from __future__ import annotations
 
 import itertools
@@ -45,6 +46,7 @@ MAX_ANGLE = 45.0  # degrees: past this a pose is another operation, not a variat
 class SwellingMode:
     """A region's perturbation mode: computed at the volume change `mode`, scaled in the update
     between `lower` and `upper` (volume changes; `prior`: the scene's own)."""
+
     name: str
     index: int | None  # the scene's [[swelling]] index, None for the added whole-brain region
     prior: float
@@ -60,11 +62,15 @@ def parse_vary(texts: list[str]) -> dict[str, list[float]]:
         key, sep, values = text.partition("=")
         key = key.strip()
         if not sep or not values.strip():
-            raise InputError(f"--vary '{text}': give KEY=VALUES, e.g. fluid.level=0.02,0.03,0.04 or "
-                             f"fluid.level=0.01:0.05:5 (start:stop:count)")
+            raise InputError(
+                f"--vary '{text}': give KEY=VALUES, e.g. fluid.level=0.02,0.03,0.04 or "
+                f"fluid.level=0.01:0.05:5 (start:stop:count)"
+            )
         if key not in FAMILY_KEYS + ("material.G",) and not key.startswith("swelling."):
-            raise InputError(f"--vary '{key}' cannot be varied;{did_you_mean(key, FAMILY_KEYS)} use "
-                             f"{', '.join(FAMILY_KEYS)}, material.G or swelling.N (a region's index)")
+            raise InputError(
+                f"--vary '{key}' cannot be varied;{did_you_mean(key, FAMILY_KEYS)} use "
+                f"{', '.join(FAMILY_KEYS)}, material.G or swelling.N (a region's index)"
+            )
         if key in out:
             raise InputError(f"--vary {key} is given twice")
         out[key] = _values(key, values)
@@ -85,11 +91,15 @@ def _values(key: str, text: str) -> list[float]:
     if not all(np.isfinite(values)):
         raise InputError(f"--vary {key}={text}: every value must be a finite number")
     if key.startswith("swelling.") and (len(values) != 2 or not -1 < values[0] < values[1] < 1):
-        raise InputError(f"--vary {key}={text}: give the region's lowest and highest volume change, "
-                         f"-1 < LOW < HIGH < 1 (e.g. -0.03,0.02)")
+        raise InputError(
+            f"--vary {key}={text}: give the region's lowest and highest volume change, "
+            f"-1 < LOW < HIGH < 1 (e.g. -0.03,0.02)"
+        )
     if key == "material.G" and (len(values) != 2 or not 0 < values[0] < values[1]):
-        raise InputError(f"--vary material.G={text}: give the lowest and highest shear modulus in Pa, "
-                         f"0 < LOW < HIGH (e.g. 1500,6000)")
+        raise InputError(
+            f"--vary material.G={text}: give the lowest and highest shear modulus in Pa, "
+            f"0 < LOW < HIGH (e.g. 1500,6000)"
+        )
     if len(set(values)) != len(values):
         raise InputError(f"--vary {key}={text}: a value is given twice")
     return [float(v) for v in values]
@@ -101,7 +111,7 @@ def family(scene, vary: dict[str, list[float]], heights: tuple[float, float]) ->
     the fluid drains (each settled state starts from the last; with the skull a pose's first
     is solved from rest, and at the highest level, the brain borne by the fluid, it presses
     the skull least: on the 5 mm brain, 3 mm gap, turned -12 degrees, 6 Newton iterations
-    against 31 from rest at the lowest in a scratch run; 8.9 a state over the pose against 13.2
+    against 31 from rest at the lowest; 8.9 a state over the pose against 13.2
     ascending, benchmarks/results/skull_atlas.md). heights: the body's lowest and highest surface point
     along up (m), the levels' range."""
     given = {k: v for k, v in vary.items() if k in FAMILY_KEYS}
@@ -112,17 +122,21 @@ def family(scene, vary: dict[str, list[float]], heights: tuple[float, float]) ->
         low, high = heights
         outside = [v for v in axes["fluid.level"] if not low - 1e-9 <= v <= high + 1e-9]
         if outside:
-            raise InputError(f"--vary fluid.level: {outside[0]:g} m is not between the body's lowest and highest "
-                             f"point along up ({low:.4g} to {high:.4g} m; the scene's drained level "
-                             f"{_drained_level(scene):.4g} m): levels are heights along up in the scene's frame, "
-                             f"in metres (mm / 1000)")
+            raise InputError(
+                f"--vary fluid.level: {outside[0]:g} m is not between the body's lowest and highest "
+                f"point along up ({low:.4g} to {high:.4g} m; the scene's drained level "
+                f"{_drained_level(scene):.4g} m): levels are heights along up in the scene's frame, "
+                f"in metres (mm / 1000)"
+            )
     for key in FAMILY_KEYS[1:]:
         if any(abs(v) > MAX_ANGLE for v in axes.get(key, [])):
             raise InputError(f"--vary {key}: angles are degrees within +-{MAX_ANGLE:g} of the scene's pose")
     keys = [k for k in FAMILY_KEYS if k in axes]  # the level last: it varies fastest
     keys = [k for k in keys if k != "fluid.level"] + (["fluid.level"] if "fluid.level" in keys else [])
-    grid = [dict(zip(keys, combo))
-            for combo in itertools.product(*(sorted(axes[k], reverse=k == "fluid.level") for k in keys))]
+    grid = [
+        dict(zip(keys, combo))
+        for combo in itertools.product(*(sorted(axes[k], reverse=k == "fluid.level") for k in keys))
+    ]
     return grid or [{}]
 
 
@@ -170,8 +184,9 @@ def swelling_modes(scene, vary: dict[str, list[float]]) -> list[SwellingMode]:
     for name in asked:
         if name not in names and not (not regions and name == WHOLE_BRAIN[0]):
             known = names or [WHOLE_BRAIN[0]]
-            raise InputError(f"--vary swelling.{name}: no such region;{did_you_mean(name, known)} the scene's are "
-                             f"{', '.join(known)}")
+            raise InputError(
+                f"--vary swelling.{name}: no such region;{did_you_mean(name, known)} the scene's are {', '.join(known)}"
+            )
     if not regions:
         name, lower, upper = WHOLE_BRAIN
         lower, upper = asked.get(name, (lower, upper))
@@ -181,8 +196,10 @@ def swelling_modes(scene, vary: dict[str, list[float]]) -> list[SwellingMode]:
         theta, full = float(region.at(scene.settled_time)), float(region.volume_change)
         lower, upper = asked.get(name, (min(0.0, 1.5 * full), max(0.0, 1.5 * full)))
         if not lower <= theta <= upper:
-            raise InputError(f"--vary swelling.{name}={lower:g},{upper:g}: the scene's own volume change "
-                             f"{theta:g} must lie within the bounds")
+            raise InputError(
+                f"--vary swelling.{name}={lower:g},{upper:g}: the scene's own volume change "
+                f"{theta:g} must lie within the bounds"
+            )
         # the perturbation is computed at the bound farther from the scene's value
         mode = upper if upper - theta >= theta - lower else lower
         out.append(SwellingMode(name, i, theta, mode, lower, upper))

@@ -12,6 +12,7 @@ atlas.h5:
   surface/points (S, 3), surface/triangles: the fine surface (absent: the mesh's boundary)
   skull/triangles (T, 3, 3), attribute gap: the skull the combination must respect
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -29,6 +30,10 @@ FORMAT = 1
 
 @dataclass
 class Atlas:
+    """The modes of an atlas at the mesh's vertices (m, RAS), the prior (the scene's own
+    settled state), the Gram matrices the update solves with, the scenario of each mode, and
+    optionally the fine surface's modes and the skull; info is atlas.json's record."""
+
     points: np.ndarray
     tetrahedra: np.ndarray
     vertex_modes: np.ndarray  # (M, N, 3)
@@ -98,8 +103,16 @@ def write(folder: Path, atlas: Atlas) -> None:
         if atlas.skull_triangles is not None:
             f["skull/triangles"] = atlas.skull_triangles
             f["skull"].attrs["gap"] = np.nan if atlas.skull_gap is None else atlas.skull_gap
-    info = {"format": FORMAT, "mesh_id": atlas.mesh_id(), "build_id": build_id, "modes": len(atlas.scenarios),
-            "nodes": len(atlas.points), "cells": len(atlas.tetrahedra), **atlas.info, "scenarios": atlas.scenarios}
+    info = {
+        "format": FORMAT,
+        "mesh_id": atlas.mesh_id(),
+        "build_id": build_id,
+        "modes": len(atlas.scenarios),
+        "nodes": len(atlas.points),
+        "cells": len(atlas.tetrahedra),
+        **atlas.info,
+        "scenarios": atlas.scenarios,
+    }
     tmp_index = folder / ".atlas.json.tmp"
     tmp_index.write_text(json.dumps(info, indent=1) + "\n")
     os.replace(tmp, h5)
@@ -114,18 +127,29 @@ def read(folder: str | Path) -> Atlas:
     folder = Path(folder)
     h5, index = folder / "atlas.h5", folder / "atlas.json"
     if not h5.is_file() or not index.is_file():
-        raise InputError(f"ATLAS: '{folder}' holds no atlas (atlas.h5 and atlas.json); build one with "
-                         f"brainshift atlas SCENE -o {folder}")
+        raise InputError(
+            f"ATLAS: '{folder}' holds no atlas (atlas.h5 and atlas.json); build one with "
+            f"brainshift atlas SCENE -o {folder}"
+        )
     try:
         info = json.loads(index.read_text())
         with h5py.File(h5, "r") as f:
             if int(f.attrs["format"]) != FORMAT:
-                raise InputError(f"ATLAS: '{h5}' is of format {int(f.attrs['format'])}, this brainshift reads "
-                                 f"{FORMAT}: build it again")
+                raise InputError(
+                    f"ATLAS: '{h5}' is of format {int(f.attrs['format'])}, this brainshift reads "
+                    f"{FORMAT}: build it again"
+                )
             stored_id, build_id = str(f.attrs["mesh_id"]), str(f.attrs.get("build_id", ""))
-            atlas = Atlas(f["mesh/points"][...], f["mesh/tetrahedra"][...], f["modes/vertex"][...],
-                          f["prior/vertex"][...], f["regulariser/gram"][...], f["regulariser/cross"][...],
-                          float(f["regulariser"].attrs["prior_square"]), info["scenarios"])
+            atlas = Atlas(
+                f["mesh/points"][...],
+                f["mesh/tetrahedra"][...],
+                f["modes/vertex"][...],
+                f["prior/vertex"][...],
+                f["regulariser/gram"][...],
+                f["regulariser/cross"][...],
+                float(f["regulariser"].attrs["prior_square"]),
+                info["scenarios"],
+            )
             if "surface" in f:
                 atlas.surface_points, atlas.surface_triangles = f["surface/points"][...], f["surface/triangles"][...]
                 atlas.surface_modes, atlas.prior_surface = f["modes/surface"][...], f["prior/surface"][...]
@@ -138,12 +162,18 @@ def read(folder: str | Path) -> Atlas:
         raise InputError(f"ATLAS: '{folder}' cannot be read ({type(exc).__name__}: {exc}); build it again") from None
     atlas.info = {k: v for k, v in info.items() if k != "scenarios"}
     if info.get("mesh_id") != stored_id or atlas.mesh_id() != stored_id:
-        raise InputError(f"ATLAS: atlas.json and atlas.h5 in '{folder}' are of different meshes (an atlas copied over "
-                         f"another?); build it again")
+        raise InputError(
+            f"ATLAS: atlas.json and atlas.h5 in '{folder}' are of different meshes (an atlas copied over "
+            f"another?); build it again"
+        )
     if info.get("build_id", "") != build_id:
-        raise InputError(f"ATLAS: atlas.json and atlas.h5 in '{folder}' are of different builds (an index copied over "
-                         f"another, or a build interrupted between the two); build it again")
+        raise InputError(
+            f"ATLAS: atlas.json and atlas.h5 in '{folder}' are of different builds (an index copied over "
+            f"another, or a build interrupted between the two); build it again"
+        )
     if len(atlas.scenarios) != len(atlas.vertex_modes) or atlas.vertex_modes.shape[1] != len(atlas.points):
-        raise InputError(f"ATLAS: '{folder}': atlas.json names {len(atlas.scenarios)} modes, atlas.h5 holds "
-                         f"{len(atlas.vertex_modes)} over {atlas.vertex_modes.shape[1]} nodes; build it again")
+        raise InputError(
+            f"ATLAS: '{folder}': atlas.json names {len(atlas.scenarios)} modes, atlas.h5 holds "
+            f"{len(atlas.vertex_modes)} over {atlas.vertex_modes.shape[1]} nodes; build it again"
+        )
     return atlas

@@ -13,20 +13,26 @@ Order of the work, each step on the last one's weights:
    the weights' posterior on the fit's face in closed form (posterior.py), or from a
    bootstrap over the points (`samples` refits).
 """
+
 from __future__ import annotations
 
 import dataclasses
 import time
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..errors import InputError
-from ..physics.skull import RigidSkull
+from ..surfaces.skull import RigidSkull
 from . import posterior
 from .combine import Constraints, Problem, bootstrap, choose_alpha, leave_one_out, weight_constraints
 from .locate import MeshLocator
 from .rows import PointRows, SkullRows, SurfaceRows
+from .store import Atlas
+
+if TYPE_CHECKING:
+    from ..images.targets import Target
 
 LEAVE_OUT_MAX = 100  # points left out one by one (a scan's thousands: a sample of them; the rest NaN)
 MIN_POINT_PAIRS = 3
@@ -42,6 +48,10 @@ OUTLIERS_MAX = 0.25  # of the points: more than that is not a few slips, it is t
 
 @dataclass
 class UpdateResult:
+    """An update: the modes' weights and regularisation (alpha, its cross-validation curve),
+    the residuals before and after (m), the displacement at the nodes and the fine surface, its
+    per-node spread, what the skull's rows did, and the time each part took."""
+
     weights: np.ndarray
     alpha: float
     curve: list[dict]
@@ -59,8 +69,11 @@ class UpdateResult:
 
     def volume_changes(self, atlas) -> dict[str, float]:
         """Each swelling region's fitted volume change."""
-        return {s["region"]: s["prior"] + float(c) * s["step"]
-                for s, c in zip(atlas.scenarios, self.weights) if s["kind"] == "swelling"}
+        return {
+            s["region"]: s["prior"] + float(c) * s["step"]
+            for s, c in zip(atlas.scenarios, self.weights)
+            if s["kind"] == "swelling"
+        }
 
     def stiffness(self, atlas) -> float | None:
         """The fitted G (Pa): the scene's over the family's weights' sum."""
@@ -68,7 +81,7 @@ class UpdateResult:
         return s["G"] / float(self.weights[atlas.family].sum()) if s else None
 
     def stiffness_at_bound(self, atlas) -> str | None:
-        """"lower" / "upper" when the fitted G sits on the atlas's range (the data would take it
+        """ "lower" / "upper" when the fitted G sits on the atlas's range (the data would take it
         farther: not a measurement), else None."""
         s, G = atlas.info.get("stiffness"), self.stiffness(atlas)
         if not s or s["lower"] == s["upper"]:
@@ -78,8 +91,11 @@ class UpdateResult:
 
     def family_weights(self, atlas, smallest: float = 1e-3) -> list[dict]:
         """The family's scenarios with a weight above `smallest`, largest first."""
-        out = [{"weight": float(c), **s["values"]} for s, c in zip(atlas.scenarios, self.weights)
-               if s["kind"] == "family" and c > smallest]
+        out = [
+            {"weight": float(c), **s["values"]}
+            for s, c in zip(atlas.scenarios, self.weights)
+            if s["kind"] == "family" and c > smallest
+        ]
         return sorted(out, key=lambda s: -s["weight"])
 
 
@@ -109,7 +125,7 @@ def prior_weights(atlas) -> np.ndarray:
     return atlas.once["prior_weights"]
 
 
-def prepare(atlas) -> float:
+def prepare(atlas: Atlas) -> float:
     """What every update of this atlas needs, made once when it is loaded (as a navigation
     system keeps it in memory): the prior's weights, the mesh's locator, the skull's distance
     tree and rows over the boundary nodes, and the nodes near the skull at the prior's weights
@@ -158,9 +174,10 @@ def _prior_weights(atlas) -> np.ndarray:
 AGAINST = -0.5  # cosine between the measured and the predicted shift below which the points look swapped
 
 
-def update(atlas, target, noise: float, samples: int = 0, keep_inside: bool = True,
-           set_aside: bool = True) -> UpdateResult:
-    """The update of an atlas (store.Atlas) to a target (fit.targets.Target), noise in m;
+def update(
+    atlas: Atlas, target: Target, noise: float, samples: int = 0, keep_inside: bool = True, set_aside: bool = True
+) -> UpdateResult:
+    """The update of an atlas (store.Atlas) to a target (images.targets.Target), noise in m;
     samples: 0 for the spread from the posterior, else the bootstrap's resamplings;
     keep_inside: the skull's rows in the fit (False: the modes' own contact alone, to measure
     what the rows add); set_aside: points whose left-out error is far past the noise and the
@@ -181,8 +198,9 @@ def update(atlas, target, noise: float, samples: int = 0, keep_inside: bool = Tr
     if not len(far) or len(far) > OUTLIERS_MAX * len(loo) or len(loo) - len(far) < need:
         return result
     keep = np.setdiff1d(np.arange(len(loo)), far)
-    kept = type(target)(target.measured[keep], None if target.pre is None else target.pre[keep],
-                        [target.labels[i] for i in keep])
+    kept = type(target)(
+        target.measured[keep], None if target.pre is None else target.pre[keep], [target.labels[i] for i in keep]
+    )
     again = _update(atlas, kept, noise, samples, keep_inside)
     # every point's errors at the new fit (the set-aside ones' "left out" is their error now)
     residual = np.zeros(len(loo))
@@ -191,13 +209,21 @@ def update(atlas, target, noise: float, samples: int = 0, keep_inside: bool = Tr
     left_out = residual.copy()
     left_out[keep] = again.leave_one_out
     names = ", ".join(f"{target.labels[i]} ({judged[i] * 1e3:.3g} mm)" for i in far[:5])
-    note = (f"{len(far)} point(s) set aside as outliers, their error when left out far past the noise and "
-            f"the others' ({names}; limit {limit * 1e3:.3g} mm; --keep-all fits them): a pointer slip, a landmark"
-            f" on another structure, or points mismatched between --pre and --target")
+    note = (
+        f"{len(far)} point(s) set aside as outliers, their error when left out far past the noise and "
+        f"the others' ({names}; limit {limit * 1e3:.3g} mm; --keep-all fits them): a pointer slip, a landmark"
+        f" on another structure, or points mismatched between --pre and --target"
+    )
     seconds = {k: v + result.seconds.get(k, 0.0) for k, v in again.seconds.items()}
-    return dataclasses.replace(again, prior_residual=result.prior_residual, residual=residual, leave_one_out=left_out,
-                               warning="; ".join(w for w in (note, again.warning) if w), outliers=[int(i) for i in far],
-                               seconds=seconds)
+    return dataclasses.replace(
+        again,
+        prior_residual=result.prior_residual,
+        residual=residual,
+        leave_one_out=left_out,
+        warning="; ".join(w for w in (note, again.warning) if w),
+        outliers=[int(i) for i in far],
+        seconds=seconds,
+    )
 
 
 def _errors(atlas, target, u: np.ndarray, surface_u) -> np.ndarray:
@@ -216,8 +242,10 @@ def _update(atlas, target, noise: float, samples: int, keep_inside: bool) -> Upd
     point_to_point = target.pre is not None
     need = MIN_POINT_PAIRS if point_to_point else MIN_SURFACE_POINTS
     if n_points < need:
-        raise InputError(f"--target: {n_points} point(s) are too few for the update: give at least {need} "
-                         f"{'point pairs' if point_to_point else 'points on the surface'}")
+        raise InputError(
+            f"--target: {n_points} point(s) are too few for the update: give at least {need} "
+            f"{'point pairs' if point_to_point else 'points on the surface'}"
+        )
     modes = atlas.vertex_modes  # float32; the rows and sums take float64 slices of it
     lower, upper = bounds(atlas)
     C0, d0 = weight_constraints(atlas.family, lower, upper, family_sum(atlas))
@@ -278,17 +306,45 @@ def _update(atlas, target, noise: float, samples: int, keep_inside: bool) -> Upd
     surface_u = None if atlas.surface_modes is None else combination(c, atlas.surface_modes)
     skull_report = {}
     if atlas.skull_triangles is not None:
-        skull_report = {"kept_inside": keep_inside, "nodes_with_rows": int(len(nodes)), "rounds": round_ + 1,
-                        "deepest_past_mm": (deepest if skull is not None else _skull(atlas, modes).deepest(c)) * 1e3}
-    warning = "; ".join(w for w in (against, _warning(residual, noise, skull_report.get("deepest_past_mm", 0.0) * 1e-3,
-                                                      keep_inside)) if w) or None
+        skull_report = {
+            "kept_inside": keep_inside,
+            "nodes_with_rows": int(len(nodes)),
+            "rounds": round_ + 1,
+            "deepest_past_mm": (deepest if skull is not None else _skull(atlas, modes).deepest(c)) * 1e3,
+        }
+    warning = (
+        "; ".join(
+            w
+            for w in (against, _warning(residual, noise, skull_report.get("deepest_past_mm", 0.0) * 1e-3, keep_inside))
+            if w
+        )
+        or None
+    )
     # (cross-validation fits every point at each alpha: the fit's rounds start from its fit at the chosen one;
     # weights_ms: until the weights are known, before leave-one-out and the spread)
-    seconds = {"setup_ms": setup_s * 1e3, "fit_ms": fit_s * 1e3, "cross_validation_ms": cv_s * 1e3,
-               "weights_ms": (setup_s + cv_s + fit_s) * 1e3,
-               "leave_one_out_and_spread_ms": spread_s * 1e3, "total_ms": (time.perf_counter() - start) * 1e3}
-    return UpdateResult(c, alpha, curve, prior_residual, residual, loo, u, surface_u, spread, skull_report, seconds,
-                        warning, spread_from=spread_from)
+    seconds = {
+        "setup_ms": setup_s * 1e3,
+        "fit_ms": fit_s * 1e3,
+        "cross_validation_ms": cv_s * 1e3,
+        "weights_ms": (setup_s + cv_s + fit_s) * 1e3,
+        "leave_one_out_and_spread_ms": spread_s * 1e3,
+        "total_ms": (time.perf_counter() - start) * 1e3,
+    }
+    return UpdateResult(
+        c,
+        alpha,
+        curve,
+        prior_residual,
+        residual,
+        loo,
+        u,
+        surface_u,
+        spread,
+        skull_report,
+        seconds,
+        warning,
+        spread_from=spread_from,
+    )
 
 
 def combination(c: np.ndarray, modes: np.ndarray) -> np.ndarray:
@@ -318,8 +374,10 @@ def boundary_triangles(points: np.ndarray, tetrahedra: np.ndarray) -> tuple[np.n
     key = np.sort(faces, axis=1)
     _, first, counts = np.unique(key, axis=0, return_index=True, return_counts=True)
     faces = faces[first[counts == 1]]
-    opposite = tetrahedra[np.repeat(np.arange(len(tetrahedra)), 4)[first[counts == 1]],
-                          np.tile(np.arange(4), len(tetrahedra))[first[counts == 1]]]
+    opposite = tetrahedra[
+        np.repeat(np.arange(len(tetrahedra)), 4)[first[counts == 1]],
+        np.tile(np.arange(4), len(tetrahedra))[first[counts == 1]],
+    ]
     a, b, c = (points[faces[:, i]] for i in range(3))
     inward = np.einsum("ni,ni->n", np.cross(b - a, c - a), points[opposite] - a) > 0
     faces[inward] = faces[inward][:, [0, 2, 1]]
@@ -333,9 +391,11 @@ def _check_near(atlas, prior_residual: np.ndarray, point_to_point: bool) -> None
     median = float(np.median(prior_residual))
     if median > FAR_FROM_PREDICTION * body:
         what = "where --pre's points are predicted" if point_to_point else "the predicted brain surface"
-        raise InputError(f"--target: half the points lie more than {median * 1e3:.3g} mm from {what} (the body is "
-                         f"{body * 1e3:.3g} mm across): a frame or unit slip (RAS or LPS, mm; --frame for a CSV or "
-                         f"an untagged surface), or points of another body")
+        raise InputError(
+            f"--target: half the points lie more than {median * 1e3:.3g} mm from {what} (the body is "
+            f"{body * 1e3:.3g} mm across): a frame or unit slip (RAS or LPS, mm; --frame for a CSV or "
+            f"an untagged surface), or points of another body"
+        )
 
 
 def _skull(atlas, modes: np.ndarray) -> SkullRows | None:
@@ -358,23 +418,28 @@ def _against_prediction(measured_shift: np.ndarray, predicted_shift: np.ndarray,
     the atlas's swelling modes explain it."""
     dot = float(np.sum(measured_shift * predicted_shift))
     norms = float(np.sum(np.linalg.norm(measured_shift, axis=1) * np.linalg.norm(predicted_shift, axis=1)))
-    moved = float(np.sqrt(np.mean(np.sum(measured_shift ** 2, axis=1))))
+    moved = float(np.sqrt(np.mean(np.sum(measured_shift**2, axis=1))))
     if norms == 0 or dot / norms > AGAINST or moved < 2 * noise:
         return None
-    return (f"the measured points moved against the shift the scene predicts (mean cosine {dot / norms:+.2f}, "
-            f"{moved * 1e3:.3g} mm RMS): are --pre and --target swapped? (the brain sags with gravity; a swelling "
-            f"one may rise)")
+    return (
+        f"the measured points moved against the shift the scene predicts (mean cosine {dot / norms:+.2f}, "
+        f"{moved * 1e3:.3g} mm RMS): are --pre and --target swapped? (the brain sags with gravity; a swelling "
+        f"one may rise)"
+    )
 
 
 def _warning(residual: np.ndarray, noise: float, deepest: float, keep_inside: bool) -> str | None:
     parts = []
-    rms = float(np.sqrt(np.mean(residual ** 2)))
+    rms = float(np.sqrt(np.mean(residual**2)))
     if rms > UNEXPLAINED * noise:
-        parts.append(f"the atlas does not explain the data: the updated residual RMS {rms * 1e3:.3g} mm is "
-                     f"{rms / noise:.0f}x the stated noise ({noise * 1e3:g} mm); a frame or unit slip, points "
-                     f"mismatched between --pre and --target, or an operation outside the atlas (build it wider)")
+        parts.append(
+            f"the atlas does not explain the data: the updated residual RMS {rms * 1e3:.3g} mm is "
+            f"{rms / noise:.0f}x the stated noise ({noise * 1e3:g} mm); a frame or unit slip, points "
+            f"mismatched between --pre and --target, or an operation outside the atlas (build it wider)"
+        )
     if deepest > PAST_SKULL:
         how = f"after {ROUNDS} rounds of its rows" if keep_inside else "the fit without the skull's rows"
-        parts.append(f"the updated brain passes the skull by {deepest * 1e3:.2f} mm ({how}): not a physical state "
-                     f"there")
+        parts.append(
+            f"the updated brain passes the skull by {deepest * 1e3:.2f} mm ({how}): not a physical state there"
+        )
     return "; ".join(parts) or None

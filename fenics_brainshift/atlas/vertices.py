@@ -4,6 +4,7 @@ displacement's values there, gathered to rank 0: what an atlas stores.
 The order is the vertices' coordinates sorted (x, then y, then z), which no partition
 changes, so an atlas built on 2 ranks is the one built on 1. A P2 displacement is stored by
 its vertex values (its P1 interpolant, as displacement.xdmf holds it)."""
+
 from __future__ import annotations
 
 import numpy as np

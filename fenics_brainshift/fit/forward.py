@@ -8,19 +8,25 @@ scene's G0 with every load times G0 / G (Model.load_scale) — exact for the lin
 hyperelastic materials and with skull contact. Each evaluation starts from the last answer
 (the follower fixed point or Newton then needs few iterations).
 """
+
 from __future__ import annotations
 
 import dataclasses
+from typing import TYPE_CHECKING
 
 import numpy as np
 from mpi4py import MPI
 
 from ..errors import SolverError
-from ..outputs.points import PointEvaluator
 from ..outputs.fine_surface import SurfaceEmbedding
-from ..physics.skull import RigidSkull, gathered_outward_surface, outward
-from ..physics.surface import surface_facets
+from ..outputs.points import PointEvaluator
+from ..physics.surface import gathered_outward_surface, surface_facets
+from ..surfaces.skull import RigidSkull
+from ..surfaces.triangles import outward
 from .parameters import rotated_gravity
+
+if TYPE_CHECKING:
+    from ..scene import Scene
 
 MAX_HALVINGS = 6  # of a parameter change that Newton cannot take at once
 # the follower fixed point's stopping point (relative change of u): the Jacobian's differences
@@ -29,7 +35,10 @@ FOLLOWER_TOL = 1e-7
 
 
 class ForwardModel:
-    def __init__(self, scene, comm=MPI.COMM_WORLD, newton_rtol: float | None = None):
+    """The scene's settled state re-solved in place for new values of the fitted parameters
+    (the level, G, the head's pose): one model and one factorisation for every evaluation."""
+
+    def __init__(self, scene: Scene, comm: MPI.Intracomm = MPI.COMM_WORLD, newton_rtol: float | None = None):
         """newton_rtol: Newton's relative residual for settled states (None: a run's)."""
         from ..runner import Simulation
 
@@ -51,7 +60,9 @@ class ForwardModel:
         self.continued = self.model.nonlinear
         self.from_rest = self.sim.contact is not None
         self._last: dict | None = None
-        self._scene_level = scene.fluid.level(scene.settled_time) if scene.fluid is not None and scene.fluid.level else 0.0
+        self._scene_level = (
+            scene.fluid.level(scene.settled_time) if scene.fluid is not None and scene.fluid.level else 0.0
+        )
         self.solves = 0  # settled states computed
         self._located: tuple[np.ndarray, PointEvaluator] | None = None  # the last points and their cells
         fluid = self.model.fluid
@@ -95,8 +106,10 @@ class ForwardModel:
             self._last = dict(end)
             return
         if depth == MAX_HALVINGS:
-            raise SolverError(f"no settled state was found for {end} on the way from {start} (in "
-                              f"{2 ** MAX_HALVINGS} steps): the body may have no equilibrium there")
+            raise SolverError(
+                f"no settled state was found for {end} on the way from {start} (in "
+                f"{2**MAX_HALVINGS} steps): the body may have no equilibrium there"
+            )
         keys = set(start) | set(end)
         middle = {k: 0.5 * (start.get(k, self._default(k)) + end.get(k, self._default(k))) for k in keys}
         self._continue(start, middle, depth + 1)

@@ -10,15 +10,20 @@
 A Parameter knows its prior (the scene's value), bounds and typical size; ``scene_changes``
 turns fitted values into the scene's own keys (the fitted TOML).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..errors import InputError
 from ..scene.checks import did_you_mean
+
+if TYPE_CHECKING:
+    from ..scene import Scene
 
 NAMES = ("fluid.level", "material.G", "gravity.angle_x", "gravity.angle_y", "gravity.angle_z")
 MAX_ANGLE = 30.0  # degrees
@@ -27,6 +32,9 @@ G_RANGE = 10.0  # G within [G / 10, 10 G] of the scene's
 
 @dataclass(frozen=True)
 class Parameter:
+    """A fitted parameter: its name (``fluid.level``, ``material.G``, ``gravity.angle_x`` ...),
+    the scene's value (the prior), its bounds, a typical size and its unit."""
+
     name: str
     prior: float
     lower: float
@@ -41,13 +49,14 @@ def check_names(names: list[str]) -> None:
         raise InputError(f"--params: name at least one of {', '.join(NAMES)}")
     for i, name in enumerate(names):
         if name not in NAMES:
-            raise InputError(f"--params: '{name}' cannot be fitted;{did_you_mean(name, NAMES)} choose from "
-                             f"{', '.join(NAMES)}")
+            raise InputError(
+                f"--params: '{name}' cannot be fitted;{did_you_mean(name, NAMES)} choose from {', '.join(NAMES)}"
+            )
         if name in names[:i]:
             raise InputError(f"--params: '{name}' is given twice")
 
 
-def parameters(scene, names: list[str], heights: tuple[float, float]) -> list[Parameter]:
+def fit_parameters(scene: Scene, names: list[str], heights: tuple[float, float]) -> list[Parameter]:
     """The Parameters named (``--params``), priors from the scene; heights: the lowest and
     highest surface point along up (m), the level's bounds."""
     check_names(names)
@@ -55,8 +64,7 @@ def parameters(scene, names: list[str], heights: tuple[float, float]) -> list[Pa
     for name in names:
         if name == "fluid.level":
             if scene.fluid is None or scene.fluid.volume is not None:
-                raise InputError("--params fluid.level: the scene needs [fluid] with a level schedule "
-                                 "(not a volume)")
+                raise InputError("--params fluid.level: the scene needs [fluid] with a level schedule (not a volume)")
             prior = final_level(scene)
             lower, upper = heights
             out.append(Parameter(name, float(np.clip(prior, lower, upper)), lower, upper, 0.01, "m"))
@@ -79,7 +87,7 @@ def rotated_gravity(g0, values: dict[str, float]) -> np.ndarray:
     return Rotation.from_euler("xyz", angles, degrees=True).apply(np.asarray(g0, dtype=float))
 
 
-def scene_changes(scene, values: dict[str, float]) -> dict[str, object]:
+def scene_changes(scene: Scene, values: dict[str, float]) -> dict[str, object]:
     """{"section.key": value} for the scene's TOML: the level plateau after the drain, G, and
     the rotated gravity vector."""
     changes: dict[str, object] = {}

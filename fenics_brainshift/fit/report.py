@@ -1,4 +1,5 @@
 """What a fit writes: the fitted scene (TOML a user runs again) and fit.json."""
+
 from __future__ import annotations
 
 import os
@@ -32,16 +33,20 @@ def write_fitted_scene(scene_path, overrides: list[str], changes: dict, out: Pat
     data.setdefault("output", {})["folder"] = str(Path(out).resolve())
     path = out / "fitted.toml"
     tmp = path.with_suffix(".toml.tmp")
-    tmp.write_text("# written by brainshift fit: the scene with the fitted parameters (fit.json says how well)\n"
-                   + tomli_w.dumps(data))
+    tmp.write_text(
+        "# written by brainshift fit: the scene with the fitted parameters (fit.json says how well)\n"
+        + tomli_w.dumps(data)
+    )
     os.replace(tmp, path)
     return path
 
 
 def write_fit_json(out: Path, result, target, comm, surface: str | None = None) -> Path:
     """fit.json; ``surface``: what point-to-surface distances were measured to."""
-    data = {"target": {"kind": target.kind, "points": len(target.measured), "labels": target.labels},
-            **result.as_dict()}
+    data = {
+        "target": {"kind": target.kind, "points": len(target.measured), "labels": target.labels},
+        **result.as_dict(),
+    }
     if target.pre is None and surface is not None:
         data["target"]["measured_to"] = surface
     write_json(out / "fit.json", data, comm)

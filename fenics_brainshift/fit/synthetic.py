@@ -1,12 +1,13 @@
 """Synthetic intra-operative measurements: a "true" scene's shift sampled at points of the
 exposed cortex, with noise (demos/fit.py, benchmarks/fit.py)."""
+
 from __future__ import annotations
 
 import numpy as np
 from mpi4py import MPI
 
 from ..outputs.points import PointEvaluator
-from ..physics.skull import gathered_outward_surface
+from ..physics.surface import gathered_outward_surface
 from ..scene import load_scene
 from .parameters import rotated_gravity
 
@@ -19,8 +20,9 @@ def true_scene(overrides: list[str], truth: dict[str, float]):
     return load_scene("brain", overrides + sets)
 
 
-def measurements(overrides: list[str], truth: dict[str, float], count: int, noise: float, seed: int,
-                 comm=MPI.COMM_WORLD) -> tuple[np.ndarray, np.ndarray]:
+def measurements(
+    overrides: list[str], truth: dict[str, float], count: int, noise: float, seed: int, comm=MPI.COMM_WORLD
+) -> tuple[np.ndarray, np.ndarray]:
     """(pre, intra) (count, 3) m: surface points of the exposed (anterior, y > 30 mm) cortex
     before the true shift, and after it with Gaussian noise (m per axis)."""
     from ..runner import Simulation

@@ -9,6 +9,7 @@ Between Slices is not used: writers copy it from the source series, and a series
 it wrongly would shift every plane. A frame that does not fall on the reference's voxels is
 refused ("another grid"); it is never resampled.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -43,8 +44,10 @@ def read_dicom_seg(path: str | Path, reference, what: str) -> dict[str, np.ndarr
     if frames.ndim == 2:  # a single frame
         frames = frames[None]
     if "PerFrameFunctionalGroupsSequence" not in seg or len(seg.PerFrameFunctionalGroupsSequence) != len(frames):
-        raise InputError(f"{what}: '{name}' does not say where each of its {len(frames)} frames lies (no per-frame "
-                         f"functional groups); it is not a DICOM-SEG this reader can place")
+        raise InputError(
+            f"{what}: '{name}' does not say where each of its {len(frames)} frames lies (no per-frame "
+            f"functional groups); it is not a DICOM-SEG this reader can place"
+        )
     half = 0.5 * float(getattr(seg, "MaximumFractionalValue", 1)) if fractional else 0.5
 
     numbers = [int(n) for n in seg.get_segment_numbers()]
@@ -57,16 +60,24 @@ def read_dicom_seg(path: str | Path, reference, what: str) -> dict[str, np.ndarr
         if np.ptp(k) == 0:
             planes.add(int(k[0, 0]))
         frame = frames[f]
-        for number in (numbers if labelmap else [_segment_of(seg, group, numbers, what, name)]):
+        for number in numbers if labelmap else [_segment_of(seg, group, numbers, what, name)]:
             on = frame == number if labelmap else frame >= half
             r, c = np.nonzero(on)
             if r.size == 0:
                 continue
             ii, jj, kk = i[r, c], j[r, c], k[r, c]
-            if (ii < 0).any() or (jj < 0).any() or (kk < 0).any() or (ii >= size[0]).any() \
-                    or (jj >= size[1]).any() or (kk >= size[2]).any():
-                raise InputError(f"{what}: '{name}' labels voxels outside the T1 (segment '{labels[number]}'); "
-                                 f"it was drawn on another image; export it with the T1 as its reference")
+            if (
+                (ii < 0).any()
+                or (jj < 0).any()
+                or (kk < 0).any()
+                or (ii >= size[0]).any()
+                or (jj >= size[1]).any()
+                or (kk >= size[2]).any()
+            ):
+                raise InputError(
+                    f"{what}: '{name}' labels voxels outside the T1 (segment '{labels[number]}'); "
+                    f"it was drawn on another image; export it with the T1 as its reference"
+                )
             masks[number][kk, jj, ii] = True
     _check_planes(planes, what, name)
     return {labels[number]: mask for number, mask in masks.items()}
@@ -77,9 +88,11 @@ def _check_planes(planes: set, what: str, name: str) -> None:
     slices, whose voxels span planes between them; laid on the T1's it would be striped."""
     k = np.array(sorted(planes))
     if len(k) > 1 and np.gcd.reduce(np.diff(k)) > 1:
-        raise InputError(f"{what}: '{name}' has frames on every {np.gcd.reduce(np.diff(k))}th plane of the T1 only: "
-                         f"it was drawn on a series of thicker slices; export it on the T1's grid (3D Slicer: "
-                         f"resample the segmentation with the T1 as reference)")
+        raise InputError(
+            f"{what}: '{name}' has frames on every {np.gcd.reduce(np.diff(k))}th plane of the T1 only: "
+            f"it was drawn on a series of thicker slices; export it on the T1's grid (3D Slicer: "
+            f"resample the segmentation with the T1 as reference)"
+        )
 
 
 def _seg_file(path: Path, what: str) -> Path:
@@ -89,8 +102,9 @@ def _seg_file(path: Path, what: str) -> Path:
         raise InputError(f"{what}: no file '{path}'")
     files = [p for p in sorted(path.iterdir()) if p.is_file() and _modality(p) == "SEG"]
     if len(files) != 1:
-        raise InputError(f"{what}: the folder '{path.name}' holds {len(files)} DICOM-SEG files; give the one "
-                         f"segmentation file")
+        raise InputError(
+            f"{what}: the folder '{path.name}' holds {len(files)} DICOM-SEG files; give the one segmentation file"
+        )
     return files[0]
 
 
@@ -110,8 +124,10 @@ def _read(path: Path, what: str):
     if modality is None:
         raise InputError(f"{what}: '{path.name}' is not a DICOM file; give a DICOM-SEG, a NIfTI or a .seg.nrrd")
     if modality != "SEG":
-        raise InputError(f"{what}: '{path.name}' is a DICOM {modality or 'file'} image, not a segmentation "
-                         f"(DICOM-SEG); give the segmentation file")
+        raise InputError(
+            f"{what}: '{path.name}' is a DICOM {modality or 'file'} image, not a segmentation "
+            f"(DICOM-SEG); give the segmentation file"
+        )
     try:
         return hd.seg.segread(path)
     except Exception as exc:  # a damaged or non-conformant file: highdicom's own words
@@ -163,11 +179,16 @@ def _frame_voxels(frame_to_index: np.ndarray, shape, what: str, name: str):
     off_step = np.abs(steps - np.round(steps))  # (3, 2): per pixel along columns, along rows
     drift = off_step[:, 0] * (shape[1] - 1) + off_step[:, 1] * (shape[0] - 1) + np.abs(offset - np.round(offset))
     if drift.max() > GRID_TOLERANCE or not np.allclose(np.abs(np.round(steps)).sum(axis=0), 1.0):
-        raise InputError(f"{what}: '{name}' is on another grid than the T1 (its planes do not fall on the T1's "
-                         f"voxels: another orientation, spacing or origin); export it with the T1 as its reference")
+        raise InputError(
+            f"{what}: '{name}' is on another grid than the T1 (its planes do not fall on the T1's "
+            f"voxels: another orientation, spacing or origin); export it with the T1 as its reference"
+        )
     rows, columns = np.indices(shape)
-    ijk = np.round(offset)[:, None, None] + np.round(steps[:, 0])[:, None, None] * columns \
+    ijk = (
+        np.round(offset)[:, None, None]
+        + np.round(steps[:, 0])[:, None, None] * columns
         + np.round(steps[:, 1])[:, None, None] * rows
+    )
     return ijk.astype(np.int64)
 
 
@@ -176,6 +197,8 @@ def _segment_of(seg, group, numbers: list[int], what: str, name: str) -> int:
     item = _functional(seg, group, "SegmentIdentificationSequence", what, name)
     number = int(item.ReferencedSegmentNumber)
     if number not in numbers:
-        raise InputError(f"{what}: '{name}' has a frame of segment {number}, which it does not describe "
-                         f"(its segments: {', '.join(map(str, numbers))}); the file is damaged")
+        raise InputError(
+            f"{what}: '{name}' has a frame of segment {number}, which it does not describe "
+            f"(its segments: {', '.join(map(str, numbers))}); the file is damaged"
+        )
     return number

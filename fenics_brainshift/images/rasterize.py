@@ -6,6 +6,7 @@ index <-> world affine). Each tetrahedron enumerates the integer points of its b
 and keeps those with all four barycentric coordinates >= -TOLERANCE; vectorised over chunks
 of tetrahedra so memory stays bounded. A centre on a shared face is kept once.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -14,8 +15,9 @@ TOLERANCE = 1e-9  # barycentric slack: centres on a face or an edge belong to it
 CANDIDATES_PER_CHUNK = 4_000_000  # bounding-box points examined at a time (~0.5 GB of work arrays)
 
 
-def rasterize(points: np.ndarray, tets: np.ndarray, shape: tuple[int, int, int], part: int = 0,
-              parts: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def rasterize(
+    points: np.ndarray, tets: np.ndarray, shape: tuple[int, int, int], part: int = 0, parts: int = 1
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(flat voxel indices, tetrahedron of each, barycentric coordinates (n, 4)) of every voxel
     centre of a grid of ``shape`` inside the mesh (points in index coordinates). part / parts:
     only every parts-th chunk of tetrahedra from the part-th (ranks share the work)."""
@@ -40,8 +42,9 @@ def rasterize(points: np.ndarray, tets: np.ndarray, shape: tuple[int, int, int],
         tet = np.repeat(ids, n)
         offset = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
         dj_dk = extent[tet, 1] * extent[tet, 2]
-        ijk = lo[tet] + np.stack([offset // dj_dk, (offset // extent[tet, 2]) % extent[tet, 1],
-                                  offset % extent[tet, 2]], axis=1)
+        ijk = lo[tet] + np.stack(
+            [offset // dj_dk, (offset // extent[tet, 2]) % extent[tet, 1], offset % extent[tet, 2]], axis=1
+        )
         inverse = np.linalg.inv(edges[ids].transpose(0, 2, 1))  # columns v_i - v_0
         local = np.searchsorted(ids, tet)
         lam = np.einsum("nij,nj->ni", inverse[local], ijk - corners[tet, 0])
@@ -61,7 +64,11 @@ def rasterize(points: np.ndarray, tets: np.ndarray, shape: tuple[int, int, int],
 def _chunks(counts: np.ndarray) -> list[tuple[int, int]]:
     """Consecutive ranges of tetrahedra with about CANDIDATES_PER_CHUNK points each."""
     total = np.cumsum(counts)
-    bounds = np.searchsorted(total, np.arange(CANDIDATES_PER_CHUNK, total[-1] + CANDIDATES_PER_CHUNK,
-                                              CANDIDATES_PER_CHUNK) if len(total) and total[-1] else [])
+    bounds = np.searchsorted(
+        total,
+        np.arange(CANDIDATES_PER_CHUNK, total[-1] + CANDIDATES_PER_CHUNK, CANDIDATES_PER_CHUNK)
+        if len(total) and total[-1]
+        else [],
+    )
     edges = sorted({0, len(counts), *[min(int(b) + 1, len(counts)) for b in bounds]})
     return list(zip(edges[:-1], edges[1:]))

@@ -7,6 +7,7 @@ Slicer write) is turned to RAS by negating the first two rows. ``write_like`` wr
 array on the grid of a volume read before, with that file's own header (nibabel's or
 pynrrd's), through a temporary file and a rename: never half a file.
 """
+
 from __future__ import annotations
 
 import os
@@ -23,16 +24,24 @@ NRRD_SUFFIXES = (".nrrd", ".nhdr")  # .seg.nrrd included
 VOLUME_HELP = "use a NIfTI (.nii, .nii.gz) or NRRD (.nrrd, .seg.nrrd) volume"
 
 # the NRRD ``space`` values and the sign flips that take them to RAS
-_NRRD_SPACES = {"right-anterior-superior": np.eye(3), "ras": np.eye(3),
-                "left-posterior-superior": LPS_TO_RAS, "lps": LPS_TO_RAS}
+_NRRD_SPACES = {
+    "right-anterior-superior": np.eye(3),
+    "ras": np.eye(3),
+    "left-posterior-superior": LPS_TO_RAS,
+    "lps": LPS_TO_RAS,
+}
 
 
 def is_volume(path: str | Path) -> bool:
+    """Whether a file name is a volume this package reads (NIfTI or NRRD)."""
     return str(path).lower().endswith(NIFTI_SUFFIXES + NRRD_SUFFIXES)
 
 
 @dataclass
 class Volume:
+    """A NIfTI or NRRD volume as one RAS view: its voxels [i, j, k], the affine to RAS mm, the
+    reader's header (to write a volume like it) and a Slicer segmentation's segments."""
+
     path: Path
     data: np.ndarray  # [i, j, k] (3D); a label or intensity per voxel
     affine: np.ndarray  # 4x4: (i, j, k, 1) -> RAS mm
@@ -79,8 +88,10 @@ def read_volume(path: str | Path, what: str = "--image", layered: bool = False) 
     while data.ndim > 3 and data.shape[-1] == 1:
         data = data[..., 0]
     if volume.layers is not None and not layered:
-        raise InputError(f"{what}: '{path.name}' is a segmentation with overlapping segments ({data.shape[0]} "
-                         f"layers); export the segments needed as a labelmap in Slicer")
+        raise InputError(
+            f"{what}: '{path.name}' is a segmentation with overlapping segments ({data.shape[0]} "
+            f"layers); export the segments needed as a labelmap in Slicer"
+        )
     if volume.layers is not None:
         data = data[0]
     if data.ndim != 3:
@@ -102,8 +113,10 @@ def _read_nrrd(path: Path) -> Volume:
     data, header = nrrd.read(str(path))  # pynrrd: data[i, j, k], the file's axis order
     space = str(header.get("space", "")).lower()
     if space not in _NRRD_SPACES:
-        raise InputError(f"'{path.name}': NRRD space '{header.get('space')}' is not supported; "
-                         f"save it from 3D Slicer (space RAS or LPS)")
+        raise InputError(
+            f"'{path.name}': NRRD space '{header.get('space')}' is not supported; "
+            f"save it from 3D Slicer (space RAS or LPS)"
+        )
     directions = np.asarray(header["space directions"], dtype=float)
     directions = directions[~np.isnan(directions).any(axis=1)]  # a .seg.nrrd's layer axis has none
     layers = None
@@ -160,8 +173,10 @@ def label_mask(volume: Volume, labels, what: str = "labels") -> np.ndarray:
         else:  # a value: ambiguous where segments of several layers share it (Slicer numbers each layer from 1)
             named = [n for n, (_, value) in volume.segment_layers.items() if value == int(label)]
             if len(named) > 1:
-                raise InputError(f"{what}: label {label} of '{volume.path.name}' is each of the segments "
-                                 f"{', '.join(repr(n) for n in named)} (in different layers): give the segment's name")
+                raise InputError(
+                    f"{what}: label {label} of '{volume.path.name}' is each of the segments "
+                    f"{', '.join(repr(n) for n in named)} (in different layers): give the segment's name"
+                )
             mask |= (volume.layers == int(label)).any(axis=0)
     return mask
 
@@ -222,10 +237,13 @@ def _write_nrrd(reference: Volume, data: np.ndarray, path: Path, description: st
     if reference.kind == "nrrd" and len(np.asarray(reference.header["space directions"])) == 3:
         header = {k: v for k, v in reference.header.items() if k not in ("type", "dimension", "sizes")}
     else:  # from NIfTI (or a layered .seg.nrrd): the grid in LPS, as Slicer writes it
-        header = {"space": "left-posterior-superior",
-                  "space directions": (LPS_TO_RAS @ reference.affine[:3, :3]).T,
-                  "space origin": LPS_TO_RAS @ reference.affine[:3, 3],
-                  "kinds": ["domain"] * 3, "encoding": "gzip"}
+        header = {
+            "space": "left-posterior-superior",
+            "space directions": (LPS_TO_RAS @ reference.affine[:3, :3]).T,
+            "space origin": LPS_TO_RAS @ reference.affine[:3, 3],
+            "kinds": ["domain"] * 3,
+            "encoding": "gzip",
+        }
     if description is not None:
         header = {**header, "content": description}
     nrrd.write(str(path), data, header, index_order="F")

@@ -15,6 +15,7 @@ pressed keep 72 MB.
 
 Works on N ranks: dofs are global scalar dofs, the same on every rank, and so is G.
 """
+
 from __future__ import annotations
 
 import warnings
@@ -51,7 +52,7 @@ class Compliance:
         on every rank)."""
         new = np.setdiff1d(np.asarray(dofs, dtype=np.int64), self.known)
         for start in range(0, len(new), BATCH):
-            self._extend(new[start:start + BATCH])
+            self._extend(new[start : start + BATCH])
 
     def _extend(self, new: np.ndarray) -> None:
         Z = self._solve_columns(new)  # (local rows, len(new))

@@ -8,6 +8,7 @@ so that a few nodes coming into contact (or leaving it) cost three triangular so
 one triangular solve plus 3m vector updates. Works on N ranks: the nodes and blocks are
 the same on every rank (global dof numbers), the columns of Z are distributed vectors.
 """
+
 from __future__ import annotations
 
 import numpy as np

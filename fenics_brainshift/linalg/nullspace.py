@@ -1,12 +1,18 @@
 """The rigid-body near-nullspace that makes aggregation AMG work for elasticity."""
+
 from __future__ import annotations
+
+from typing import TYPE_CHECKING
 
 import dolfinx.la
 import numpy as np
 from petsc4py import PETSc
 
+if TYPE_CHECKING:
+    from dolfinx import fem
 
-def rigid_body_modes(V) -> PETSc.NullSpace:
+
+def rigid_body_modes(V: fem.FunctionSpace) -> PETSc.NullSpace:
     """Three translations and three rotations of the dof coordinates of a vector space V,
     orthonormalised (modified Gram-Schmidt with global dot products: the same on any number
     of ranks)."""

@@ -6,6 +6,7 @@ setup each one is looked up with PETSc's own ``PetscOptionsUsed``; what nothing 
 input. Viewers and monitors (``ksp_view``, ``ksp_monitor``, ``*_converged_reason``) are read
 only when a solve ends, so they count as used.
 """
+
 from __future__ import annotations
 
 import ctypes

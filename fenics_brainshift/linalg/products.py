@@ -6,6 +6,7 @@ side) of the same state. Two MatMult calls read K twice; MatMatMult with a dense
 block reads it once, which pays when K no longer sits in cache after the triangular solves
 (measured in benchmarks/step_parts.py).
 """
+
 from __future__ import annotations
 
 from petsc4py import PETSc
@@ -34,7 +35,6 @@ class PairProduct:
     def destroy(self) -> None:
         self.X.destroy()
         self.Y.destroy()
-
 
 
 def diagonal_matrix(diagonal: PETSc.Vec) -> PETSc.Mat:

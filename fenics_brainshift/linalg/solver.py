@@ -8,6 +8,7 @@ acceleration reads ``-brainshift_mass_*``. Bad settings (an option PETSc cannot 
 does not use, a kind this PETSc lacks) are InputError; a solve or factor that fails is
 SolverError.
 """
+
 from __future__ import annotations
 
 from petsc4py import PETSc
@@ -27,8 +28,17 @@ class LinearSolver:
     max_it: Krylov tolerances; options: PETSc options (names without the prefix); name: ""
     for the main solver, else a sub-prefix such as "mass"."""
 
-    def __init__(self, A: PETSc.Mat, kind: str = "cg-gamg", rtol: float = 1e-10, atol: float = 1e-30,
-                 max_it: int = 5000, options: dict | None = None, name: str = "", near_nullspace=None):
+    def __init__(
+        self,
+        A: PETSc.Mat,
+        kind: str = "cg-gamg",
+        rtol: float = 1e-10,
+        atol: float = 1e-30,
+        max_it: int = 5000,
+        options: dict | None = None,
+        name: str = "",
+        near_nullspace=None,
+    ):
         if kind not in KINDS:
             raise InputError(f"[solver] kind must be one of {', '.join(KINDS)} (got {kind!r})")
         self.kind, self.rtol, self.name = kind, rtol, name
@@ -37,8 +47,11 @@ class LinearSolver:
         prefix = f"{PREFIX}{name}_" if name else PREFIX
         self.ksp.setOptionsPrefix(prefix)
         database = PETSc.Options()
-        inserted = {prefix + key: value for key, value in _defaults(kind, A.getComm().getSize() == 1).items()
-                    if not database.hasName(prefix + key)}  # PETSC_OPTIONS from the environment wins
+        inserted = {
+            prefix + key: value
+            for key, value in _defaults(kind, A.getComm().getSize() == 1).items()
+            if not database.hasName(prefix + key)
+        }  # PETSC_OPTIONS from the environment wins
         given = {prefix + key.lstrip("-"): option_text(value) for key, value in (options or {}).items()}
         inserted.update(given)
         if kind == "cg-gamg" and near_nullspace is not None:
@@ -48,23 +61,34 @@ class LinearSolver:
             try:
                 self.ksp.setFromOptions()
             except PETSc.Error as exc:  # a value PETSc cannot parse
-                raise InputError(f"[solver] options: PETSc could not read them (error {exc.ierr}, its message is "
-                                 f"above); check the values of {', '.join(sorted(options or {})) or 'PETSC_OPTIONS'}") from None
+                raise InputError(
+                    f"[solver] options: PETSc could not read them (error {exc.ierr}, its message is "
+                    f"above); check the values of {', '.join(sorted(options or {})) or 'PETSC_OPTIONS'}"
+                ) from None
             try:
                 self.ksp.setUp()  # the factor and the multigrid levels read their options here
             except PETSc.Error as exc:  # a factor that fails (CHOLMOD: not positive definite)
                 if exc.ierr == 92:  # PETSC_ERR_MISSING_FACTOR: a package this PETSc was not built with
-                    raise InputError(f"[solver] options: PETSc has no factor package for them (error 92, its message "
-                                     f"is above); leave pc_factor_mat_solver_type to kind = \"{kind}\"") from None
-                hint = ("the matrix is not positive definite: a body needs [[fixed]] supports unless [time] mode = "
-                        "\"dynamic\"" if exc.ierr == 81 else "check [solver] options (PETSc's message is above)")
-                raise SolverError(f"{name or 'step'} solver '{kind}' could not be set up (PETSc error "
-                                  f"{exc.ierr}): {hint}") from None
+                    raise InputError(
+                        f"[solver] options: PETSc has no factor package for them (error 92, its message "
+                        f'is above); leave pc_factor_mat_solver_type to kind = "{kind}"'
+                    ) from None
+                hint = (
+                    "the matrix is not positive definite: a body needs [[fixed]] supports unless [time] mode = "
+                    '"dynamic"'
+                    if exc.ierr == 81
+                    else "check [solver] options (PETSc's message is above)"
+                )
+                raise SolverError(
+                    f"{name or 'step'} solver '{kind}' could not be set up (PETSc error {exc.ierr}): {hint}"
+                ) from None
             left = unused(given)
         if left:
-            names = ", ".join(k[len(prefix):] for k in left)
-            raise InputError(f"[solver] options: PETSc used none of {names} with kind = \"{kind}\" (misspelt, or an "
-                             f"option of another solver kind); see `-{prefix}help` for the names it knows")
+            names = ", ".join(k[len(prefix) :] for k in left)
+            raise InputError(
+                f'[solver] options: PETSc used none of {names} with kind = "{kind}" (misspelt, or an '
+                f"option of another solver kind); see `-{prefix}help` for the names it knows"
+            )
         self.iterations: list[int] = []
 
     def solve(self, b: PETSc.Vec, x: PETSc.Vec) -> int:
@@ -78,7 +102,8 @@ class LinearSolver:
             raise SolverError(
                 f"{self.name or 'step'} solve diverged: {_reason_name(reason)}{detail} after {its} "
                 f"iterations (solver '{self.kind}', rtol {self.rtol:g}); try "
-                f"[solver] kind = \"cholesky\" or a smaller dt")
+                f'[solver] kind = "cholesky" or a smaller dt'
+            )
         self.iterations.append(its)
         return its
 
@@ -96,8 +121,15 @@ class _PreconditionerOf:
         self.pc.apply(x, y)
 
 
-def solve_preconditioned_by(A: PETSc.Mat, donor: LinearSolver, b: PETSc.Vec, x: PETSc.Vec,
-                            rtol: float = 1e-12, max_it: int = 1000, name: str = "") -> int:
+def solve_preconditioned_by(
+    A: PETSc.Mat,
+    donor: LinearSolver,
+    b: PETSc.Vec,
+    x: PETSc.Vec,
+    rtol: float = 1e-12,
+    max_it: int = 1000,
+    name: str = "",
+) -> int:
     """CG on A x = b, preconditioned by ``donor``'s preconditioner (no new factor or AMG setup).
     Pays when A is spectrally close to the donor's matrix, e.g. M + w K against c M + K."""
     ksp = PETSc.KSP().create(A.getComm())
@@ -111,8 +143,10 @@ def solve_preconditioned_by(A: PETSc.Mat, donor: LinearSolver, b: PETSc.Vec, x: 
         ksp.solve(b, x)
         reason, its = ksp.getConvergedReason(), ksp.getIterationNumber()
         if reason < 0:
-            raise SolverError(f"{name} solve diverged: {_reason_name(reason)} after {its} iterations "
-                              f"(CG preconditioned by the step solver '{donor.kind}')")
+            raise SolverError(
+                f"{name} solve diverged: {_reason_name(reason)} after {its} iterations "
+                f"(CG preconditioned by the step solver '{donor.kind}')"
+            )
         return its
     finally:
         ksp.destroy()
@@ -127,21 +161,35 @@ def _defaults(kind: str, serial: bool) -> dict[str, str]:
     if kind == "cg-gamg":
         # Unsmoothed aggregation with a 0.01 drop threshold: more CG iterations at nu -> 0.5, but
         # sparse coarse operators, so faster setups and steps (docs/performance.md, Scaling)
-        return {"ksp_type": "cg", "pc_type": "gamg", "ksp_initial_guess_nonzero": "true",
-                "pc_gamg_agg_nsmooths": "0", "pc_gamg_threshold": "0.01",
-                "pc_gamg_coarse_eq_limit": "1000", "mg_levels_ksp_type": "chebyshev",
-                "mg_levels_pc_type": "jacobi", "mg_levels_esteig_ksp_type": "cg"}
+        return {
+            "ksp_type": "cg",
+            "pc_type": "gamg",
+            "ksp_initial_guess_nonzero": "true",
+            "pc_gamg_agg_nsmooths": "0",
+            "pc_gamg_threshold": "0.01",
+            "pc_gamg_coarse_eq_limit": "1000",
+            "mg_levels_ksp_type": "chebyshev",
+            "mg_levels_pc_type": "jacobi",
+            "mg_levels_esteig_ksp_type": "cg",
+        }
     if kind == "cg-hypre":
         # BoomerAMG with HMIS coarsening, extended+i interpolation (at most 4 entries per row)
         # and strength 0.5, the usual 3-D choice: CG iterations nearly flat with the mesh size
         # (docs/performance.md, Scaling)
         if not has_package("hypre"):
-            raise InputError("[solver] kind = \"cg-hypre\" needs PETSc built with hypre, which this one is not; "
-                             "use \"cg-gamg\"")
-        return {"ksp_type": "cg", "pc_type": "hypre", "pc_hypre_type": "boomeramg",
-                "pc_hypre_boomeramg_strong_threshold": "0.5", "pc_hypre_boomeramg_coarsen_type": "HMIS",
-                "pc_hypre_boomeramg_interp_type": "ext+i", "pc_hypre_boomeramg_P_max": "4",
-                "ksp_initial_guess_nonzero": "true"}
+            raise InputError(
+                '[solver] kind = "cg-hypre" needs PETSc built with hypre, which this one is not; use "cg-gamg"'
+            )
+        return {
+            "ksp_type": "cg",
+            "pc_type": "hypre",
+            "pc_hypre_type": "boomeramg",
+            "pc_hypre_boomeramg_strong_threshold": "0.5",
+            "pc_hypre_boomeramg_coarsen_type": "HMIS",
+            "pc_hypre_boomeramg_interp_type": "ext+i",
+            "pc_hypre_boomeramg_P_max": "4",
+            "ksp_initial_guess_nonzero": "true",
+        }
     if kind == "cg-jacobi":
         return {"ksp_type": "cg", "pc_type": "jacobi", "ksp_initial_guess_nonzero": "true"}
     return {"ksp_type": "preonly", "pc_type": kind, **_factor_package(kind, serial)}

@@ -11,6 +11,7 @@ and the likely slip. The figures are estimates, on the generous side:
 - the voxel mesher keeps a few arrays per coarse voxel (GRID_BYTES_PER_VOXEL) and, for a
   surface, a few per sample point (SAMPLE_BYTES: votes, masks, sort keys and counts).
 """
+
 from __future__ import annotations
 
 import os
@@ -46,8 +47,9 @@ def require(n_bytes: float, what: str, hint: str) -> None:
     """InputError if ``what`` would need more than the memory available."""
     have = available_bytes()
     if n_bytes > have:
-        raise InputError(f"{what} would need about {human(n_bytes)} of memory, more than the {human(have)} "
-                         f"available; {hint}")
+        raise InputError(
+            f"{what} would need about {human(n_bytes)} of memory, more than the {human(have)} available; {hint}"
+        )
 
 
 def run_bytes(nodes: float, degree: int = 1) -> float:

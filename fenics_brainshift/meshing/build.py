@@ -3,43 +3,70 @@
 Each takes plain values; run/build.py picks one from a scene's [mesh]. Big meshes are
 refused before they are allocated (budget.py).
 """
+
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .. import compat, formats
 from ..errors import InputError
 from ..logs import get_logger
-from ..scene.body import LENGTH_UNITS
+from ..units import LENGTH_UNITS
 from .budget import require, run_bytes
 from .extent import body_diagonal, size_problem
 from .hexgrid import structured_box
 from .shapes import read_msh
 from .voxelize import VoxelizeError, voxelize
 
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from dolfinx import mesh as dmesh
+    from mpi4py import MPI
+
+    from .voxelize import VoxelModel
+
 log = get_logger("meshing")
 
 
-def mesh_from_arrays(comm, points: np.ndarray, tets: np.ndarray):
+def mesh_from_arrays(comm: MPI.Intracomm, points: np.ndarray, tets: np.ndarray) -> dmesh.Mesh:
     """Distribute a tetrahedral mesh given in full on rank 0 (other ranks' inputs are ignored)."""
     if comm.rank != 0:
         points, tets = np.zeros((0, 3)), np.zeros((0, 4), dtype=np.int64)
     return compat.create_mesh(comm, tets, points)
 
 
-def box_mesh(comm, size, cells, origin=(0.0, 0.0, 0.0), degree: int = 1):
+def box_mesh(
+    comm: MPI.Intracomm,
+    size: Sequence[float],
+    cells: Sequence[int],
+    origin: Sequence[float] = (0.0, 0.0, 0.0),
+    degree: int = 1,
+) -> dmesh.Mesh:
     """A box of cells = [nx, ny, nz] hexahedra, five conforming tetrahedra each."""
     nodes = float(np.prod(np.asarray(cells, dtype=float) + 1))
-    require(run_bytes(nodes, degree), f"[mesh] cells = {list(cells)} ({nodes:.3g} nodes)",
-            "use fewer cells (the paper's cube has [25, 25, 12])")
+    require(
+        run_bytes(nodes, degree),
+        f"[mesh] cells = {list(cells)} ({nodes:.3g} nodes)",
+        "use fewer cells (the paper's cube has [25, 25, 12])",
+    )
     points, tets = structured_box(size, cells, origin) if comm.rank == 0 else (None, None)
     return mesh_from_arrays(comm, points, tets)
 
 
-def voxelized_mesh(comm, input_file, voxel: float, scale: float, fill: float = 0.5, parts: int = 1,
-                   labels=None, degree: int | None = 1):
+def voxelized_mesh(
+    comm: MPI.Intracomm,
+    input_file: str | Path,
+    voxel: float,
+    scale: float,
+    fill: float = 0.5,
+    parts: int = 1,
+    labels: Sequence | None = None,
+    degree: int | None = 1,
+) -> tuple[dmesh.Mesh, VoxelModel | None]:
     """Voxel-mesh on rank 0 (errors raised on every rank), then distribute the tetrahedra.
     Returns (mesh, VoxelModel on rank 0 or None). ``degree``: the run's element degree, to
     refuse a mesh the run could not hold (None: the mesh only)."""
@@ -49,8 +76,11 @@ def voxelized_mesh(comm, input_file, voxel: float, scale: float, fill: float = 0
             model = voxelize(input_file, voxel, scale, fill, parts, labels)
             log.info("voxel mesh of %s: %s", Path(input_file).name, model.report())
             if degree is not None:
-                require(run_bytes(len(model.points), degree), f"a run on {len(model.points)} nodes "
-                        f"({voxel * 1e3:g} mm voxels)", "use larger voxels")
+                require(
+                    run_bytes(len(model.points), degree),
+                    f"a run on {len(model.points)} nodes ({voxel * 1e3:g} mm voxels)",
+                    "use larger voxels",
+                )
         except InputError as exc:
             error = str(exc)
     error = comm.bcast(error, root=0)
@@ -60,7 +90,7 @@ def voxelized_mesh(comm, input_file, voxel: float, scale: float, fill: float = 0
     return mesh_from_arrays(comm, points, tets), model
 
 
-def read_mesh_file(comm, path: str | Path, scale: float = 1.0):
+def read_mesh_file(comm: MPI.Intracomm, path: str | Path, scale: float = 1.0) -> dmesh.Mesh:
     """A tetrahedral mesh from .msh (gmsh) or .xdmf (DOLFINx/meshio), scaled to metres."""
     path = Path(path)
     if not path.is_file():
@@ -77,7 +107,9 @@ def read_mesh_file(comm, path: str | Path, scale: float = 1.0):
     except Exception as exc:  # corrupt or unreadable file: say which and why, no traceback
         raise InputError(f"[mesh] file '{path.name}' could not be read as a tetrahedral mesh: {exc}") from None
     if mesh.topology.dim != 3:
-        raise InputError(f"[mesh] file '{path.name}' holds a {mesh.topology.dim}-D mesh; a volume (tetrahedra) is needed")
+        raise InputError(
+            f"[mesh] file '{path.name}' holds a {mesh.topology.dim}-D mesh; a volume (tetrahedra) is needed"
+        )
     mesh.geometry.x[:] *= scale
     return mesh
 
@@ -113,8 +145,16 @@ def _meshio_tetrahedra(comm, path: Path):
     return points, tets
 
 
-def write_voxel_mesh(path: Path, comm, input_file: str, voxel: float, scale: float, fill: float = 0.5,
-                     parts: int = 1, labels=None) -> str:
+def write_voxel_mesh(
+    path: Path,
+    comm: MPI.Intracomm,
+    input_file: str,
+    voxel: float,
+    scale: float,
+    fill: float = 0.5,
+    parts: int = 1,
+    labels: Sequence | None = None,
+) -> str:
     """`brainshift mesh`: voxel-mesh a segmentation and write it as XDMF (metres), with the cell
     tags "voxel" (1 + the index of the voxel each tetrahedron came from). Returns the report.
     The caller checks that ``path``'s folder can be written before calling."""
@@ -125,13 +165,16 @@ def write_voxel_mesh(path: Path, comm, input_file: str, voxel: float, scale: flo
     problem = size_problem(body_diagonal(mesh), scale)
     if problem is not None:  # before writing: a mm file under --scale 1 is a 170 m brain
         what, unit = problem
-        hint = f"is it in {unit}? give --scale {LENGTH_UNITS[unit]:g}" if unit else "check --scale (input units to metres)"
+        hint = (
+            f"is it in {unit}? give --scale {LENGTH_UNITS[unit]:g}" if unit else "check --scale (input units to metres)"
+        )
         raise InputError(f"mesh: {what} with --scale {scale:g}: {hint}")
     tet_voxel = comm.bcast(model.tet_voxel if model else None, root=0)
     n_owned = mesh.topology.index_map(3).size_local
     original = np.asarray(mesh.topology.original_cell_index)[:n_owned]
-    tags = dolfinx.mesh.meshtags(mesh, 3, np.arange(n_owned, dtype=np.int32),
-                                 (tet_voxel[original] + 1).astype(np.int32))
+    tags = dolfinx.mesh.meshtags(
+        mesh, 3, np.arange(n_owned, dtype=np.int32), (tet_voxel[original] + 1).astype(np.int32)
+    )
     tags.name = "voxel"
     if comm.rank == 0:
         path.parent.mkdir(parents=True, exist_ok=True)

@@ -1,5 +1,6 @@
 """How many cells that are present touch each facet: the topology behind a surface that
 changes when cells are removed."""
+
 from __future__ import annotations
 
 import dolfinx.la

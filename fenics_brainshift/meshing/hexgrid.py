@@ -5,6 +5,7 @@ tetrahedra. The cut pattern alternates with the parity of i + j + k, so the face
 neighbouring hexahedra coincide and the tetrahedral mesh is conforming. The same split serves
 the paper's structured cube grids and, later, voxel meshes.
 """
+
 from __future__ import annotations
 
 import numpy as np

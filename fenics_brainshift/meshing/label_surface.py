@@ -6,6 +6,7 @@ Marching cubes (scikit-image) on the labels' mask at the 0.5 level, the mask pad
 empty voxel so that the surface closes at the image's edge; the vertices mapped through the
 image's affine to the scene's frame (the one a mesh made from the same volume has).
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -15,7 +16,7 @@ from skimage.measure import marching_cubes
 
 from ..errors import InputError
 from ..images.volumes import label_mask, read_volume
-from ..physics.skull import outward
+from ..surfaces.triangles import outward
 
 
 def label_surface(path: str | Path, labels, scale: float, what: str = "[skull] label") -> tuple[np.ndarray, np.ndarray]:
@@ -26,8 +27,10 @@ def label_surface(path: str | Path, labels, scale: float, what: str = "[skull] l
     mask = label_mask(volume, labels, what)
     if not mask.any():
         wanted = ", ".join(map(str, labels)) if labels is not None else "other than 0"
-        raise InputError(f"{what}: no voxel of '{Path(path).name}' has label {wanted}; "
-                         f"its labels: {', '.join(map(str, np.unique(volume.data)[:20]))}")
+        raise InputError(
+            f"{what}: no voxel of '{Path(path).name}' has label {wanted}; "
+            f"its labels: {', '.join(map(str, np.unique(volume.data)[:20]))}"
+        )
     padded = np.pad(mask, 1).astype(np.float32)
     ijk, triangles, _, _ = marching_cubes(padded, 0.5)
     ijk -= 1.0  # the padding

@@ -1,4 +1,5 @@
 """Reading a label volume at points (for removals by label)."""
+
 from __future__ import annotations
 
 from pathlib import Path

@@ -1,12 +1,20 @@
 """Unstructured meshes with gmsh (built or read on rank 0, then distributed)."""
+
 from __future__ import annotations
 
 from contextlib import contextmanager
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .. import compat
 from .budget import require, run_bytes
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from dolfinx import mesh as dmesh
+    from mpi4py import MPI
 
 
 @contextmanager
@@ -27,13 +35,18 @@ def gmsh_session():
             gmsh.finalize()
 
 
-def gmsh_shape(comm, shape: str, size, origin, h: float, degree: int = 1):
+def gmsh_shape(
+    comm: MPI.Intracomm, shape: str, size: Sequence[float], origin: Sequence[float], h: float, degree: int = 1
+) -> dmesh.Mesh:
     """A tetrahedral mesh of a box (size = extents, origin = corner) or an ellipsoid
     (size = semi-axes, origin = centre) with element size h."""
     volume = float(np.prod(size)) * (4.0 / 3.0 * np.pi if shape == "ellipsoid" else 1.0)
     nodes = 1.5 * volume / h**3  # about what gmsh makes for a tetrahedral mesh of edge h
-    require(run_bytes(nodes, degree), f"[mesh] h = {h:g} m for a {shape} of {volume * 1e6:.3g} ml "
-            f"(about {nodes:.3g} nodes)", "[mesh] h is in metres: use a larger element size")
+    require(
+        run_bytes(nodes, degree),
+        f"[mesh] h = {h:g} m for a {shape} of {volume * 1e6:.3g} ml (about {nodes:.3g} nodes)",
+        "[mesh] h is in metres: use a larger element size",
+    )
     with gmsh_session() as gmsh:
         model = gmsh.model
         if comm.rank == 0:

@@ -16,6 +16,7 @@ grows the volume by about half a voxel all round. The fill fraction is measured
 Then only the largest face-connected part is kept (or the ``parts`` largest), and blocks of
 2 x 2 x 2 voxels that touch only along an edge or at a corner are filled (see close_pinches).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -24,13 +25,13 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
-from .hexgrid import voxel_mesh
-
 from .. import formats
 from ..errors import InputError
+from ..surfaces.files import read_surface
+from ..surfaces.inside import enclosed_volume, parity_inside
 from .budget import GRID_BYTES_PER_VOXEL, SAMPLE_BYTES, require
 from .extent import size_problem
-from .surface_file import read_polygons, to_ras
+from .hexgrid import voxel_mesh
 
 
 class VoxelizeError(InputError):
@@ -44,15 +45,22 @@ def check_grid(shape, voxel: float, bytes_per_voxel: float, size: float, scale: 
     problem = size_problem(size, scale)
     if problem is not None and problem[1] is not None:  # the object's unit, not the voxel's
         what, unit = problem
-        hint = (f"{what}: is it in {unit}? (a scene's [mesh] unit = \"{unit}\"; `brainshift mesh --scale` the "
-                f"factor from it to m)")
+        hint = (
+            f'{what}: is it in {unit}? (a scene\'s [mesh] unit = "{unit}"; `brainshift mesh --scale` the '
+            f"factor from it to m)"
+        )
     else:
-        hint = ("is the voxel size in the right unit? (a scene's [mesh] voxel is in metres; `brainshift mesh "
-                "--voxel` is in the input's unit, mm for medical images)")
+        hint = (
+            "is the voxel size in the right unit? (a scene's [mesh] voxel is in metres; `brainshift mesh "
+            "--voxel` is in the input's unit, mm for medical images)"
+        )
     cells = float(np.prod(np.asarray(shape, dtype=float)))
     across = f"{size:.3g} m" if size >= 1.0 else f"{size * 1e3:.3g} mm"  # (as the hint says it)
-    require(cells * bytes_per_voxel, f"a grid of {cells:.3g} voxels of {voxel * 1e3:g} mm over an object "
-            f"{across} across", hint)
+    require(
+        cells * bytes_per_voxel,
+        f"a grid of {cells:.3g} voxels of {voxel * 1e3:g} mm over an object {across} across",
+        hint,
+    )
 
 
 @dataclass
@@ -72,13 +80,22 @@ class VoxelModel:
 
     def report(self) -> str:
         change = 100.0 * (self.volume_m3 / self.input_volume_m3 - 1.0) if self.input_volume_m3 else float("nan")
-        return (f"{len(self.points)} nodes, {len(self.tets)} tetrahedra from {len(self.voxels)} voxels of "
-                f"{self.voxel_size * 1e3:g} mm; volume {self.volume_m3 * 1e6:.1f} ml against the input's "
-                f"{self.input_volume_m3 * 1e6:.1f} ml ({change:+.1f} %); {self.dropped_parts} floating part(s) dropped")
+        return (
+            f"{len(self.points)} nodes, {len(self.tets)} tetrahedra from {len(self.voxels)} voxels of "
+            f"{self.voxel_size * 1e3:g} mm; volume {self.volume_m3 * 1e6:.1f} ml against the input's "
+            f"{self.input_volume_m3 * 1e6:.1f} ml ({change:+.1f} %); {self.dropped_parts} floating part(s) dropped"
+        )
 
 
-def voxelize(path: str | Path, voxel: float, scale: float = 1e-3, fill: float = 0.5, parts: int = 1,
-             labels: list[int] | None = None, samples: int = 3) -> VoxelModel:
+def voxelize(
+    path: str | Path,
+    voxel: float,
+    scale: float = 1e-3,
+    fill: float = 0.5,
+    parts: int = 1,
+    labels: list[int] | None = None,
+    samples: int = 3,
+) -> VoxelModel:
     """Voxel model of a label volume or surface file. ``voxel`` in m; ``scale`` turns the
     file's coordinates into m (1e-3 for mm, the usual unit of medical images)."""
     path = Path(path)
@@ -93,18 +110,20 @@ def voxelize(path: str | Path, voxel: float, scale: float = 1e-3, fill: float = 
     elif formats.is_surface(path):
         fraction, origin, input_volume = surface_occupancy(read_surface(path, scale), voxel, samples, scale)
     else:
-        raise VoxelizeError(f"'{path.name}': use a label volume ({', '.join(formats.LABEL_SUFFIXES)}) or a "
-                            f"surface ({', '.join(formats.SURFACE_SUFFIXES)})")
+        raise VoxelizeError(
+            f"'{path.name}': use a label volume ({', '.join(formats.LABEL_SUFFIXES)}) or a "
+            f"surface ({', '.join(formats.SURFACE_SUFFIXES)})"
+        )
     keep = fraction >= fill if fill > 0 else fraction > 0
     keep, dropped = largest_parts(keep, parts)
     keep = close_pinches(keep)
     if not keep.any():
-        raise VoxelizeError(f"'{path.name}': no voxel of {voxel * 1e3:g} mm is filled to {fill:g}; "
-                            f"use a smaller voxel or a lower fill")
+        raise VoxelizeError(
+            f"'{path.name}': no voxel of {voxel * 1e3:g} mm is filled to {fill:g}; use a smaller voxel or a lower fill"
+        )
     points, tets = voxel_mesh(keep, (voxel,) * 3, origin)
     voxels = np.argwhere(keep)
-    return VoxelModel(points, tets, voxels, np.repeat(np.arange(len(voxels)), 5), voxel, origin,
-                      input_volume, dropped)
+    return VoxelModel(points, tets, voxels, np.repeat(np.arange(len(voxels)), 5), voxel, origin, input_volume, dropped)
 
 
 def largest_parts(mask: np.ndarray, parts: int = 1) -> tuple[np.ndarray, int]:
@@ -144,8 +163,12 @@ def close_pinches(mask: np.ndarray, max_rounds: int = 50) -> np.ndarray:
         return mask
     n0, n1, n2 = mask.shape
     for _ in range(max_rounds):
-        code = sum(mask[i:n0 - 1 + i, j:n1 - 1 + j, k:n2 - 1 + k].astype(np.int32) << (i + 2 * j + 4 * k)
-                   for i in (0, 1) for j in (0, 1) for k in (0, 1))
+        code = sum(
+            mask[i : n0 - 1 + i, j : n1 - 1 + j, k : n2 - 1 + k].astype(np.int32) << (i + 2 * j + 4 * k)
+            for i in (0, 1)
+            for j in (0, 1)
+            for k in (0, 1)
+        )
         bad = np.argwhere(_PINCHED[code])
         if len(bad) == 0:
             break
@@ -167,8 +190,10 @@ def label_occupancy(path: Path, voxel: float, scale: float, labels=None):
         volume = read_volume(path, "label volume", layered=True)
         names = segment_names(volume)
         if not labels and len(names) > 1:  # a brain, a tumour and a skull meshed as one body
-            raise InputError(f"'{path.name}' holds {len(names)} segments ({', '.join(names)}): choose the body's, "
-                             f"e.g. [mesh] labels = [\"{names[0]}\"] (brainshift mesh --labels {names[0]})")
+            raise InputError(
+                f"'{path.name}' holds {len(names)} segments ({', '.join(names)}): choose the body's, "
+                f'e.g. [mesh] labels = ["{names[0]}"] (brainshift mesh --labels {names[0]})'
+            )
         inside = label_mask(volume, labels or None, "labels")
     except InputError as exc:
         raise VoxelizeError(str(exc)) from None
@@ -189,93 +214,20 @@ def label_occupancy(path: Path, voxel: float, scale: float, labels=None):
 
 
 # ----------------------------------------------------------------- surfaces
-def read_surface(path: Path, scale: float, frame: str | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Points (m, RAS) and triangles of a surface file, degenerate triangles dropped. The
-    frame is the one the file's header declares (SPACE=LPS as 3D Slicer writes it), else
-    ``frame`` (None: RAS). See surface_file.py."""
-    try:
-        points, triangles = read_polygons(path)
-    except VoxelizeError:
-        raise
-    except Exception as exc:
-        raise VoxelizeError(f"'{path.name}' could not be read as a surface: {exc}") from None
-    points = np.asarray(points, dtype=float)
-    triangles = np.asarray(triangles, dtype=np.int64)
-    if len(triangles) == 0 or points.size == 0:
-        raise VoxelizeError(f"'{path.name}' holds no triangles")
-    points = to_ras(points.reshape(len(points), -1)[:, :3] * scale, path, frame)
-    # bad triangles (degenerate, out-of-range indices) are dropped, not fatal
-    ok = np.all((triangles >= 0) & (triangles < len(points)), axis=1)
-    triangles = triangles[ok]
-    p = points[triangles]
-    area = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
-    if not np.any(area > 0):
-        raise VoxelizeError(f"'{path.name}' holds no triangle with an area (all degenerate or out of range)")
-    return points, triangles[area > 0]
-
-
 def surface_occupancy(surface, voxel: float, samples: int, scale: float = 1.0):
     points, triangles = surface
     lo, hi = points.min(axis=0), points.max(axis=0)
     origin = lo - 0.5 * voxel
     shape = np.floor((hi - origin) / voxel).astype(int) + 1
-    check_grid(shape, voxel, GRID_BYTES_PER_VOXEL + SAMPLE_BYTES * samples**3, float(np.linalg.norm(hi - lo)),
-               scale)
+    check_grid(shape, voxel, GRID_BYTES_PER_VOXEL + SAMPLE_BYTES * samples**3, float(np.linalg.norm(hi - lo)), scale)
     # sample points: samples^3 per voxel, at sub-cell centres
     sub = (np.arange(samples) + 0.5) / samples
     axes = [origin[a] + voxel * (np.arange(shape[a])[:, None] + sub[None, :]).ravel() for a in range(3)]
     inside_votes = np.zeros([len(ax) for ax in axes], dtype=np.int8)
     for ray in range(3):
-        inside_votes += _parity_inside(points, triangles, axes, ray)
+        inside_votes += parity_inside(points, triangles, axes, ray)
     inside = inside_votes >= 2
     n = samples
     fraction = inside.reshape(shape[0], n, shape[1], n, shape[2], n).mean(axis=(1, 3, 5))
-    input_volume = _enclosed_volume(points, triangles)
+    input_volume = enclosed_volume(points, triangles)
     return fraction, origin, input_volume
-
-
-def _parity_inside(points, triangles, axes, ray: int) -> np.ndarray:
-    """Inside test on the sample grid by counting surface crossings of rays along axis ``ray``."""
-    a, b = [k for k in range(3) if k != ray]
-    P = points[triangles]  # (T, 3, 3)
-    ga, gb, gr = axes[a], axes[b], axes[ray]
-    da, db = ga[1] - ga[0] if len(ga) > 1 else 1.0, gb[1] - gb[0] if len(gb) > 1 else 1.0
-    # candidate (triangle, column) pairs from each triangle's bounding box in the (a, b) plane
-    ia0 = np.clip(np.ceil((P[:, :, a].min(1) - ga[0]) / da).astype(int), 0, len(ga))
-    ia1 = np.clip(np.floor((P[:, :, a].max(1) - ga[0]) / da).astype(int), -1, len(ga) - 1)
-    ib0 = np.clip(np.ceil((P[:, :, b].min(1) - gb[0]) / db).astype(int), 0, len(gb))
-    ib1 = np.clip(np.floor((P[:, :, b].max(1) - gb[0]) / db).astype(int), -1, len(gb) - 1)
-    na, nb = np.maximum(ia1 - ia0 + 1, 0), np.maximum(ib1 - ib0 + 1, 0)
-    count = na * nb
-    tri = np.repeat(np.arange(len(P)), count)
-    local = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
-    ca = ia0[tri] + local // np.maximum(nb[tri], 1)
-    cb = ib0[tri] + local % np.maximum(nb[tri], 1)
-    # barycentric coordinates of the column in the triangle's projection
-    x, y = ga[ca], gb[cb]
-    p0, p1, p2 = P[tri, 0], P[tri, 1], P[tri, 2]
-    d = (p1[:, a] - p0[:, a]) * (p2[:, b] - p0[:, b]) - (p2[:, a] - p0[:, a]) * (p1[:, b] - p0[:, b])
-    good = np.abs(d) > 1e-300
-    l1 = np.where(good, ((x - p0[:, a]) * (p2[:, b] - p0[:, b]) - (p2[:, a] - p0[:, a]) * (y - p0[:, b])) / np.where(good, d, 1), -1)
-    l2 = np.where(good, ((p1[:, a] - p0[:, a]) * (y - p0[:, b]) - (x - p0[:, a]) * (p1[:, b] - p0[:, b])) / np.where(good, d, 1), -1)
-    l0 = 1 - l1 - l2
-    hit = good & (l0 >= 0) & (l1 >= 0) & (l2 >= 0)
-    z = (l0 * p0[:, ray] + l1 * p1[:, ray] + l2 * p2[:, ray])[hit]
-    column = (ca * len(gb) + cb)[hit]
-    # crossings below each sample, per column, by one sorted key array
-    zmin, span = gr[0] - 1.0, (gr[-1] - gr[0]) + 2.0
-    keys = np.sort(column * 4.0 + (z - zmin) / span)
-    cols = np.arange(len(ga) * len(gb))
-    starts = np.searchsorted(keys, cols * 4.0)
-    sample_keys = cols[:, None] * 4.0 + ((gr - zmin) / span)[None, :]
-    below = np.searchsorted(keys, sample_keys.ravel()).reshape(sample_keys.shape) - starts[:, None]
-    inside = (below % 2 == 1).reshape(len(ga), len(gb), len(gr))
-    order = np.argsort([a, b, ray])
-    return inside.transpose(order).astype(np.int8)
-
-
-def _enclosed_volume(points, triangles) -> float:
-    """Signed volume enclosed by the triangles (divergence theorem); for an open surface it is
-    only an estimate, reported as such."""
-    p = points[triangles]
-    return abs(np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])).sum() / 6.0)

@@ -1,5 +1,6 @@
 """Small output files written atomically by rank 0 (summary.json, probes.csv), and the check
 that an output folder can be written, made before any work."""
+
 from __future__ import annotations
 
 import json
@@ -42,11 +43,23 @@ def _can_create_in(folder: Path) -> bool:
 
 # what a run writes into its folder (outputs/xdmf.py, pictures.py, runner/driver.py): cleared
 # before a run writes there, so that a re-run never sits beside an earlier run's files
-RUN_FILES = ("summary.json", "probes.csv", "probes_final.mrk.json", "displacement.xdmf", "displacement.h5",
-             "deformed.png", "probes.png", "surface_final.vtk", "surface_final.stl", "skull.stl")
-# the records a fit and an update write beside a run's files (fit/report.py, atlas/update_command.py)
-RECORDS = {"fit": ("fit.json", "fitted.toml"),
-           "update": ("update.json", "uncertainty.nii.gz", "targets_updated.mrk.json", "update.png")}
+RUN_FILES = (
+    "summary.json",
+    "probes.csv",
+    "probes_final.mrk.json",
+    "displacement.xdmf",
+    "displacement.h5",
+    "deformed.png",
+    "probes.png",
+    "surface_final.vtk",
+    "surface_final.stl",
+    "skull.stl",
+)
+# the records a fit and an update write beside a run's files (fit/report.py, commands/update.py)
+RECORDS = {
+    "fit": ("fit.json", "fitted.toml"),
+    "update": ("update.json", "uncertainty.nii.gz", "targets_updated.mrk.json", "update.png"),
+}
 RUN_SERIES = ("surface_[0-9][0-9][0-9][0-9].vtk", "surface_[0-9][0-9][0-9][0-9].stl")
 
 
@@ -74,8 +87,10 @@ class RunLock:
                 f.seek(0)
                 holder = f.read().strip() or "another process"
                 f.close()
-                problem = (f"--out '{out}': another brainshift run ({holder}) is writing into it; wait for it to "
-                           f"end or choose another --out")
+                problem = (
+                    f"--out '{out}': another brainshift run ({holder}) is writing into it; wait for it to "
+                    f"end or choose another --out"
+                )
             else:
                 f.seek(0)
                 f.truncate()
@@ -112,9 +127,9 @@ def clear_run(out: Path, comm, scene_name: str, keep=(), kind: str = "run") -> N
                 continue
             if other == "fit" and kind == "run" and (out / "fitted.toml").resolve() in kept:
                 continue  # the fit's own scene, run where it was fitted
-            problem = (f"--out '{out}' holds a {other} ({names[0]}): "
-                       + ("run its fitted.toml there, or choose another --out" if other == "fit" else
-                          "choose another --out"))
+            problem = f"--out '{out}' holds a {other} ({names[0]}): " + (
+                "run its fitted.toml there, or choose another --out" if other == "fit" else "choose another --out"
+            )
     problem = comm.bcast(problem, root=0)
     if problem:
         raise InputError(problem)
@@ -139,8 +154,14 @@ def write_csv(path: Path, header: list[str], rows: list[list[float]], comm) -> N
     """A CSV of numbers with a header line, written by rank 0 via a temporary file."""
     if comm.rank == 0:
         tmp = path.with_suffix(".csv.tmp")
-        np.savetxt(tmp, np.array(rows, dtype=float).reshape(-1, len(header)), delimiter=",",
-                   header=",".join(header), comments="", fmt="%.10g")
+        np.savetxt(
+            tmp,
+            np.array(rows, dtype=float).reshape(-1, len(header)),
+            delimiter=",",
+            header=",".join(header),
+            comments="",
+            fmt="%.10g",
+        )
         os.replace(tmp, path)
     comm.barrier()
 

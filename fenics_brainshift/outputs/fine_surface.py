@@ -7,6 +7,7 @@ mesh (a voxel model does not cover every bump of the surface) take the nearest c
 extrapolated with the same affine map, so an affine displacement is reproduced exactly
 everywhere. Works under MPI: each vertex is evaluated by one rank, the result gathered.
 """
+
 from __future__ import annotations
 
 import os
@@ -18,7 +19,7 @@ from .. import formats
 from ..errors import InputError
 from ..meshing.extent import body_diagonal
 from ..meshing.label_surface import label_surface
-from ..meshing.voxelize import read_surface
+from ..surfaces.files import read_surface
 from .points import PointEvaluator
 
 # a fine surface with more of its vertices than this far outside the coarse mesh does not
@@ -33,7 +34,7 @@ class SurfaceEmbedding(PointEvaluator):
     """The fine surface's vertices located once in the coarse mesh (see the module note)."""
 
     @classmethod
-    def of_scene(cls, mesh, points: np.ndarray, triangles: np.ndarray) -> "SurfaceEmbedding":
+    def of_scene(cls, mesh, points: np.ndarray, triangles: np.ndarray) -> SurfaceEmbedding:
         """The embedding of a scene's fine surface, checked first to be the body's closed
         surface in the mesh's unit (_check_size)."""
         _check_size(np.asarray(points), np.asarray(triangles, dtype=np.int64), body_diagonal(mesh))
@@ -45,10 +46,12 @@ class SurfaceEmbedding(PointEvaluator):
         far = self.far_outside()
         if len(far) > FAR_VERTICES * len(self.points):  # a surface of another object, unit or frame
             extent = np.ptp(self.points, axis=0) * 1e3
-            raise InputError(f"[mesh] surface: {len(far)} of its {len(self.points)} vertices lie farther than two "
-                             f"cells from the mesh (the surface spans {extent[0]:.3g} x {extent[1]:.3g} x "
-                             f"{extent[2]:.3g} mm in [mesh] unit): is it in another unit or frame (RAS / LPS) than "
-                             f"the mesh, or of another object?")
+            raise InputError(
+                f"[mesh] surface: {len(far)} of its {len(self.points)} vertices lie farther than two "
+                f"cells from the mesh (the surface spans {extent[0]:.3g} x {extent[1]:.3g} x "
+                f"{extent[2]:.3g} mm in [mesh] unit): is it in another unit or frame (RAS / LPS) than "
+                f"the mesh, or of another object?"
+            )
 
     def write(self, folder: Path, stem: str, u) -> None:
         """folder/stem.vtk (m, with the displacement as point data: ParaView, beside
@@ -71,18 +74,23 @@ def _check_size(points: np.ndarray, triangles: np.ndarray, body: float) -> None:
     a closed surface)."""
     size = float(np.linalg.norm(np.ptp(points, axis=0))) if len(points) else 0.0
     corners = points[triangles] if len(triangles) else np.zeros((0, 3, 3))
-    area = 0.5 * float(np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]),
-                                      axis=1).sum())
-    if area < AREA_FRACTION * size ** 2:
-        raise InputError(f"[mesh] surface: its triangles cover {area * 1e6:.3g} mm^2, where a closed surface "
-                         f"{size * 1e3:.3g} mm across covers about {size ** 2 * 1e6:.3g}: degenerate triangles, or "
-                         f"not the body's closed surface")
+    area = 0.5 * float(
+        np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1).sum()
+    )
+    if area < AREA_FRACTION * size**2:
+        raise InputError(
+            f"[mesh] surface: its triangles cover {area * 1e6:.3g} mm^2, where a closed surface "
+            f"{size * 1e3:.3g} mm across covers about {size**2 * 1e6:.3g}: degenerate triangles, or "
+            f"not the body's closed surface"
+        )
     low, high = SIZE_RANGE
     if not low * body <= size <= high * body:
         ratio = size / body
-        raise InputError(f"[mesh] surface: it is {size * 1e3:.3g} mm across (bounding-box diagonal), the mesh "
-                         f"{body * 1e3:.3g} mm ({ratio:.3g}x): is it in another unit than the mesh (mm or m: "
-                         f"[mesh] unit applies to both), or of another object?")
+        raise InputError(
+            f"[mesh] surface: it is {size * 1e3:.3g} mm across (bounding-box diagonal), the mesh "
+            f"{body * 1e3:.3g} mm ({ratio:.3g}x): is it in another unit than the mesh (mm or m: "
+            f"[mesh] unit applies to both), or of another object?"
+        )
 
 
 def write_slicer_stl(path: Path, points_mm: np.ndarray, triangles: np.ndarray) -> Path:

@@ -18,18 +18,21 @@ the simulation: the same vertices in the same order, as the fine surface is writ
 
 Lengths are in the surfaces' units (metres after reading with a scale).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import InputError
+
 
 def _unit(v) -> np.ndarray:
     v = np.asarray(v, dtype=float)
     n = np.linalg.norm(v)
     if n == 0:
-        raise ValueError("a direction must be a non-zero vector")
+        raise InputError("a direction must be a non-zero vector")
     return v / n
 
 
@@ -66,25 +69,37 @@ class Landmark:
     def as_dict(self) -> dict:
         return {
             "index_pre": self.index_pre,
-            "p_pre": self.p_pre.tolist(), "p_intra": self.p_intra.tolist(), "p_sim": self.p_sim.tolist(),
-            "d_mri": self.d_mri.tolist(), "d_mri_bar": self.d_mri_bar.tolist(), "d_sim": self.d_sim.tolist(),
+            "p_pre": self.p_pre.tolist(),
+            "p_intra": self.p_intra.tolist(),
+            "p_sim": self.p_sim.tolist(),
+            "d_mri": self.d_mri.tolist(),
+            "d_mri_bar": self.d_mri_bar.tolist(),
+            "d_sim": self.d_sim.tolist(),
             "error_percent_vs_d_mri": self.error_percent(self.d_mri, self.d_sim),
             "error_percent_vs_d_mri_bar": self.error_percent(self.d_mri_bar, self.d_sim),
         }
 
 
-def landmark(name: str, pre: np.ndarray, intra: np.ndarray, sim: np.ndarray, direction,
-             radius: float, depth: float, search: float) -> Landmark:
+def landmark(
+    name: str,
+    pre: np.ndarray,
+    intra: np.ndarray,
+    sim: np.ndarray,
+    direction,
+    radius: float,
+    depth: float,
+    search: float,
+) -> Landmark:
     d = _unit(direction)
     if pre.shape != sim.shape:
-        raise ValueError(f"SIM has {len(sim)} vertices, PRE {len(pre)}: SIM must be PRE moved by the simulation")
+        raise InputError(f"SIM has {len(sim)} vertices, PRE {len(pre)}: SIM must be PRE moved by the simulation")
     a = int(np.argmax(pre @ d))
     p_pre, p_sim = pre[a], sim[a]
     rel = intra - p_sim
     lateral = np.linalg.norm(rel - np.outer(rel @ d, d), axis=1)
     near = np.flatnonzero(lateral < search)
     if len(near) == 0:
-        raise ValueError(f"node {name}: no INTRA vertex within {search:g} of the simulated position; raise search")
+        raise InputError(f"node {name}: no INTRA vertex within {search:g} of the simulated position; raise search")
     i = near[np.argmax(intra[near] @ d)]
     p_intra = intra[i]
     c_pre = pre[region(pre, p_pre, d, radius, depth)].mean(axis=0)
@@ -92,8 +107,7 @@ def landmark(name: str, pre: np.ndarray, intra: np.ndarray, sim: np.ndarray, dir
     return Landmark(name, a, p_pre, p_intra, p_sim, p_intra - p_pre, c_intra - c_pre, p_sim - p_pre)
 
 
-def surface_error(intra: np.ndarray, sim: np.ndarray, height_axis: int, roi, spacing: float,
-                  top_depth: float) -> dict:
+def surface_error(intra: np.ndarray, sim: np.ndarray, height_axis: int, roi, spacing: float, top_depth: float) -> dict:
     """SIM - INTRA heights on a grid over roi = ((a0, a1), (b0, b1)) of the other two axes.
     A closed surface passes over each grid point twice; only its upper part counts: the
     vertices within ``top_depth`` of the highest vertex in the ROI (the exposed cortex a camera
@@ -108,27 +122,52 @@ def surface_error(intra: np.ndarray, sim: np.ndarray, height_axis: int, roi, spa
 
     def heights(points):
         pad = 2 * spacing
-        keep = (points[:, a] >= a0 - pad) & (points[:, a] <= a1 + pad) & (points[:, b] >= b0 - pad) & (points[:, b] <= b1 + pad)
+        keep = (
+            (points[:, a] >= a0 - pad)
+            & (points[:, a] <= a1 + pad)
+            & (points[:, b] >= b0 - pad)
+            & (points[:, b] <= b1 + pad)
+        )
         if keep.sum() < 3:
-            raise ValueError("fewer than three surface vertices in the ROI: check its bounds and units")
+            raise InputError("fewer than three surface vertices in the ROI: check its bounds and units")
         keep &= points[:, height_axis] >= points[keep][:, height_axis].max() - top_depth
         return griddata(points[keep][:, [a, b]], points[keep][:, height_axis], (A, B), method="linear")
 
     diff = heights(sim) - heights(intra)
     values = diff[np.isfinite(diff)]
     if values.size == 0:
-        raise ValueError("the ROI lies outside both surfaces")
-    return {"grid_points": int(values.size), "max": float(values.max()), "min": float(values.min()),
-            "mean": float(values.mean()), "median": float(np.median(values)),
-            "mae": float(np.abs(values).mean()), "grid_a": ga.tolist(), "grid_b": gb.tolist(),
-            "error": np.where(np.isfinite(diff), diff, np.nan).tolist()}
+        raise InputError("the ROI lies outside both surfaces")
+    return {
+        "grid_points": int(values.size),
+        "max": float(values.max()),
+        "min": float(values.min()),
+        "mean": float(values.mean()),
+        "median": float(np.median(values)),
+        "mae": float(np.abs(values).mean()),
+        "grid_a": ga.tolist(),
+        "grid_b": gb.tolist(),
+        "error": np.where(np.isfinite(diff), diff, np.nan).tolist(),
+    }
 
 
-def compare(pre, intra, sim, up, second, radius: float, depth: float, search: float,
-            roi=None, spacing: float | None = None, top_depth: float = 0.02) -> dict:
+def compare(
+    pre,
+    intra,
+    sim,
+    up,
+    second,
+    radius: float,
+    depth: float,
+    search: float,
+    roi=None,
+    spacing: float | None = None,
+    top_depth: float = 0.02,
+) -> dict:
     """All of the paper's measures as one dictionary (lengths in the surfaces' units)."""
-    out = {"A": landmark("A", pre, intra, sim, up, radius, depth, search).as_dict(),
-           "B": landmark("B", pre, intra, sim, second, radius, depth, search).as_dict()}
+    out = {
+        "A": landmark("A", pre, intra, sim, up, radius, depth, search).as_dict(),
+        "B": landmark("B", pre, intra, sim, second, radius, depth, search).as_dict(),
+    }
     if roi is not None:
         height_axis = int(np.argmax(np.abs(_unit(up))))
         out["surface_error"] = surface_error(intra, sim, height_axis, roi, spacing, top_depth)

@@ -14,6 +14,7 @@
 Rendering is off-screen (pyvista/VTK); matplotlib draws the plots. Both are optional extras:
 without pyvista the picture is skipped with a log line, never an error.
 """
+
 from __future__ import annotations
 
 import json
@@ -22,28 +23,14 @@ from pathlib import Path
 import numpy as np
 
 from ..logs import get_logger
+from .run_folder import read_last_state
 
 log = get_logger("viz")
 
 
-def read_last_state(xdmf: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
-    """(points, tetrahedra, displacement, tissue or None) at the last time of a run's XDMF."""
-    import meshio
-
-    with meshio.xdmf.TimeSeriesReader(str(xdmf)) as reader:
-        points, cells = reader.read_points_cells()
-        point_data, cell_data = {}, {}
-        for k in range(reader.num_steps):
-            _, pd, cd = reader.read_data(k)
-            point_data.update(pd)
-            cell_data.update(cd)
-    tets = next(c.data for c in cells if c.type == "tetra")
-    tissue = cell_data.get("tissue")
-    return points, tets, point_data["displacement"], (np.asarray(tissue[0]).ravel() if tissue else None)
-
-
-def deformed_picture(out: Path, gravity, level: float | None, path: Path | None = None,
-                     anatomical: bool = False) -> Path | None:
+def deformed_picture(
+    out: Path, gravity, level: float | None, path: Path | None = None, anatomical: bool = False
+) -> Path | None:
     """deformed.png of a run folder; None when pyvista is not installed."""
     try:
         import pyvista as pv
@@ -54,107 +41,183 @@ def deformed_picture(out: Path, gravity, level: float | None, path: Path | None 
     points, tets, u, tissue = read_last_state(out / "displacement.xdmf")
     if tissue is not None:
         tets = tets[tissue > 0.5]
-    grid = pv.UnstructuredGrid({pv.CellType.TETRA: tets}, points)
-    surface = grid.extract_surface(algorithm="dataset_surface")
-    moved = grid.copy()
-    moved.points = points + u
-    moved.point_data["displacement (mm)"] = np.linalg.norm(u, axis=1) * 1e3
+    fine = out / "surface_final.vtk"
+    deformed, undeformed = _surfaces(pv, points, tets, u, fine)
     g = np.asarray(gravity, dtype=float)
     up = -g / np.linalg.norm(g) if np.linalg.norm(g) > 0 else np.array([0.0, 0.0, 1.0])
-
-    fine = out / "surface_final.vtk"
-    if fine.is_file():  # the smooth fine surface that followed the model
-        import meshio
-
-        mesh = meshio.read(fine)  # legacy VTK is big-endian: to native floats, or VTK reads garbage
-        d = np.asarray(mesh.point_data["displacement"], dtype=np.float64)
-        fine_points = np.asarray(mesh.points, dtype=np.float64)
-        triangles = np.asarray(mesh.cells_dict["triangle"], dtype=np.int64)
-        # drawn smooth: Taubin smoothing (volume-keeping) of the picture only, same for both
-        deformed = pv.PolyData.from_regular_faces(fine_points, triangles).smooth_taubin(n_iter=40, pass_band=0.05)
-        deformed.point_data["displacement (mm)"] = np.linalg.norm(d, axis=1) * 1e3
-        surface = pv.PolyData.from_regular_faces(fine_points - d, triangles).smooth_taubin(n_iter=40, pass_band=0.05)
-    else:
-        deformed = moved.extract_surface(algorithm="dataset_surface")
     plotter = pv.Plotter(off_screen=True, window_size=(1000, 750))
     plotter.set_background("white")
     top = nice_ceiling(float(np.max(deformed.point_data["displacement (mm)"], initial=0.0)))
-    plotter.add_mesh(deformed, scalars="displacement (mm)", cmap="viridis", smooth_shading=True, clim=[0.0, top],
-                     scalar_bar_args={"title": "displacement (mm)\n", "color": "black", "vertical": True,
-                                      "n_labels": 5, "fmt": "%.3g", "title_font_size": 18, "label_font_size": 15,
-                                      "position_x": 0.11, "position_y": 0.2, "height": 0.5, "width": 0.06})
-    plotter.add_mesh(surface, color="lightgray", opacity=0.3)  # the undeformed body, as a ghost
+    plotter.add_mesh(
+        deformed,
+        scalars="displacement (mm)",
+        cmap="viridis",
+        smooth_shading=True,
+        clim=[0.0, top],
+        scalar_bar_args={
+            "title": "displacement (mm)\n",
+            "color": "black",
+            "vertical": True,
+            "n_labels": 5,
+            "fmt": "%.3g",
+            "title_font_size": 18,
+            "label_font_size": 15,
+            "position_x": 0.11,
+            "position_y": 0.2,
+            "height": 0.5,
+            "width": 0.06,
+        },
+    )
+    plotter.add_mesh(undeformed, color="lightgray", opacity=0.3)  # the undeformed body, as a ghost
     lo, hi = points.min(axis=0), points.max(axis=0)
+    side, screen_up = _view(up, anatomical)
+    if np.linalg.norm(g) > 0:
+        _gravity_arrow(pv, plotter, lo, hi, up, side, screen_up, anatomical)
+    if anatomical:
+        _anatomical_letters(plotter, lo, hi, side)
+    skull, landmarks = _skull_and_probes(pv, plotter, out, anatomical)
+    if level is not None and np.isfinite(level):
+        centre = 0.5 * (lo + hi)
+        size = 1.4 * float(np.linalg.norm(hi - lo))
+        plane = pv.Plane(center=centre + (level - centre @ up) * up, direction=up, i_size=size, j_size=size)
+        plotter.add_mesh(plane, color="#3a7bd5", opacity=0.25, lighting=False)  # (blue seen edge-on too)
+    focus = points.mean(axis=0)
+    distance = 2.5 * float(np.linalg.norm(hi - lo))
+    lift = 0.1 if anatomical else 0.35  # (a slightly raised viewpoint; a patient's seen almost square on)
+    plotter.camera_position = [
+        tuple(focus + distance * (0.85 * side + lift * screen_up)),
+        tuple(focus),
+        tuple(screen_up),
+    ]
+    a = int(np.argmax(np.abs(side)))
+    seen = f"seen from {'LRPAIS'[2 * a + (side[a] > 0)]}; " if anatomical else ""
+    plotter.add_text(
+        seen + ("fine surface" if fine.is_file() else "deformed body") + " coloured by displacement; "
+        "undeformed in grey"
+        + ("; fluid level: blue plane" if level is not None else "")
+        + ("; probes: red" if landmarks else "")
+        + ("; skull: grey cage" if skull else ""),
+        font_size=12,
+        color="black",
+    )
+    path = path or out / "deformed.png"
+    plotter.screenshot(str(path))
+    plotter.close()
+    return path
+
+
+def _surfaces(pv, points: np.ndarray, tets: np.ndarray, u: np.ndarray, fine: Path):
+    """(deformed, undeformed) surfaces to draw: the run's smooth fine surface where it wrote one
+    (Taubin-smoothed for the picture only, volume-keeping), else the voxel mesh's boundary; the
+    deformed one carries "displacement (mm)"."""
+    if not fine.is_file():
+        grid = pv.UnstructuredGrid({pv.CellType.TETRA: tets}, points)
+        moved = grid.copy()
+        moved.points = points + u
+        moved.point_data["displacement (mm)"] = np.linalg.norm(u, axis=1) * 1e3
+        return moved.extract_surface(algorithm="dataset_surface"), grid.extract_surface(algorithm="dataset_surface")
+    import meshio
+
+    mesh = meshio.read(fine)  # legacy VTK is big-endian: to native floats, or VTK reads garbage
+    d = np.asarray(mesh.point_data["displacement"], dtype=np.float64)
+    fine_points = np.asarray(mesh.points, dtype=np.float64)
+    triangles = np.asarray(mesh.cells_dict["triangle"], dtype=np.int64)
+    deformed = pv.PolyData.from_regular_faces(fine_points, triangles).smooth_taubin(n_iter=40, pass_band=0.05)
+    deformed.point_data["displacement (mm)"] = np.linalg.norm(d, axis=1) * 1e3
+    undeformed = pv.PolyData.from_regular_faces(fine_points - d, triangles).smooth_taubin(n_iter=40, pass_band=0.05)
+    return deformed, undeformed
+
+
+def _view(up: np.ndarray, anatomical: bool) -> tuple[np.ndarray, np.ndarray]:
+    """(the direction the camera looks from, the screen's up). Horizontally along the first
+    axis across gravity (x: from the side for a supine head in RAS and for the cube); for a
+    patient a standard anatomical view: superior at the top (anterior when gravity is along
+    the head's axis), seen along the axis most across gravity (a supine head from the side, a
+    head on its side from the front), so that the sag runs across the picture."""
+    if not anatomical:
+        axis = next(a for a in np.eye(3) if abs(a @ up) < 0.9)
+        side = axis - (axis @ up) * up
+        return side / np.linalg.norm(side), up
+    screen_up = np.eye(3)[2] if abs(up[2]) < 0.9 else np.eye(3)[1]
+    others = [a for a in np.eye(3) if abs(a @ screen_up) < 0.5]
+    side = min(others, key=lambda a: abs(a @ up))
+    return (side if side @ np.array([1.0, 1.0, 0.0]) >= 0 else -side), screen_up  # from the right, or the front
+
+
+def _gravity_arrow(pv, plotter, lo, hi, up, side, screen_up, anatomical: bool) -> None:
+    """Gravity as an arrow beside the body (above it for a patient's view, where gravity may
+    run across the screen)."""
     centre, extent = 0.5 * (lo + hi), float(np.linalg.norm(hi - lo))
-    # look horizontally along the first axis across gravity (x: from the side for a supine
-    # head in RAS and for the cube), from a slightly raised viewpoint
-    axis = next(a for a in np.eye(3) if abs(a @ up) < 0.9)
-    side = axis - (axis @ up) * up
-    side /= np.linalg.norm(side)
-    screen_up = up
-    if anatomical:  # a standard anatomical view: superior at the top (anterior when gravity is along
-        # the head's axis), seen along the axis most across gravity: a supine head from the side,
-        # a head on its side from the front; the sag then runs across the picture
-        screen_up = np.eye(3)[2] if abs(up[2]) < 0.9 else np.eye(3)[1]
-        others = [a for a in np.eye(3) if abs(a @ screen_up) < 0.5]
-        side = min(others, key=lambda a: abs(a @ up))
-        side = side if side @ np.array([1.0, 1.0, 0.0]) >= 0 else -side  # from the right, or the front
     across = np.cross(screen_up, side)  # left to right on the screen
-    if np.linalg.norm(g) > 0:  # gravity: an arrow beside the body
-        # beside the body, or for a patient's view above it (gravity may run across the screen)
-        start = centre + (0.45 * extent * screen_up + 0.25 * extent * up if anatomical else
-                          0.55 * extent * across + 0.3 * extent * up)
-        plotter.add_mesh(pv.Arrow(start=start, direction=-up, scale=0.25 * extent), color="black")
-        plotter.add_point_labels([start + 0.04 * extent * up], ["gravity"], font_size=14, text_color="black",
-                                 shape=None, show_points=False, always_visible=True)
-    if anatomical:  # RAS: a letter beyond the body on each axis not along the line of sight
-        labels, where = [], []
-        for a, (minus, plus) in enumerate((("L", "R"), ("P", "A"), ("I", "S"))):
-            if abs(np.eye(3)[a] @ side) > 0.9:
-                continue
-            for sign, letter in ((-1, minus), (1, plus)):
-                p = centre.copy()
-                p[a] = (hi if sign > 0 else lo)[a] + sign * 0.1 * extent
-                labels.append(letter)
-                where.append(p)
-        plotter.add_point_labels(np.array(where), labels, font_size=26, text_color="firebrick", bold=True,
-                                 shape=None, show_points=False, always_visible=True)
-    skull = out / "skull.stl"
-    if skull.is_file():  # the skull the run used (mm, RAS: as Slicer reads it), as a faint cage
-        from ..meshing.voxelize import read_surface
+    start = centre + (
+        0.45 * extent * screen_up + 0.25 * extent * up if anatomical else 0.55 * extent * across + 0.3 * extent * up
+    )
+    plotter.add_mesh(pv.Arrow(start=start, direction=-up, scale=0.25 * extent), color="black")
+    plotter.add_point_labels(
+        [start + 0.04 * extent * up],
+        ["gravity"],
+        font_size=14,
+        text_color="black",
+        shape=None,
+        show_points=False,
+        always_visible=True,
+    )
+
+
+def _anatomical_letters(plotter, lo, hi, side) -> None:
+    """RAS: a letter beyond the body on each axis not along the line of sight."""
+    centre, extent = 0.5 * (lo + hi), float(np.linalg.norm(hi - lo))
+    labels, where = [], []
+    for a, (minus, plus) in enumerate((("L", "R"), ("P", "A"), ("I", "S"))):
+        if abs(np.eye(3)[a] @ side) > 0.9:
+            continue
+        for sign, letter in ((-1, minus), (1, plus)):
+            p = centre.copy()
+            p[a] = (hi if sign > 0 else lo)[a] + sign * 0.1 * extent
+            labels.append(letter)
+            where.append(p)
+    plotter.add_point_labels(
+        np.array(where),
+        labels,
+        font_size=26,
+        text_color="firebrick",
+        bold=True,
+        shape=None,
+        show_points=False,
+        always_visible=True,
+    )
+
+
+def _skull_and_probes(pv, plotter, out: Path, anatomical: bool) -> tuple[bool, bool]:
+    """The skull the run used (skull.stl, mm RAS as Slicer reads it) as a faint cage, and the
+    probes where the shift took them (probes_final.mrk.json); whether each was drawn."""
+    skull, landmarks = out / "skull.stl", out / "probes_final.mrk.json"
+    if skull.is_file():
+        from ..surfaces.files import read_surface
 
         skull_points, skull_triangles = read_surface(skull, 1e-3)
-        plotter.add_mesh(pv.PolyData.from_regular_faces(skull_points, skull_triangles), color="dimgray",
-                         style="wireframe", opacity=0.15)
-    landmarks = out / "probes_final.mrk.json"
-    if landmarks.is_file():  # the probes where the shift took them (a Slicer point list, RAS mm)
+        plotter.add_mesh(
+            pv.PolyData.from_regular_faces(skull_points, skull_triangles),
+            color="dimgray",
+            style="wireframe",
+            opacity=0.15,
+        )
+    if landmarks.is_file():
         from ..images.frames import read_markups
 
         names, where_mm = read_markups(landmarks, "probes_final.mrk.json")
         plotter.add_points(where_mm * 1e-3, color="crimson", point_size=12, render_points_as_spheres=True)
         if len(names) <= 12 and not anatomical:  # names cover a patient's picture: in probes_final.mrk.json
-            plotter.add_point_labels(where_mm * 1e-3, names, font_size=12, text_color="crimson", shape=None,
-                                     show_points=False, always_visible=True)
-    if level is not None and np.isfinite(level):
-        on_level = centre + (level - centre @ up) * up
-        size = 1.4 * float(np.linalg.norm(hi - lo))
-        plane = pv.Plane(center=on_level, direction=up, i_size=size, j_size=size)
-        plotter.add_mesh(plane, color="#3a7bd5", opacity=0.25, lighting=False)  # (blue seen edge-on too)
-    focus = points.mean(axis=0)
-    distance = 2.5 * float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
-    lift = 0.1 if anatomical else 0.35  # (a slightly raised viewpoint; a patient's seen almost square on)
-    plotter.camera_position = [tuple(focus + distance * (0.85 * side + lift * screen_up)), tuple(focus),
-                               tuple(screen_up)]
-    a = int(np.argmax(np.abs(side)))
-    seen = f"seen from {'LRPAIS'[2 * a + (side[a] > 0)]}; " if anatomical else ""
-    plotter.add_text(seen + ("fine surface" if fine.is_file() else "deformed body") + " coloured by displacement; "
-                     "undeformed in grey" + ("; fluid level: blue plane" if level is not None else "")
-                     + ("; probes: red" if landmarks.is_file() else "") + ("; skull: grey cage" if skull.is_file()
-                                                                            else ""), font_size=12, color="black")
-    path = path or out / "deformed.png"
-    plotter.screenshot(str(path))
-    plotter.close()
-    return path
+            plotter.add_point_labels(
+                where_mm * 1e-3,
+                names,
+                font_size=12,
+                text_color="crimson",
+                shape=None,
+                show_points=False,
+                always_visible=True,
+            )
+    return skull.is_file(), landmarks.is_file()
 
 
 PICTURES = ("probes.png", "deformed.png")
@@ -172,8 +235,9 @@ def nice_ceiling(value: float) -> float:
 LEGEND_INSIDE = 6  # probes named in a legend under the plot; more go beside it
 
 
-def probe_plot(out: Path, gravity, path: Path | None = None, title: str = "Probes",
-               settled: bool = False) -> Path | None:
+def probe_plot(
+    out: Path, gravity, path: Path | None = None, title: str = "Probes", settled: bool = False
+) -> Path | None:
     """probes.png: probe displacement along gravity against time, the level on a second axis.
     settled: the rows are settled states (quasi-static), drawn as points, not as a motion."""
     import matplotlib
@@ -208,11 +272,25 @@ def probe_plot(out: Path, gravity, path: Path | None = None, title: str = "Probe
         ax2.set_ylabel("fluid level along up (mm)")
         lines += ax2.get_legend_handles_labels()[0]
     if beside:  # many probes: the legend beside the plot, in columns, covering nothing
-        ax.legend(lines, [ln.get_label() for ln in lines], fontsize=7, loc="upper left", bbox_to_anchor=(1.12, 1.0),
-                  ncol=1 + len(lines) // 16, borderaxespad=0.0)
+        ax.legend(
+            lines,
+            [ln.get_label() for ln in lines],
+            fontsize=7,
+            loc="upper left",
+            bbox_to_anchor=(1.12, 1.0),
+            ncol=1 + len(lines) // 16,
+            borderaxespad=0.0,
+        )
     else:  # a few: in a row under the plot ("best" inside saw one axis only: it covered the level's line)
-        ax.legend(lines, [ln.get_label() for ln in lines], fontsize=8, loc="upper center",
-                  bbox_to_anchor=(0.5, -0.16), ncol=min(len(lines), 4), frameon=False)
+        ax.legend(
+            lines,
+            [ln.get_label() for ln in lines],
+            fontsize=8,
+            loc="upper center",
+            bbox_to_anchor=(0.5, -0.16),
+            ncol=min(len(lines), 4),
+            frameon=False,
+        )
     ax.set_title(title)
     fig.tight_layout()
     path = path or out / "probes.png"
@@ -233,8 +311,9 @@ def surface_error_plot(path, se) -> None:
     err = np.array(se["error"], dtype=float) * 1e3
     ga, gb = np.array(se["grid_a"]) * 1e3, np.array(se["grid_b"]) * 1e3
     fig, ax = plt.subplots(figsize=(6, 4.5))
-    im = ax.pcolormesh(ga, gb, err.T, shading="nearest", cmap="coolwarm",
-                       vmin=-np.nanmax(np.abs(err)), vmax=np.nanmax(np.abs(err)))
+    im = ax.pcolormesh(
+        ga, gb, err.T, shading="nearest", cmap="coolwarm", vmin=-np.nanmax(np.abs(err)), vmax=np.nanmax(np.abs(err))
+    )
     fig.colorbar(im, ax=ax, label=f"SIM - INTRA along {se['height_axis']} (mm)")
     a, b = [axis for axis in "xyz" if axis != se["height_axis"]]
     anatomy = {"x": "x: R+ / L- (mm)", "y": "y: A+ / P- (mm)", "z": "z: S+ / I- (mm)"}  # RAS
@@ -252,8 +331,10 @@ def pictures(out: Path) -> list[Path]:
     summary = json.loads((out / "summary.json").read_text())
     gravity = summary.get("gravity_vector", [0.0, 0.0, -9.81])
     title = f"{summary.get('scene', 'run')}: probes against time"
-    made = [probe_plot(out, gravity, title=title, settled=summary.get("mode") == "quasi-static"),
-            deformed_picture(out, gravity, summary.get("final_level_m"), anatomical=summary.get("frame") == "RAS")]
+    made = [
+        probe_plot(out, gravity, title=title, settled=summary.get("mode") == "quasi-static"),
+        deformed_picture(out, gravity, summary.get("final_level_m"), anatomical=summary.get("frame") == "RAS"),
+    ]
     return [p for p in made if p is not None]
 
 
@@ -268,12 +349,21 @@ def render_in_subprocess(out: Path) -> list[Path]:
     env = {k: v for k, v in os.environ.items() if not k.startswith(("OMPI_", "PMIX_", "PMI_"))}
     for name in PICTURES:  # so that what exists afterwards was made now
         (out / name).unlink(missing_ok=True)
-    proc = subprocess.run([sys.executable, "-m", "fenics_brainshift.outputs.pictures", str(out)], capture_output=True, text=True,
-                          env=env, timeout=600)
+    proc = subprocess.run(
+        [sys.executable, "-m", "fenics_brainshift.outputs.pictures", str(out)],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=600,
+    )
     made = [out / name for name in PICTURES if (out / name).is_file()]
     if proc.returncode != 0:
-        log.warning("pictures of %s failed (exit %d): %s", out, proc.returncode,
-                    (proc.stderr.strip().splitlines() or ["no message"])[-1])
+        log.warning(
+            "pictures of %s failed (exit %d): %s",
+            out,
+            proc.returncode,
+            (proc.stderr.strip().splitlines() or ["no message"])[-1],
+        )
     return made
 
 

@@ -1,4 +1,5 @@
 """Values of a Function at fixed points, the same on any number of ranks."""
+
 from __future__ import annotations
 
 import numpy as np

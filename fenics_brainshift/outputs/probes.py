@@ -1,4 +1,5 @@
 """Named points where the displacement is sampled, in serial and under MPI alike."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -19,9 +20,11 @@ class Probes:
         coords = np.array([points[n] for n in self.names], dtype=np.float64).reshape(-1, 3)
         self.evaluator = PointEvaluator(mesh, coords)
         for i in self.evaluator.far_outside():
-            raise InputError(f"[probes] {self.names[i]} = {list(coords[i])} lies outside the mesh, farther than a "
-                             f"cell from it: a frame slip (a markups file's coordinateSystem says LPS or RAS: do "
-                             f"its numbers agree?), a unit slip, or a point not on the body")
+            raise InputError(
+                f"[probes] {self.names[i]} = {list(coords[i])} lies outside the mesh, farther than a "
+                f"cell from it: a frame slip (a markups file's coordinateSystem says LPS or RAS: do "
+                f"its numbers agree?), a unit slip, or a point not on the body"
+            )
 
     def values(self, f) -> np.ndarray:
         """(n_points, 3) values of a Function (ghosts must be up to date)."""
@@ -52,9 +55,10 @@ class SurfaceAverages:
         for name in self.names:
             facets = dolfinx.mesh.locate_entities_boundary(mesh, 2, regions[name])
             if self.comm.allreduce(int(np.sum(facets < n_owned)), op=MPI.SUM) == 0:
-                raise InputError(f"[surfaces] {name} = \"{regions[name].text}\" selects no boundary facet")
-            tags = dolfinx.mesh.meshtags(mesh, 2, np.sort(facets).astype(np.int32),
-                                         np.ones(len(facets), dtype=np.int32))
+                raise InputError(f'[surfaces] {name} = "{regions[name].text}" selects no boundary facet')
+            tags = dolfinx.mesh.meshtags(
+                mesh, 2, np.sort(facets).astype(np.int32), np.ones(len(facets), dtype=np.int32)
+            )
             ds = ufl.Measure("ds", domain=mesh, subdomain_data=tags)(1)
             one = fem.Constant(mesh, 1.0)
             self.forms.append([fem.form(one * ds)] + [fem.form(u[i] * ds) for i in range(3)])

@@ -1,5 +1,6 @@
 """A progress bar on rank 0 for time loops and sweeps, silent when stderr is not a terminal
 or when switched off (`brainshift --no-progress`), and without tqdm it is simply absent."""
+
 from __future__ import annotations
 
 import sys

@@ -10,6 +10,7 @@ support, at the skull contact, on the surface or inside), and the fraction of th
 volume past STRAIN_LIMIT, and a linear run is warned (and model = "auto" switches) when that
 fraction exceeds VOLUME_LIMIT.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -39,12 +40,17 @@ class StrainReport:
     where: list = field(default_factory=lambda: [0.0, 0.0, 0.0])  # m: the midpoint of that cell
     near: str = "inside"  # one of PLACES
 
-    def worse(self, other: "StrainReport") -> "StrainReport":
+    def worse(self, other: StrainReport) -> StrainReport:
         """Per quantity, the worse of two reports (the run's history over output times)."""
         big = self if abs(self.strain) >= abs(other.strain) else other
-        return StrainReport(big.strain, max(self.rotation_deg, other.rotation_deg),
-                            max(self.inverted, other.inverted),
-                            max(self.volume_past_limit, other.volume_past_limit), big.where, big.near)
+        return StrainReport(
+            big.strain,
+            max(self.rotation_deg, other.rotation_deg),
+            max(self.inverted, other.inverted),
+            max(self.volume_past_limit, other.volume_past_limit),
+            big.where,
+            big.near,
+        )
 
 
 class StrainMeter:
@@ -100,7 +106,12 @@ class StrainMeter:
         local = (0.0, 0.0, [0.0, 0.0, 0.0], PLACES[-1])
         if self.n_owned:
             c = int(np.argmax(np.abs(strain)))
-            local = (abs(float(strain[c])), float(strain[c]), self.midpoints[c].tolist(), self._place(c, pressed_blocks))
+            local = (
+                abs(float(strain[c])),
+                float(strain[c]),
+                self.midpoints[c].tolist(),
+                self._place(c, pressed_blocks),
+            )
         _, signed, where, near = max(self.comm.allgather(local), key=lambda item: item[0])
         fraction = float(sums[0] / sums[1]) if sums[1] > 0 else 0.0
         return StrainReport(signed, rotation_max, inverted, fraction, where, near)
@@ -137,22 +148,35 @@ def assessment(report: StrainReport, model: str = "linear") -> dict:
     limit; a warning when a linear run is past the limit in bulk or turned cells inside out
     (a displacement no body can take), a note when only a local concentration is."""
     kind = "compression" if report.strain < 0 else "tension"
-    out = {"model": model, "max_green_lagrange_strain": report.strain, "max_strain_kind": kind,
-           "max_strain_at_m": report.where, "max_strain_near": report.near,
-           "volume_past_limit": report.volume_past_limit, "strain_limit": STRAIN_LIMIT,
-           "volume_limit": VOLUME_LIMIT, "max_rotation_deg": report.rotation_deg,
-           "inverted_cells": report.inverted}
+    out = {
+        "model": model,
+        "max_green_lagrange_strain": report.strain,
+        "max_strain_kind": kind,
+        "max_strain_at_m": report.where,
+        "max_strain_near": report.near,
+        "volume_past_limit": report.volume_past_limit,
+        "strain_limit": STRAIN_LIMIT,
+        "volume_limit": VOLUME_LIMIT,
+        "max_rotation_deg": report.rotation_deg,
+        "inverted_cells": report.inverted,
+    }
     at = ", ".join(f"{c * 1e3:.1f}" for c in report.where)
-    largest = (f"the largest principal strain is {abs(report.strain):.1%} ({kind}, {report.near}, at "
-               f"({at}) mm); {report.volume_past_limit:.1%} of the volume is past {STRAIN_LIMIT:.0%}")
+    largest = (
+        f"the largest principal strain is {abs(report.strain):.1%} ({kind}, {report.near}, at "
+        f"({at}) mm); {report.volume_past_limit:.1%} of the volume is past {STRAIN_LIMIT:.0%}"
+    )
     if report.inverted:
-        out["warning"] = (f"{report.inverted} cells are turned inside out (det F <= 0): the displacement is not "
-                          f"physical; use a finite-deformation model ([material] model = \"{NONLINEAR_MODEL}\") "
-                          f"or check the loads and supports")
+        out["warning"] = (
+            f"{report.inverted} cells are turned inside out (det F <= 0): the displacement is not "
+            f'physical; use a finite-deformation model ([material] model = "{NONLINEAR_MODEL}") '
+            f"or check the loads and supports"
+        )
     elif model == "linear" and in_doubt(report):
-        out["warning"] = (f"{largest}, more than the {VOLUME_LIMIT:.0%} a linear (small-strain) model can be "
-                          f"trusted with: its answer may be far off; use a finite-deformation model "
-                          f"([material] model = \"{NONLINEAR_MODEL}\")")
+        out["warning"] = (
+            f"{largest}, more than the {VOLUME_LIMIT:.0%} a linear (small-strain) model can be "
+            f"trusted with: its answer may be far off; use a finite-deformation model "
+            f'([material] model = "{NONLINEAR_MODEL}")'
+        )
     elif model == "linear" and abs(report.strain) > STRAIN_LIMIT:
         out["note"] = f"{largest}: a local concentration, within the {VOLUME_LIMIT:.0%} of the volume allowed"
     return out

@@ -5,6 +5,7 @@ their P1 interpolant at the vertices; von Mises stress is cell-wise (DG0), of th
 material: the small-strain stress of a linear run, the Cauchy stress of a hyperelastic one,
 with the tissue's coefficients (zero in removed cells) after a resection.
 """
+
 from __future__ import annotations
 
 import os
@@ -22,8 +23,9 @@ class FieldWriter:
     deformed fine surface (surface_NNNN.vtk/.stl, the last also as surface_final) when the
     scene has one."""
 
-    def __init__(self, folder: Path, mesh, V, fields: tuple[str, ...], material=None,
-                 embedding=None, tissue=None, contact=None):
+    def __init__(
+        self, folder: Path, mesh, V, fields: tuple[str, ...], material=None, embedding=None, tissue=None, contact=None
+    ):
         """material: what gives the stress, an object with von_mises(u) (physics/material.py;
         Model.constitutive); needed when fields has "von_mises"."""
         self.fields = fields

@@ -4,6 +4,7 @@ template's grid (the brain stem at the foramen magnum, the occipital pole), each
 plane (the falx, the tentorium) as a triangulated sheet clipped to its region and the brain,
 and the [probes]. One definition: a change to the bundled scene's anatomy is carried to
 every patient prepared after it."""
+
 from __future__ import annotations
 
 import tomllib
@@ -65,8 +66,9 @@ def plane_sheet(spec: SeptumSpec, template: sitk.Image, reach: np.ndarray) -> tu
     vertices = point + a.reshape(-1, 1) * first + b.reshape(-1, 1) * second  # RAS mm
     n = len(steps)
     corner = (np.arange(n - 1)[:, None] * n + np.arange(n - 1)[None, :]).ravel()
-    triangles = np.concatenate([np.stack([corner, corner + n, corner + 1], 1),
-                                np.stack([corner + 1, corner + n, corner + n + 1], 1)])
+    triangles = np.concatenate(
+        [np.stack([corner, corner + n, corner + 1], 1), np.stack([corner + 1, corner + n, corner + n + 1], 1)]
+    )
     centroids = vertices[triangles].mean(axis=1)
     keep = _inside(reach, template, centroids @ LPS_TO_RAS)
     if spec.predicate is not None:

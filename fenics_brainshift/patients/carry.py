@@ -1,5 +1,6 @@
 """Carrying the template's labels onto the patient's grid through a registration, and the
 geometry of the patient's grid in the project's frame (RAS mm)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -9,8 +10,9 @@ from ..images.frames import LPS_TO_RAS
 from .registration import Registration
 
 
-def labels_on_patient(template_labels: dict[int, np.ndarray], template: sitk.Image, patient: sitk.Image,
-                      registration: Registration) -> np.ndarray:
+def labels_on_patient(
+    template_labels: dict[int, np.ndarray], template: sitk.Image, patient: sitk.Image, registration: Registration
+) -> np.ndarray:
     """A label array on the patient's grid (its array order, [k, j, i]) from boolean masks on
     the template's grid, painted in the order given (a later label over an earlier one), in
     one resampling through the registration by ITK's label-linear interpolation: each voxel

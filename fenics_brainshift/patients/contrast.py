@@ -6,6 +6,7 @@ The registration measures mutual information and the quality gate the correlatio
 neither needs the contrast; it is reported, so that a user sees what the scan was taken for,
 and a post-contrast T1 (bright vessels, dura and enhancing tumour) is named as such.
 """
+
 from __future__ import annotations
 
 import re
@@ -22,8 +23,11 @@ SIGN = 0.2  # |correlation with the T1 template| below this: the measured contra
 _PATTERNS = [
     ("flair", r"flair|\bdark.?fluid"),
     ("pd", r"\bpd\b|pdw|proton"),
-    ("t1c", r"(?<![a-z0-9])t1c|(?<![a-z0-9])t1.?ce\b|\bce.?t1|\+ ?c\b|gad|\bgd\b|post.?(gd|contrast|con)|"
-            r"(?<![a-z0-9])t1.?post|\bpost.?t1|(?<![a-z0-9])t1.*\bpost\b|contrast|\bkm\b|\bmdc\b"),
+    (
+        "t1c",
+        r"(?<![a-z0-9])t1c|(?<![a-z0-9])t1.?ce\b|\bce.?t1|\+ ?c\b|gad|\bgd\b|post.?(gd|contrast|con)|"
+        r"(?<![a-z0-9])t1.?post|\bpost.?t1|(?<![a-z0-9])t1.*\bpost\b|contrast|\bkm\b|\bmdc\b",
+    ),
     ("t2", r"(?<![a-z0-9])t2(?![0-9])|space.*t2|\bciss\b|\bfiesta\b"),
     ("t1", r"(?<![a-z0-9])t1(?![0-9])|mprage|mp.?rage|spgr|bravo|\btfe\b|\bvibe\b"),
 ]

@@ -1,5 +1,6 @@
 """prepare's quality gate: whether the registration found a brain, judged whatever the
 scan's contrast, and what about a refused scan may have made it fail."""
+
 from __future__ import annotations
 
 import logging
@@ -32,14 +33,20 @@ def fit_problem(litres: float, ratio: float, moved: float, t1: str) -> str | Non
     if not low <= litres <= high:
         failed.append(f"the brain found is {litres:.2f} l (a brain is {PLAUSIBLE[0]}-{PLAUSIBLE[1]} l)")
     if ratio < MIN_RATIO or ratio - moved < MIN_PEAK:
-        failed.append(f"the template's anatomy explains {100 * ratio:.0f} % of the scan's variance in the brain "
-                      f"found and {100 * moved:.0f} % moved 10 mm (a fit explains {100 * MIN_RATIO:.0f} % or more, "
-                      f"and {100 * MIN_PEAK:.0f} points more than moved)")
+        failed.append(
+            f"the template's anatomy explains {100 * ratio:.0f} % of the scan's variance in the brain "
+            f"found and {100 * moved:.0f} % moved 10 mm (a fit explains {100 * MIN_RATIO:.0f} % or more, "
+            f"and {100 * MIN_PEAK:.0f} points more than moved)"
+        )
     if failed:
         return f"the registration of the template to '{Path(t1).name}' failed: " + "; ".join(failed)
     if not PLAUSIBLE[0] <= litres <= PLAUSIBLE[1]:
-        log.warning("prepare: the brain found is %.2f l, outside an adult's %.1f-%.1f l; check it in 3D Slicer "
-                    "(anatomy.seg.nrrd over t1.nii.gz)", litres, *PLAUSIBLE)
+        log.warning(
+            "prepare: the brain found is %.2f l, outside an adult's %.1f-%.1f l; check it in 3D Slicer "
+            "(anatomy.seg.nrrd over t1.nii.gz)",
+            litres,
+            *PLAUSIBLE,
+        )
     return None
 
 
@@ -52,8 +59,9 @@ def hints(patient: sitk.Image, labels: np.ndarray) -> str:
     hints = []
     thickest = max(patient.GetSpacing())
     if thickest > THICK_MM:
-        hints.append(f"its voxels are {thickest:.1f} mm along one axis (a 2-D series; the 3-D one, 1-1.5 mm, "
-                     f"registers better)")
+        hints.append(
+            f"its voxels are {thickest:.1f} mm along one axis (a 2-D series; the 3-D one, 1-1.5 mm, registers better)"
+        )
     brain = labels > 0
     if brain.any() and any(np.any(np.take(brain, i, axis=a)) for a in range(3) for i in (0, -1)):
         hints.append("the brain found runs off the scan's edge (its field of view cuts the head)")

@@ -9,6 +9,7 @@ anatomical x, then y, then z axis (degrees), as `brainshift fit`'s gravity.angle
 direction is carried into the patient's frame by the rotation of the registration's affine
 part, so a head scanned tilted gets gravity along its own anatomy.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -34,8 +35,10 @@ def anatomical_gravity(position: str) -> np.ndarray:
     except ValueError:
         angles = []
     if len(angles) != 3 or not np.all(np.isfinite(angles)):
-        raise InputError(f"--position: '{position}' is not one of {', '.join(POSITIONS)} nor three angles "
-                         f"\"ax,ay,az\" in degrees (the supine direction turned about x, then y, then z)")
+        raise InputError(
+            f"--position: '{position}' is not one of {', '.join(POSITIONS)} nor three angles "
+            f'"ax,ay,az" in degrees (the supine direction turned about x, then y, then z)'
+        )
     return Rotation.from_euler("xyz", angles, degrees=True).apply(POSITIONS["supine"])
 
 
@@ -49,8 +52,9 @@ def patient_direction(direction_template_ras: np.ndarray, affine_matrix: np.ndar
     return d / np.linalg.norm(d)
 
 
-def craniotomy_levels(surface_ras_mm: np.ndarray, up: np.ndarray, centre: np.ndarray | None,
-                      radius: float = RIM_RADIUS) -> dict:
+def craniotomy_levels(
+    surface_ras_mm: np.ndarray, up: np.ndarray, centre: np.ndarray | None, radius: float = RIM_RADIUS
+) -> dict:
     """The CSF level (m along up) the craniotomy drains to: the lowest point of the brain's
     surface within ``radius`` mm of the craniotomy's centre (its rim's lowest point, where
     the CSF spills out), and the level before (above the brain's highest point). No centre:
@@ -63,20 +67,26 @@ def craniotomy_levels(surface_ras_mm: np.ndarray, up: np.ndarray, centre: np.nda
     distance = np.linalg.norm(surface_ras_mm - centre, axis=1)
     nearest = float(distance.min())
     if nearest > MAX_FROM_SURFACE:
-        raise InputError(f"--craniotomy: ({', '.join(f'{v:g}' for v in centre)}) mm is {nearest:.0f} mm from the "
-                         f"brain's surface; give the craniotomy's centre on the head in the T1's RAS frame, mm, as "
-                         f"3D Slicer shows it (LPS numbers have x and y negated)")
+        raise InputError(
+            f"--craniotomy: ({', '.join(f'{v:g}' for v in centre)}) mm is {nearest:.0f} mm from the "
+            f"brain's surface; give the craniotomy's centre on the head in the T1's RAS frame, mm, as "
+            f"3D Slicer shows it (LPS numbers have x and y negated)"
+        )
     rim = distance <= radius
     at = int(np.argmin(distance))
     rim_level, start_level = float(heights[rim].min()), float(heights.max() + 5.0)
     # the levels a surgeon reads: mm above the craniotomy rim's lowest point (the drained level);
     # centre_height: the centre's share of the brain's height as the head lies (0 bottom, 1 top)
-    return {"centre_mm": surface_ras_mm[at].tolist(), "rim_level_m": rim_level * 1e-3,
-            "start_level_m": start_level * 1e-3, "radius_mm": radius,
-            "start_above_rim_mm": round(start_level - rim_level, 2),
-            "brain_top_above_rim_mm": round(float(heights.max()) - rim_level, 2),
-            "brain_bottom_above_rim_mm": round(float(heights.min()) - rim_level, 2),
-            "centre_height": round(float((heights[at] - heights.min()) / max(np.ptp(heights), 1e-9)), 3)}
+    return {
+        "centre_mm": surface_ras_mm[at].tolist(),
+        "rim_level_m": rim_level * 1e-3,
+        "start_level_m": start_level * 1e-3,
+        "radius_mm": radius,
+        "start_above_rim_mm": round(start_level - rim_level, 2),
+        "brain_top_above_rim_mm": round(float(heights.max()) - rim_level, 2),
+        "brain_bottom_above_rim_mm": round(float(heights.min()) - rim_level, 2),
+        "centre_height": round(float((heights[at] - heights.min()) / max(np.ptp(heights), 1e-9)), 3),
+    }
 
 
 def over_tumour_centre(tumour: np.ndarray, patient, surface_ras_mm: np.ndarray, up: np.ndarray) -> np.ndarray:

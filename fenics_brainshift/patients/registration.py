@@ -16,6 +16,7 @@ labels through it gives them on the patient's grid. Measured (benchmarks/results
 on synthetic patients with and without a head, against their known transform, and on a real
 MPRAGE, by its volume and correlation.
 """
+
 from __future__ import annotations
 
 import logging
@@ -29,11 +30,13 @@ from scipy import ndimage
 log = logging.getLogger(__name__)
 
 # (stage, shrink factors, smoothing sigmas in mm, iterations)
-STAGES = {"head rigid": ((4, 2), (2.0, 1.0), 100),
-          "head affine": ((4, 2), (2.0, 1.0), 100),
-          "rigid": ((4, 2), (2.0, 1.0), 100),
-          "affine": ((4, 2), (2.0, 1.0), 200),
-          "deformable": ((4, 2), (2.0, 1.0), 20)}
+STAGES = {
+    "head rigid": ((4, 2), (2.0, 1.0), 100),
+    "head affine": ((4, 2), (2.0, 1.0), 100),
+    "rigid": ((4, 2), (2.0, 1.0), 100),
+    "affine": ((4, 2), (2.0, 1.0), 200),
+    "deformable": ((4, 2), (2.0, 1.0), 20),
+}
 HEAD_LITRES = 2.2  # a scan with more than this of tissue is a head, not a stripped brain (shows_head)
 STRIPPED_ZEROS = 0.2  # a T1 with this share of voxels exactly 0 was skull-stripped by a tool
 CORRELATION_SIGMA = 2.0  # mm: both images smoothed by this for the fit's measure
@@ -49,7 +52,13 @@ FIELD_SPACING = 2.0  # mm: the grid of the displacement field images are resampl
 FIELD_MARGIN = 4.0  # mm: that grid's reach past the patient's image
 INVERSE_MARGIN = 20.0  # mm: that grid's reach past the patient's image
 BSPLINE_MESH = 6  # control-point intervals along each axis of the patient's image
-SAMPLING = {"head rigid": 0.1, "head affine": 0.1, "rigid": 0.1, "affine": 0.1, "deformable": 0.05}  # share of voxels the metric samples
+SAMPLING = {
+    "head rigid": 0.1,
+    "head affine": 0.1,
+    "rigid": 0.1,
+    "affine": 0.1,
+    "deformable": 0.05,
+}  # share of voxels the metric samples
 CONVERGENCE = (1e-6, 10)  # gradient descent stops when the metric changes less than this over that many steps
 MIN_SAMPLES = 10000  # and at least this many at each level (a small grid's coarse level has a few thousand)
 
@@ -80,8 +89,9 @@ class Registration:
         size = [int(np.ceil(e / spacing)) + 1 for e in extent]
         direction = np.array(grid.GetDirection()).reshape(3, 3)
         origin = np.array(grid.GetOrigin()) - direction @ (0.5 * np.array(grid.GetSpacing()) + FIELD_MARGIN)
-        field = sitk.TransformToDisplacementField(self.transform, sitk.sitkVectorFloat64, size, origin.tolist(),
-                                                  [spacing] * 3, grid.GetDirection())
+        field = sitk.TransformToDisplacementField(
+            self.transform, sitk.sitkVectorFloat64, size, origin.tolist(), [spacing] * 3, grid.GetDirection()
+        )
         return sitk.DisplacementFieldTransform(field)
 
     def to_template(self, points_lps: np.ndarray) -> np.ndarray:
@@ -110,11 +120,21 @@ class Registration:
         size = [int(np.ceil(e / s)) + 1 for e, s in zip(extent, spacing)]
         direction = np.array(grid.GetDirection()).reshape(3, 3)
         origin = np.array(grid.GetOrigin()) - direction @ (0.5 * np.array(grid.GetSpacing()) + INVERSE_MARGIN)
-        forward = sitk.TransformToDisplacementField(self.transform.GetNthTransform(1), sitk.sitkVectorFloat64, size,
-                                                    origin.tolist(), spacing.tolist(), grid.GetDirection())
-        inverse = sitk.InvertDisplacementField(forward, maximumNumberOfIterations=50,
-                                               maxErrorToleranceThreshold=0.01, meanErrorToleranceThreshold=1e-4,
-                                               enforceBoundaryCondition=True)
+        forward = sitk.TransformToDisplacementField(
+            self.transform.GetNthTransform(1),
+            sitk.sitkVectorFloat64,
+            size,
+            origin.tolist(),
+            spacing.tolist(),
+            grid.GetDirection(),
+        )
+        inverse = sitk.InvertDisplacementField(
+            forward,
+            maximumNumberOfIterations=50,
+            maxErrorToleranceThreshold=0.01,
+            meanErrorToleranceThreshold=1e-4,
+            enforceBoundaryCondition=True,
+        )
         return sitk.DisplacementFieldTransform(inverse)
 
 
@@ -152,8 +172,13 @@ def stripped_region(patient: sitk.Image) -> np.ndarray | None:
     return ndimage.binary_fill_holes(kept | ndimage.binary_closing(kept, iterations=1))
 
 
-def register(patient: sitk.Image, template: sitk.Image, deformable: bool = True, head: sitk.Image | None = None,
-             brain: sitk.Image | None = None) -> Registration:
+def register(
+    patient: sitk.Image,
+    template: sitk.Image,
+    deformable: bool = True,
+    head: sitk.Image | None = None,
+    brain: sitk.Image | None = None,
+) -> Registration:
     """Register the template (moving) to the patient (fixed); float32 images. ``head``: a
     whole-head template in the template's space, to place it first (a patient with scalp and
     skull); ``brain``: the template's brain mask, where the brain stages measure the fit after
@@ -198,8 +223,17 @@ def coarsened(image: sitk.Image, spacing: float = REGISTRATION_SPACING) -> sitk.
     # the new grid's first voxel centre shifted so that it spans the same extent
     direction = np.array(image.GetDirection()).reshape(3, 3)
     origin = np.array(image.GetOrigin()) + direction @ (0.5 * (new - old))
-    return sitk.Resample(smooth, size, sitk.Transform(), sitk.sitkLinear, origin.tolist(), new.tolist(),
-                         image.GetDirection(), 0.0, image.GetPixelID())
+    return sitk.Resample(
+        smooth,
+        size,
+        sitk.Transform(),
+        sitk.sitkLinear,
+        origin.tolist(),
+        new.tolist(),
+        image.GetDirection(),
+        0.0,
+        image.GetPixelID(),
+    )
 
 
 def _register(patient, template, deformable, head, brain) -> Registration:
@@ -208,15 +242,17 @@ def _register(patient, template, deformable, head, brain) -> Registration:
     mask = wide = None
     if head is not None:
         whole = normalised(head)
-        start = sitk.CenteredTransformInitializer(fixed, whole, sitk.Euler3DTransform(),
-                                                  sitk.CenteredTransformInitializerFilter.MOMENTS)
+        start = sitk.CenteredTransformInitializer(
+            fixed, whole, sitk.Euler3DTransform(), sitk.CenteredTransformInitializerFilter.MOMENTS
+        )
         rigid = _stage(fixed, whole, sitk.Euler3DTransform(start), "head rigid", stages)
         affine = _stage(fixed, whole, _as_affine(rigid), "head affine", stages)
         if brain is not None:
             mask, wide = _dilated(brain, MASK_MARGIN), _dilated(brain, BSPLINE_MARGIN)
     else:
-        start = sitk.CenteredTransformInitializer(fixed, moving, sitk.Euler3DTransform(),
-                                                  sitk.CenteredTransformInitializerFilter.MOMENTS)
+        start = sitk.CenteredTransformInitializer(
+            fixed, moving, sitk.Euler3DTransform(), sitk.CenteredTransformInitializerFilter.MOMENTS
+        )
         rigid = _stage(fixed, moving, sitk.Euler3DTransform(start), "rigid", stages)
         affine = _as_affine(rigid)
     affine = _stage(fixed, moving, affine, "affine", stages, mask=mask)
@@ -240,26 +276,31 @@ def _stage(fixed, moving, transform, name: str, stages: list, initial=None, mask
     # metric, an optimiser stopping anywhere); seeded, and on one thread: ITK's threads sum
     # the metric in a varying order, and the same T1 gave masks differing by voxels
     voxels = [float(np.prod(np.array(fixed.GetSize()) / f)) for f in shrink]
-    method.SetMetricSamplingPercentagePerLevel([min(1.0, max(SAMPLING[name], MIN_SAMPLES / v)) for v in voxels],
-                                               seed=1)
+    method.SetMetricSamplingPercentagePerLevel([min(1.0, max(SAMPLING[name], MIN_SAMPLES / v)) for v in voxels], seed=1)
     method.SetInterpolator(sitk.sitkLinear)
     if mask is not None:
         method.SetMetricMovingMask(mask)
     if name == "deformable":
-        method.SetOptimizerAsLBFGSB(gradientConvergenceTolerance=1e-5, numberOfIterations=iterations,
-                                    maximumNumberOfCorrections=5)
+        method.SetOptimizerAsLBFGSB(
+            gradientConvergenceTolerance=1e-5, numberOfIterations=iterations, maximumNumberOfCorrections=5
+        )
         method.SetMovingInitialTransform(initial)
     elif name == "affine":
         # a regular step, halved when the gradient turns: gradient descent's convergence check
         # stopped this stage after 9-27 steps, the brain still a voxel off (Dice 0.93 against
         # 0.99 on a synthetic head with the exact answer in reach)
-        method.SetOptimizerAsRegularStepGradientDescent(learningRate=1.0, minStep=1e-4, numberOfIterations=200,
-                                                        relaxationFactor=0.5)
+        method.SetOptimizerAsRegularStepGradientDescent(
+            learningRate=1.0, minStep=1e-4, numberOfIterations=200, relaxationFactor=0.5
+        )
         method.SetOptimizerScalesFromPhysicalShift()
     else:
-        method.SetOptimizerAsGradientDescent(learningRate=1.0, numberOfIterations=iterations,
-                                             convergenceMinimumValue=CONVERGENCE[0], convergenceWindowSize=CONVERGENCE[1],
-                                             estimateLearningRate=method.EachIteration)
+        method.SetOptimizerAsGradientDescent(
+            learningRate=1.0,
+            numberOfIterations=iterations,
+            convergenceMinimumValue=CONVERGENCE[0],
+            convergenceWindowSize=CONVERGENCE[1],
+            estimateLearningRate=method.EachIteration,
+        )
         method.SetOptimizerScalesFromPhysicalShift()
     method.SetShrinkFactorsPerLevel(list(shrink))
     method.SetSmoothingSigmasPerLevel(list(smooth))
@@ -277,11 +318,25 @@ def _stage(fixed, moving, transform, name: str, stages: list, initial=None, mask
     if not accepted:
         transform.SetParameters(start)
     seconds = time.perf_counter() - began
-    stages.append({"stage": name, "seconds": round(seconds, 2), "metric": round(min(after, before), 4),
-                   "metric_before": round(before, 4), "accepted": bool(accepted),
-                   "iterations": method.GetOptimizerIteration()})
-    log.info("registration %s: %.1f s, mutual information %.3f -> %.3f after %d iterations%s", name, seconds, -before,
-             -after, method.GetOptimizerIteration(), "" if accepted else ": no better, its start kept")
+    stages.append(
+        {
+            "stage": name,
+            "seconds": round(seconds, 2),
+            "metric": round(min(after, before), 4),
+            "metric_before": round(before, 4),
+            "accepted": bool(accepted),
+            "iterations": method.GetOptimizerIteration(),
+        }
+    )
+    log.info(
+        "registration %s: %.1f s, mutual information %.3f -> %.3f after %d iterations%s",
+        name,
+        seconds,
+        -before,
+        -after,
+        method.GetOptimizerIteration(),
+        "" if accepted else ": no better, its start kept",
+    )
     return transform
 
 
@@ -291,8 +346,14 @@ def _full_metric(method: sitk.ImageRegistrationMethod, fixed: sitk.Image, moving
     return float(method.MetricEvaluate(fixed, moving))
 
 
-def correlation_in(patient: sitk.Image, template: sitk.Image, registration: Registration,
-                   mask: np.ndarray, step: int = 2, sigma: float = CORRELATION_SIGMA) -> float:
+def correlation_in(
+    patient: sitk.Image,
+    template: sitk.Image,
+    registration: Registration,
+    mask: np.ndarray,
+    step: int = 2,
+    sigma: float = CORRELATION_SIGMA,
+) -> float:
     """The fit's measure: Pearson correlation of the patient's and the registered template's
     intensities, both smoothed by ``sigma`` mm (the template is an average of 152 brains: a
     patient's own folds are not in it), over the brain found (``mask``, the patient's array
@@ -314,8 +375,14 @@ RATIO_BINS = 16  # template intensity classes of the correlation ratio (quantile
 PEAK_SHIFT_MM = 10.0  # the registration moved this far along each axis, both ways, for the gate's peak
 
 
-def fit_measures(patient: sitk.Image, template: sitk.Image, registration: Registration, mask: np.ndarray,
-                 step: int = 2, sigma: float = CORRELATION_SIGMA) -> dict:
+def fit_measures(
+    patient: sitk.Image,
+    template: sitk.Image,
+    registration: Registration,
+    mask: np.ndarray,
+    step: int = 2,
+    sigma: float = CORRELATION_SIGMA,
+) -> dict:
     """How well the registered template explains the scan in the brain found ``mask`` (its part
     deeper than PEAK_SHIFT_MM, _deep): the correlation, the correlation ratio, and the largest
     correlation ratio with the registration
@@ -326,8 +393,7 @@ def fit_measures(patient: sitk.Image, template: sitk.Image, registration: Regist
     if coarse is not patient:
         mask_image = sitk.GetImageFromArray(mask.astype(np.uint8))
         mask_image.CopyInformation(patient)
-        mask = sitk.GetArrayFromImage(sitk.Resample(mask_image, coarse, sitk.Transform(),
-                                                    sitk.sitkNearestNeighbor)) > 0
+        mask = sitk.GetArrayFromImage(sitk.Resample(mask_image, coarse, sitk.Transform(), sitk.sitkNearestNeighbor)) > 0
     smooth_patient = sitk.SmoothingRecursiveGaussian(coarse, sigma)
     smooth_template = sitk.SmoothingRecursiveGaussian(template, sigma)
     grid = smooth_patient[::step, ::step, ::step]
@@ -356,8 +422,14 @@ def _deep(mask: np.ndarray, spacing: np.ndarray, depth_mm: float) -> np.ndarray:
     return deep if deep.sum() > 1000 else mask
 
 
-def correlation_ratio_in(patient: sitk.Image, template: sitk.Image, registration: Registration,
-                         mask: np.ndarray, step: int = 2, sigma: float = CORRELATION_SIGMA) -> float:
+def correlation_ratio_in(
+    patient: sitk.Image,
+    template: sitk.Image,
+    registration: Registration,
+    mask: np.ndarray,
+    step: int = 2,
+    sigma: float = CORRELATION_SIGMA,
+) -> float:
     """The fit's measure whatever the contrast: the correlation ratio eta^2 of the patient's
     intensities given the registered template's (binned into RATIO_BINS quantile classes), over
     the brain found: the share of the patient's variance there that the template's anatomy
@@ -384,5 +456,7 @@ def _pairs_in(patient, template, registration, mask, step, sigma) -> tuple[np.nd
     grid = smooth_patient[::step, ::step, ::step]
     moved = sitk.Resample(smooth_template, grid, registration.transform, sitk.sitkLinear, 0.0)
     inside = mask[::step, ::step, ::step]
-    return (sitk.GetArrayViewFromImage(grid)[inside].astype(float),
-            sitk.GetArrayViewFromImage(moved)[inside].astype(float))
+    return (
+        sitk.GetArrayViewFromImage(grid)[inside].astype(float),
+        sitk.GetArrayViewFromImage(moved)[inside].astype(float),
+    )

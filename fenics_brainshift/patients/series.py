@@ -1,6 +1,7 @@
 """A pre-operative T1 as a 3-D SimpleITK image (LPS mm, ITK's frame): a DICOM series folder
 (GDCM through SimpleITK), a NIfTI or a NRRD, refused in one line when it cannot be a T1
 volume (2-D, 4-D, several components, missing slices, a label map)."""
+
 from __future__ import annotations
 
 import logging
@@ -32,59 +33,79 @@ def read_t1(path: str | Path, what: str = "T1") -> sitk.Image:
         except RuntimeError as exc:
             raise InputError(f"{what}: '{path.name}' could not be read ({_first_line(exc)})") from None
     else:
-        raise InputError(f"{what}: '{path.name}' is neither a DICOM series folder nor a NIfTI (.nii, .nii.gz) or "
-                         f"NRRD (.nrrd) volume")
+        raise InputError(
+            f"{what}: '{path.name}' is neither a DICOM series folder nor a NIfTI (.nii, .nii.gz) or NRRD (.nrrd) volume"
+        )
     return _checked(image, path, what)
 
 
 def _checked(image: sitk.Image, path: Path, what: str) -> sitk.Image:
     name = path.name
     if image.GetNumberOfComponentsPerPixel() != 1:
-        raise InputError(f"{what}: '{name}' has {image.GetNumberOfComponentsPerPixel()} components per voxel "
-                         f"(colour or a vector field); a T1 has one grey value")
+        raise InputError(
+            f"{what}: '{name}' has {image.GetNumberOfComponentsPerPixel()} components per voxel "
+            f"(colour or a vector field); a T1 has one grey value"
+        )
     size = list(image.GetSize())
     if image.GetDimension() == 4 and size[3] == 1:
         image = image[:, :, :, 0]
         size = size[:3]
     if image.GetDimension() != 3:
         kind = "2-D" if image.GetDimension() == 2 else f"{image.GetDimension()}-D"
-        raise InputError(f"{what}: '{name}' is a {kind} image of size {size}; a 3-D T1 volume is needed "
-                         f"(a 4-D series holds several volumes: export the T1 alone)")
+        raise InputError(
+            f"{what}: '{name}' is a {kind} image of size {size}; a 3-D T1 volume is needed "
+            f"(a 4-D series holds several volumes: export the T1 alone)"
+        )
     if min(size) < MIN_SIZE:
-        raise InputError(f"{what}: '{name}' is {size[0]} x {size[1]} x {size[2]} voxels; a T1 of the head has at "
-                         f"least {MIN_SIZE} along each axis (is it a single slice or a localiser?)")
+        raise InputError(
+            f"{what}: '{name}' is {size[0]} x {size[1]} x {size[2]} voxels; a T1 of the head has at "
+            f"least {MIN_SIZE} along each axis (is it a single slice or a localiser?)"
+        )
     image = sitk.Cast(image, sitk.sitkFloat32)
     values = sitk.GetArrayViewFromImage(image)
     if not np.isfinite(values).all():
         raise InputError(f"{what}: '{name}' holds NaN or infinite voxel values")
     sample = values[::4, ::4, ::4]
     if len(np.unique(sample)) <= MAX_LABELS:
-        raise InputError(f"{what}: '{name}' has only {len(np.unique(sample))} distinct values: a segmentation, "
-                         f"not a T1 (give the MRI; a tumour segmentation goes to --tumour)")
+        raise InputError(
+            f"{what}: '{name}' has only {len(np.unique(sample))} distinct values: a segmentation, "
+            f"not a T1 (give the MRI; a tumour segmentation goes to --tumour)"
+        )
     return image
 
 
 def _read_dicom_series(folder: Path, what: str) -> sitk.Image:
     ids = sitk.ImageSeriesReader.GetGDCMSeriesIDs(str(folder))
     if not ids:
-        raise InputError(f"{what}: no DICOM series in folder '{folder}' (give the folder that holds the T1's "
-                         f".dcm files, or a NIfTI)")
+        raise InputError(
+            f"{what}: no DICOM series in folder '{folder}' (give the folder that holds the T1's .dcm files, or a NIfTI)"
+        )
     files = {uid: sitk.ImageSeriesReader.GetGDCMSeriesFileNames(str(folder), uid) for uid in ids}
     uid = max(ids, key=lambda u: len(files[u]))
     if len(ids) > 1:
-        log.info("%s: %d DICOM series in '%s'; reading the largest (%d files, %s)", what, len(ids), folder.name,
-                 len(files[uid]), uid)
+        log.info(
+            "%s: %d DICOM series in '%s'; reading the largest (%d files, %s)",
+            what,
+            len(ids),
+            folder.name,
+            len(files[uid]),
+            uid,
+        )
     names = list(files[uid])
     if len(names) == 1:
-        raise InputError(f"{what}: the DICOM series in '{folder.name}' is one file: a 2-D image or a multi-frame "
-                         f"file; convert it to NIfTI (e.g. dcm2niix) and give that")
+        raise InputError(
+            f"{what}: the DICOM series in '{folder.name}' is one file: a 2-D image or a multi-frame "
+            f"file; convert it to NIfTI (e.g. dcm2niix) and give that"
+        )
     _check_slice_positions(names, folder, what)
     reader = sitk.ImageSeriesReader()
     reader.SetFileNames(names)
     try:
         return reader.Execute()
     except RuntimeError as exc:
-        raise InputError(f"{what}: the DICOM series in '{folder.name}' could not be read ({_first_line(exc)})") from None
+        raise InputError(
+            f"{what}: the DICOM series in '{folder.name}' could not be read ({_first_line(exc)})"
+        ) from None
 
 
 def _check_slice_positions(names: list[str], folder: Path, what: str) -> None:
@@ -99,26 +120,34 @@ def _check_slice_positions(names: list[str], folder: Path, what: str) -> None:
             position = [float(v) for v in reader.GetMetaData("0020|0032").split("\\")]
             cosines = [float(v) for v in reader.GetMetaData("0020|0037").split("\\")]
         except (RuntimeError, ValueError):
-            raise InputError(f"{what}: '{Path(name).name}' in '{folder.name}' has no readable image position or "
-                             f"orientation (DICOM 0020,0032 and 0020,0037)") from None
+            raise InputError(
+                f"{what}: '{Path(name).name}' in '{folder.name}' has no readable image position or "
+                f"orientation (DICOM 0020,0032 and 0020,0037)"
+            ) from None
         positions.append(position)
         normals.append(np.cross(cosines[:3], cosines[3:6]))
     normal = normals[0]
     if any(abs(float(np.dot(n, normal))) < 0.999 for n in normals):
-        raise InputError(f"{what}: the slices in '{folder.name}' are not parallel (a localiser or several series "
-                         f"mixed in one folder); give the T1's folder alone")
+        raise InputError(
+            f"{what}: the slices in '{folder.name}' are not parallel (a localiser or several series "
+            f"mixed in one folder); give the T1's folder alone"
+        )
     heights = np.sort(np.asarray(positions) @ normal)
     steps = np.diff(heights)
     if np.any(steps < 1e-3):
-        raise InputError(f"{what}: the DICOM series in '{folder.name}' has several slices at one position: a 4-D "
-                         f"series (several volumes or echoes); export the T1 volume alone")
+        raise InputError(
+            f"{what}: the DICOM series in '{folder.name}' has several slices at one position: a 4-D "
+            f"series (several volumes or echoes); export the T1 volume alone"
+        )
     usual = float(np.median(steps))
     gaps = np.flatnonzero(steps > GAP_FACTOR * usual)
     if len(gaps):
         at = heights[gaps[0]]
-        raise InputError(f"{what}: the DICOM series in '{folder.name}' misses slices: {len(gaps)} gap(s) in the "
-                         f"slice positions, the first after {at:.1f} mm ({steps[gaps[0]]:.2f} mm against the usual "
-                         f"{usual:.2f} mm); copy the whole series")
+        raise InputError(
+            f"{what}: the DICOM series in '{folder.name}' misses slices: {len(gaps)} gap(s) in the "
+            f"slice positions, the first after {at:.1f} mm ({steps[gaps[0]]:.2f} mm against the usual "
+            f"{usual:.2f} mm); copy the whole series"
+        )
 
 
 def _first_line(exc: Exception) -> str:

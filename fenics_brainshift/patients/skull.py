@@ -10,6 +10,7 @@ the contact's normal jumps across each facet's edge; Newton chattered there with
 synthetic patient's settled state at 5 mm). The smoothing pulls the surface in at the mesh's
 corners; the level is raised where that would leave a node within MIN_CLEARANCE of it.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -26,14 +27,15 @@ SMOOTHING = 1.5  # mm: the Gaussian the distance is smoothed by
 MIN_CLEARANCE = 1.0  # mm: no mesh node nearer the skull than this (of a gap of 0.5-10 mm: its half, if less)
 
 
-def inner_skull(segmentation: Path, labels: list[str], brain: np.ndarray, patient: sitk.Image,
-                voxel: float, gap: float) -> tuple[np.ndarray, np.ndarray]:
+def inner_skull(
+    segmentation: Path, labels: list[str], brain: np.ndarray, patient: sitk.Image, voxel: float, gap: float
+) -> tuple[np.ndarray, np.ndarray]:
     """(points RAS mm, triangles) of the inner skull around the brain (``brain``, a mask on
     ``patient``'s grid) and the voxel mesh of ``voxel`` mm of ``segmentation``'s ``labels``."""
     from skimage.measure import marching_cubes
 
     from ..meshing.voxelize import voxelize
-    from ..physics.skull import closed_surface_problem
+    from ..surfaces.triangles import closed_surface_problem
 
     model = voxelize(segmentation, voxel * 1e-3, 1e-3, 0.5, 1, labels)
     kept = np.zeros(model.voxels.max(axis=0) + 1, dtype=bool)
@@ -62,8 +64,9 @@ def inner_skull(segmentation: Path, labels: list[str], brain: np.ndarray, patien
     # zero-area triangles, and the STL's holes
     level += 1e-3 * step * np.pi
     distance = distance.astype(np.float32)
-    points, triangles, _, _ = marching_cubes(np.pad(distance, 1, constant_values=distance.max()), level,
-                                           allow_degenerate=False)
+    points, triangles, _, _ = marching_cubes(
+        np.pad(distance, 1, constant_values=distance.max()), level, allow_degenerate=False
+    )
     points = origin + (points - 1.0) * step
     problem = closed_surface_problem(triangles)
     if problem:  # not the user's input: say so plainly

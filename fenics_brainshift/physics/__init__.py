@@ -1,5 +1,6 @@
 """Physics: material forms, gravity and the exact clipped hydrostatic load, supports,
 resection, and the model that holds them. Takes plain values, never a scene."""
+
 from .fluid import FluidLoad, FluidSettings
 from .gravity import GravityLoad, total_force
 from .hydrostatic import HydrostaticLoad, hydrostatic_load
@@ -8,5 +9,17 @@ from .model import Model
 from .resection import Cut, Tissue
 from .supports import Support
 
-__all__ = ["Cut", "FluidLoad", "FluidSettings", "GravityLoad", "HydrostaticLoad", "LinearElastic", "Model",
-           "Support", "Tissue", "hydrostatic_load", "lame_parameters", "total_force"]
+__all__ = [
+    "Cut",
+    "FluidLoad",
+    "FluidSettings",
+    "GravityLoad",
+    "HydrostaticLoad",
+    "LinearElastic",
+    "Model",
+    "Support",
+    "Tissue",
+    "hydrostatic_load",
+    "lame_parameters",
+    "total_force",
+]

@@ -14,6 +14,7 @@ round-off. P differs from I only at septum nodes; the product is PETSc's PtAP, i
 built once per matrix (on the 5 mm brain a reused product costs ~3 % of assembling K).
 Supports alone keep DOLFINx's Dirichlet conditions: nothing here changes their path.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -76,8 +77,7 @@ class Constraints:
         indices = np.broadcast_to(columns, (n, 3, 3)).reshape(-1).astype(PETSc.IntType)
         indptr = np.arange(0, 9 * n + 1, 3, dtype=PETSc.IntType)
         size = (3 * n, 3 * self.V.dofmap.index_map.size_global)
-        return PETSc.Mat().createAIJ((size, size), bsize=3, csr=(indptr, indices, blocks.reshape(-1)),
-                                     comm=self.comm)
+        return PETSc.Mat().createAIJ((size, size), bsize=3, csr=(indptr, indices, blocks.reshape(-1)), comm=self.comm)
 
     # -- applied to matrices, vectors and contact blocks ------------------------------------
     def matrix(self, A: PETSc.Mat, supports: bool = True) -> PETSc.Mat:
@@ -156,11 +156,16 @@ class Constraints:
             moved = values[nodes]
             across = np.einsum("ni,ni->n", moved, normals) if len(nodes) else np.zeros(0)
             slide = np.linalg.norm(moved - across[:, None] * normals, axis=1) if len(nodes) else np.zeros(0)
-            out.append({"name": label, "nodes": c.allreduce(len(nodes)),
-                        "force_N": c.allreduce(forces.sum(axis=0)).tolist(),
-                        "normal_force_sum_N": c.allreduce(float(np.linalg.norm(forces, axis=1).sum())),
-                        "largest_slide_m": c.allreduce(float(slide.max(initial=0.0)), op=MPI.MAX),
-                        "largest_motion_across_m": c.allreduce(float(np.abs(across).max(initial=0.0)), op=MPI.MAX)})
+            out.append(
+                {
+                    "name": label,
+                    "nodes": c.allreduce(len(nodes)),
+                    "force_N": c.allreduce(forces.sum(axis=0)).tolist(),
+                    "normal_force_sum_N": c.allreduce(float(np.linalg.norm(forces, axis=1).sum())),
+                    "largest_slide_m": c.allreduce(float(slide.max(initial=0.0)), op=MPI.MAX),
+                    "largest_motion_across_m": c.allreduce(float(np.abs(across).max(initial=0.0)), op=MPI.MAX),
+                }
+            )
         return out
 
     def free_rigid_motion(self) -> str | None:
@@ -170,8 +175,9 @@ class Constraints:
         X = self.V.tabulate_dof_coordinates()
         owned = self._owned
         fixed = self.fixed[self.fixed // 3 < owned]
-        septa = [(node, n) for node, dirs in zip(self.nodes, self.directions) if node < owned
-                 for k, n in dirs if k >= 0]
+        septa = [
+            (node, n) for node, dirs in zip(self.nodes, self.directions) if node < owned for k, n in dirs if k >= 0
+        ]
         points = np.concatenate([X[fixed // 3], X[[node for node, _ in septa]].reshape(-1, 3)])
         held = np.concatenate([np.eye(3)[fixed % 3], np.array([n for _, n in septa]).reshape(-1, 3)])
         c = self.comm
@@ -183,10 +189,12 @@ class Constraints:
         values, vectors = np.linalg.eigh(G)
         if values[-1] > 0 and values[0] > 1e-10 * values[-1]:
             return None
+
         def words(v):
             v = v / np.linalg.norm(v)
             v = v * np.sign(v[np.argmax(np.abs(v))])
             return ", ".join(f"{c:.2g}" for c in np.where(np.abs(v) < 1e-6, 0.0, v))
+
         moves, along = np.linalg.eigh(G[:3, :3])  # the translations alone
         if moves[0] <= 1e-10 * values[-1]:
             return f"move along ({words(along[:, 0])})"

@@ -7,7 +7,7 @@ triangle it is a corner of), at y_i = x_i + u_i, carries the force
 
     f_i = w_i p(z_i) grad phi(z_i),   z_i = y_i - lambda_i / k,   p(z) = k max(0, -phi(z)),
 
-phi the skull's distance field (physics/skull.py: negative past the skull), lambda_i the
+phi the skull's distance field (surfaces/skull.py: negative past the skull), lambda_i the
 node's multiplier (a pressure vector, Pa) and k a penalty (Pa/m) set from the stiffness and
 the mesh size, not by hand (and, in a time step, from the inertia too). That force is
 k (z's nearest point inside the skull - z) (the kink aside): on a flat wall, the scalar form
@@ -32,6 +32,7 @@ has moved since, still leaves it far from the skull cannot be pressed, and is no
 again (its phi is then that lower bound). On N ranks each rank handles the vertices of the
 surface facets of its cells, with its share of their area; the forces are summed over ranks.
 """
+
 from __future__ import annotations
 
 from typing import NamedTuple
@@ -80,6 +81,7 @@ class _Distances:
 class ContactState(NamedTuple):
     """The nodes at a displacement: positions y, shifted points z = y - lambda / k, phi and
     grad phi at z, and the pressures p(z) (Pa)."""
+
     y: np.ndarray
     z: np.ndarray
     phi: np.ndarray
@@ -293,7 +295,12 @@ class SkullContact:
         size = np.linalg.norm(owned, axis=1)
         largest = self.comm.allreduce(float(size.max(initial=0.0)), op=MPI.MAX)
         pressed = self.comm.allreduce(int(np.count_nonzero(size > 1e-6 * largest)), op=MPI.SUM)
-        return {"force_N": [float(v) for v in total], "pressed_nodes": pressed,
-                "max_penetration_m": self.penetration(u), "clearance_m": self.clearance(u),
-                "penalty_Pa_per_m": self.penalty, "tolerance_m": self.tolerance,
-                "distance_queries": self.queries}
+        return {
+            "force_N": [float(v) for v in total],
+            "pressed_nodes": pressed,
+            "max_penetration_m": self.penetration(u),
+            "clearance_m": self.clearance(u),
+            "penalty_Pa_per_m": self.penalty,
+            "tolerance_m": self.tolerance,
+            "distance_queries": self.queries,
+        }

@@ -1,10 +1,11 @@
 """The fluid's nodal load at time t: the level from a schedule, or from a fluid volume in a
 container (then it depends on how much of the body is under water), assembled exactly
 (hydrostatic.py) and reassembled only when something changed."""
+
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Callable
 
 import numpy as np
 from mpi4py import MPI
@@ -62,16 +63,19 @@ class FluidLoad:
         top = hydro.highest()
         body = hydro.volume_below(top)
         if hydro.volume_below(s.floor) > 1e-9 * body:
-            raise InputError(f"[fluid] floor = {s.floor:g} m cuts through the body; "
-                             f"it must be at or below the body's lowest point")
+            raise InputError(
+                f"[fluid] floor = {s.floor:g} m cuts through the body; it must be at or below the body's lowest point"
+            )
         bottom = -hydro.highest(up=-1.0)
         heights = np.linspace(bottom, top, 65)
         volumes = np.array([hydro.volume_below(h) for h in heights])
         section = float(np.max(np.diff(volumes) / np.diff(heights)))
         if s.container_area <= section:
-            raise InputError(f"[fluid] container_area = {s.container_area:g} m2 is not larger than the body's "
-                             f"horizontal cross-section ({section:.3g} m2): the body does not fit in the container; "
-                             f"give the container's floor area in m2")
+            raise InputError(
+                f"[fluid] container_area = {s.container_area:g} m2 is not larger than the body's "
+                f"horizontal cross-section ({section:.3g} m2): the body does not fit in the container; "
+                f"give the container's floor area in m2"
+            )
 
     def set_present(self, present) -> None:
         """After a resection: act on the surface of the cells still present."""
@@ -130,8 +134,10 @@ class FluidLoad:
         try:
             h = brentq(f, floor, top, xtol=1e-14, rtol=1e-15, maxiter=200)
         except (ValueError, RuntimeError) as exc:  # no sign change, or no convergence
-            raise SolverError(f"the fluid level for a volume of {volume:g} m3 could not be found ({exc}); "
-                              f"check [fluid] container_area and floor") from None
+            raise SolverError(
+                f"the fluid level for a volume of {volume:g} m3 could not be found ({exc}); "
+                f"check [fluid] container_area and floor"
+            ) from None
         return self._remember(h, slope)
 
     def _remember(self, level: float, slope: float) -> float:

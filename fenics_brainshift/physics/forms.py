@@ -2,6 +2,7 @@
 
 Coefficients are passed in (Constants or numbers) so the same forms serve every scene and test.
 """
+
 from __future__ import annotations
 
 import ufl

@@ -1,5 +1,8 @@
 """Gravity as an assembled load vector, and helpers for assembled vectors."""
+
 from __future__ import annotations
+
+from typing import TYPE_CHECKING
 
 import numpy as np
 import ufl
@@ -8,6 +11,9 @@ from dolfinx.fem.petsc import assemble_vector, create_vector
 from petsc4py import PETSc
 
 from .forms import body_force
+
+if TYPE_CHECKING:
+    from mpi4py import MPI
 
 
 def assemble_into(b: PETSc.Vec, compiled_form) -> PETSc.Vec:
@@ -19,7 +25,7 @@ def assemble_into(b: PETSc.Vec, compiled_form) -> PETSc.Vec:
     return b
 
 
-def total_force(b: PETSc.Vec, comm) -> np.ndarray:
+def total_force(b: PETSc.Vec, comm: MPI.Intracomm) -> np.ndarray:
     """Sum of an assembled nodal load over all nodes: the resultant force (N), global."""
     local = b.getArray(readonly=True).reshape(-1, 3).sum(axis=0)
     return comm.allreduce(local)

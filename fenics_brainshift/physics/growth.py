@@ -9,9 +9,10 @@ F_g . v = int (3 lambda + 2 mu) (g - 1) div v dx. A free body then changes its v
 exactly theta without stress (u = (g - 1) X is exact in P1 and makes eps = eps_g); a confined
 one pushes its surroundings. Regions that overlap compose: (1 + theta_1)(1 + theta_2).
 """
+
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 from dolfinx import fem

@@ -7,6 +7,7 @@ plain UFL surface form (pressure_quadrature.py), kept to show why the exact rule
 Geometry may follow the displacement (``u``): then the current positions x + u are used, as
 the paper does. Dry facets are dropped before any arithmetic.
 """
+
 from __future__ import annotations
 
 import dolfinx.la
@@ -40,8 +41,10 @@ class HydrostaticLoad:
         self.rule = rule
         self.degree = compat.element_degree(V)
         if rule == "paper" and self.degree != 1:
-            raise ValueError("the paper's rule shares forces among triangle vertices: degree 1 only; "
-                             "use rule = \"consistent\" with degree 2")
+            raise ValueError(
+                "the paper's rule shares forces among triangle vertices: degree 1 only; "
+                'use rule = "consistent" with degree 2'
+            )
         g = np.asarray(gravity, dtype=float)
         self.g_magnitude = float(np.linalg.norm(g))
         self.up = -g / self.g_magnitude
@@ -60,7 +63,7 @@ class HydrostaticLoad:
     def set_gravity(self, gravity) -> None:
         """Another gravity vector (a head pose): up and |g| change, the reference heights too."""
         if self._quadrature is not None:
-            raise ValueError("the quadrature rule keeps its gravity; use rule = \"consistent\"")
+            raise ValueError('the quadrature rule keeps its gravity; use rule = "consistent"')
         g = np.asarray(gravity, dtype=float)
         self.g_magnitude = float(np.linalg.norm(g))
         self.up = -g / self.g_magnitude
@@ -71,8 +74,9 @@ class HydrostaticLoad:
         self.facets = surface_facets(self.V, present)
         self._reference = None
         if self._quadrature is not None:
-            raise ValueError("the quadrature rule acts on the original surface only; use rule = \"consistent\" "
-                             "with [[remove]]")
+            raise ValueError(
+                'the quadrature rule acts on the original surface only; use rule = "consistent" with [[remove]]'
+            )
 
     def geometry(self, u=None):
         """Facet vertices and opposite vertices, moved by u (a Function on V) if given."""
@@ -135,8 +139,10 @@ class HydrostaticLoad:
         """The assembled nodal load (owned entries summed over ranks, ghosts updated)."""
         if self._quadrature is not None:
             if u is not None:
-                raise ValueError("the quadrature rule integrates on the reference geometry; "
-                                 "use rule = \"consistent\" for follower loading")
+                raise ValueError(
+                    "the quadrature rule integrates on the reference geometry; "
+                    'use rule = "consistent" for follower loading'
+                )
             vec = self._quadrature.assemble(level)
             vec.copy(self.vector)
             self._totals_from_vector(level)
@@ -172,7 +178,14 @@ class HydrostaticLoad:
         return f
 
 
-def hydrostatic_load(V, level: float, rho_fluid: float, gravity, u=None, rule: str = "consistent") -> fem.Function:
+def hydrostatic_load(
+    V: fem.FunctionSpace,
+    level: float,
+    rho_fluid: float,
+    gravity: np.ndarray,
+    u: fem.Function | None = None,
+    rule: str = "consistent",
+) -> fem.Function:
     """The assembled nodal fluid load as a Function on V (see HydrostaticLoad)."""
     load = HydrostaticLoad(V, rho_fluid, gravity, rule)
     load.assemble(level, u)

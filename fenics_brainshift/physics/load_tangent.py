@@ -16,6 +16,7 @@ atlas with the skull. The
 blocks go into the matrix rows of the facet's nodes (vertex and, for P2, edge dofs) and the
 columns of its vertices: the geometry is that of the vertices.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -26,8 +27,9 @@ from .wet_facets import wet_integrals
 RELATIVE_STEP = 1e-6  # of a facet's longest edge
 
 
-def facet_forces(X: np.ndarray, orientation: np.ndarray, level: float, up: np.ndarray, rho_g: float,
-                 degree: int, rule: str) -> np.ndarray:
+def facet_forces(
+    X: np.ndarray, orientation: np.ndarray, level: float, up: np.ndarray, rho_g: float, degree: int, rule: str
+) -> np.ndarray:
     """Nodal forces (F, 3 or 6 nodes, 3) of triangles X (F, 3, 3) under the clipped
     hydrostatic pressure, in the facets' own node order (vertices, then for P2 the edge
     opposite each vertex); ``orientation`` (+1/-1) makes the vertex order's normal outward."""
@@ -71,7 +73,7 @@ def load_tangent_blocks(hydro, level: float, u) -> tuple[np.ndarray, np.ndarray,
         # the paper's rule shares a facet's load by its vertices' depth order, which jumps where
         # two are level (a horizontal edge; a voxel mesh at rest has many): central differences'
         # spikes there are equal and opposite and cancel between neighbouring facets, forward
-        # ones do not (Newton took 15 iterations for 5; a stranger's review)
+        # ones do not (Newton took 15 iterations instead of 5 with forward differences)
         central = hydro.rule != "consistent"
         here = None if central else facet_forces(X, orient, level, hydro.up, rho_g, hydro.degree, hydro.rule)
         for m in range(3):
@@ -82,16 +84,16 @@ def load_tangent_blocks(hydro, level: float, u) -> tuple[np.ndarray, np.ndarray,
                 if central:
                     minus = X.copy()
                     minus[:, m, c] -= h
-                    difference = (difference - facet_forces(minus, orient, level, hydro.up, rho_g, hydro.degree,
-                                                            hydro.rule)) / 2.0
+                    difference = (
+                        difference - facet_forces(minus, orient, level, hydro.up, rho_g, hydro.degree, hydro.rule)
+                    ) / 2.0
                 else:
                     difference = difference - here
                 blocks[cut, :, 3 * m + c] = (difference / h[:, None, None]).reshape(len(cut), -1)
     return rows, facets.vertex_dofs[near], blocks
 
 
-def _whole_p1_blocks(X: np.ndarray, orientation: np.ndarray, level: float, up: np.ndarray,
-                     rho_g: float) -> np.ndarray:
+def _whole_p1_blocks(X: np.ndarray, orientation: np.ndarray, level: float, up: np.ndarray, rho_g: float) -> np.ndarray:
     """d f / d x (F, 9, 9) of P1 facets wholly under water, in closed form: f_k = -rho g
     (d_k + D) / 24 o (x1 - x0) x (x2 - x0) (wet_integrals: A (d_k + D) / 12 times the normal,
     A n = o cross / 2; d the vertices' depths, D their sum, o the orientation), so
@@ -116,6 +118,10 @@ def add_load_tangent(A: PETSc.Mat, hydro, level: float, u, scale: float = 1.0) -
     """A += scale * d F_fluid / d u, in A's local block numbering (A is assembled after)."""
     rows, cols, blocks = load_tangent_blocks(hydro, level, u)
     if len(rows):  # one call for all facets (row-major (3 n) x 9 blocks per facet)
-        A.setValuesBlockedLocalRCV(rows.astype(PETSc.IntType), cols.astype(PETSc.IntType),
-                                   (scale * blocks).reshape(len(rows), -1), addv=PETSc.InsertMode.ADD_VALUES)
+        A.setValuesBlockedLocalRCV(
+            rows.astype(PETSc.IntType),
+            cols.astype(PETSc.IntType),
+            (scale * blocks).reshape(len(rows), -1),
+            addv=PETSc.InsertMode.ADD_VALUES,
+        )
     A.assemble()

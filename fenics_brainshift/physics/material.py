@@ -1,5 +1,6 @@
 """Material models as UFL forms. Linear elasticity (small strain) today; a hyperelastic model
 goes beside it with the same methods (stress, stiffness, von_mises)."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -73,7 +74,7 @@ class Hyperelastic:
     growth: object = 1.0
 
     @classmethod
-    def for_degree(cls, mu, lmbda, kind: str, degree: int, present=1.0, growth=1.0) -> "Hyperelastic":
+    def for_degree(cls, mu, lmbda, kind: str, degree: int, present=1.0, growth=1.0) -> Hyperelastic:
         """The quadrature a Lagrange degree needs: P1's deformation gradient is constant on a
         (straight) tetrahedron, so one point integrates the energy exactly; P2's is linear,
         and four-degree quadrature is the usual choice for the nonlinear energy."""

@@ -3,12 +3,12 @@
 Built once from plain values (run/build.py makes them from a scene); the time loop and the
 quasi-static path both use it. Nothing here steps in time.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
 import numpy as np
-
 import ufl
 from dolfinx import fem
 from dolfinx.fem.petsc import assemble_matrix, create_vector
@@ -17,9 +17,9 @@ from petsc4py import PETSc
 from .. import compat
 from ..linalg import diagonal_matrix
 from . import forms
+from .constraints import Constraints
 from .fluid import FluidLoad, FluidSettings
 from .gravity import GravityLoad, assemble_into
-from .constraints import Constraints
 from .growth import Growth
 from .material import MODELS, Hyperelastic, LinearElastic, lame_parameters
 from .resection import Tissue, cell_centroids, fill_empty_diagonal
@@ -29,6 +29,9 @@ from .supports import fixed_conditions
 
 @dataclass
 class Model:
+    """The discrete model of a scene: the mesh, the space V, the supports, the Lame parameters and
+    density, and the loads (gravity, fluid, growth, contact) the steppers assemble."""
+
     mesh: object
     V: object
     bcs: list
@@ -55,9 +58,22 @@ class Model:
             self.constraints = Constraints(self.V, self.bcs)
 
     @classmethod
-    def create(cls, mesh, degree: int, E: float, nu: float, density: float, gravity, supports=(),
-               fluid: FluidSettings | None = None, cuts=(), lumped: bool | None = None,
-               material_model: str = "linear", swelling=(), septa=()) -> "Model":
+    def create(
+        cls,
+        mesh,
+        degree: int,
+        E: float,
+        nu: float,
+        density: float,
+        gravity,
+        supports=(),
+        fluid: FluidSettings | None = None,
+        cuts=(),
+        lumped: bool | None = None,
+        material_model: str = "linear",
+        swelling=(),
+        septa=(),
+    ) -> Model:
         """A model on ``mesh``: Lagrange ``degree`` 1 or 2, a material (E Pa, nu; "linear",
         "neo-hookean" or "saint-venant-kirchhoff"), density (kg/m3), gravity (m/s2, 3-vector),
         supports (supports.Support), an optional fluid, cuts (resection.Cut); lumped mass by
@@ -77,9 +93,21 @@ class Model:
         if swelling:
             centroids = cell_centroids(mesh)
             growth = Growth(mesh, [(np.asarray(select(centroids), dtype=bool), change) for select, change in swelling])
-        return cls(mesh, V, bcs, mu, lmbda, density, degree == 1 if lumped is None else lumped,
-                   GravityLoad(V, rho, gravity), fluid_load, tissue, material_model, growth=growth,
-                   constraints=constraints)
+        return cls(
+            mesh,
+            V,
+            bcs,
+            mu,
+            lmbda,
+            density,
+            degree == 1 if lumped is None else lumped,
+            GravityLoad(V, rho, gravity),
+            fluid_load,
+            tissue,
+            material_model,
+            growth=growth,
+            constraints=constraints,
+        )
 
     @property
     def comm(self):
@@ -110,8 +138,14 @@ class Model:
     @property
     def hyperelastic(self) -> Hyperelastic:
         present = self.tissue.indicator if self.tissue is not None else 1.0
-        return Hyperelastic.for_degree(self._present(self.mu), self._present(self.lmbda), self.material_model,
-                                       compat.element_degree(self.V), present, self._stretch)
+        return Hyperelastic.for_degree(
+            self._present(self.mu),
+            self._present(self.lmbda),
+            self.material_model,
+            compat.element_degree(self.V),
+            present,
+            self._stretch,
+        )
 
     @property
     def constitutive(self) -> LinearElastic | Hyperelastic:

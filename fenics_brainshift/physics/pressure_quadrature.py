@@ -1,5 +1,6 @@
 """The fluid load by plain UFL quadrature: the reference the exact rule is measured against
 (the kink of max(level - height, 0) at the water line makes it inexact on cut facets)."""
+
 from __future__ import annotations
 
 import numpy as np

@@ -10,10 +10,11 @@ why the paper solves the dynamic problem: K alone would be singular.
 Cells are chosen by their centroid, so a region selects the same cells on any number of
 ranks (centroids are computed from the mesh geometry, ghosts included).
 """
+
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 from dolfinx import fem
@@ -67,12 +68,16 @@ class Tissue:
         for cut, mask in zip(self.cuts, self.masks):
             taken = self._count(mask & left)
             if taken == 0:
-                raise InputError(f"[[remove]] {cut.label} (at {cut.at:g} s) selects no cell that is "
-                                 f"still present; check the region (metres, mesh frame, cell centroids)")
+                raise InputError(
+                    f"[[remove]] {cut.label} (at {cut.at:g} s) selects no cell that is "
+                    f"still present; check the region (metres, mesh frame, cell centroids)"
+                )
             left &= ~mask
             if self._count(left) == 0:
-                raise InputError(f"[[remove]] {cut.label} (at {cut.at:g} s) would remove every "
-                                 f"remaining cell; nothing would be left to simulate")
+                raise InputError(
+                    f"[[remove]] {cut.label} (at {cut.at:g} s) would remove every "
+                    f"remaining cell; nothing would be left to simulate"
+                )
 
     @property
     def removed_fraction(self) -> float:

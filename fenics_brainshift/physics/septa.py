@@ -12,10 +12,11 @@ Which nodes is decided from the mesh's vertex coordinates, edge by edge, and the
 choices are summed to the owners and sent back to the ghosts, so that a node is on a septum
 on any number of ranks exactly when it is in serial.
 """
+
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import dolfinx.la
 import numpy as np
@@ -24,7 +25,7 @@ from petsc4py import PETSc
 
 from .. import compat
 from ..errors import InputError
-from .skull import RigidSkull
+from ..surfaces.skull import RigidSkull
 
 # the reference tetrahedron's edges in DOLFINx's order: P2's dof 4 + e sits on edge e
 TETRA_EDGES = ((2, 3), (1, 3), (1, 2), (0, 3), (0, 2), (0, 1))
@@ -49,18 +50,22 @@ class Septum:
     reach: float | None = None
 
     @classmethod
-    def plane(cls, name: str, point, normal, region=None, reach=None) -> "Septum":
+    def plane(cls, name: str, point, normal, region=None, reach=None) -> Septum:
         p = np.asarray(point, dtype=float)
         n = np.asarray(normal, dtype=float)
         n = n / np.abs(n).max()  # first: the square of 1e200 overflows, of 1e-170 underflows
         n = n / np.linalg.norm(n)
-        return cls(name, lambda x: ((np.asarray(x) - p) @ n, np.broadcast_to(n, np.shape(x)),
-                                    np.ones(len(x), dtype=bool)), region, reach)
+        return cls(
+            name,
+            lambda x: ((np.asarray(x) - p) @ n, np.broadcast_to(n, np.shape(x)), np.ones(len(x), dtype=bool)),
+            region,
+            reach,
+        )
 
     @classmethod
-    def surface(cls, name: str, points, triangles, region=None, reach=None) -> "Septum":
+    def surface(cls, name: str, points, triangles, region=None, reach=None) -> Septum:
         """A triangulated surface (points m, triangles): the side of each point is that of
-        the nearest triangle's normal (physics/skull.py's exact distances). A point whose
+        the nearest triangle's normal (surfaces/skull.py's exact distances). A point whose
         nearest point lies on an open surface's rim (beyond a falx's free edge) is not over it:
         the sign flips across the surface's extended plane there, which crosses no tissue."""
         skull = RigidSkull(points, triangles)
@@ -71,6 +76,7 @@ class Septum:
             _, _, normal = skull.distance(closest)  # on the surface: its triangle's normal
             over = (dist <= ON_SURFACE * skull_size) | (np.abs(np.einsum("ni,ni->n", direction, normal)) > OVER)
             return sign * dist, normal, over
+
         skull_size = float(np.ptp(np.asarray(points, dtype=float), axis=0).max())
         return cls(name, side, region, reach)
 
@@ -89,8 +95,7 @@ def septum_nodes(V, septum: Septum) -> tuple[np.ndarray, np.ndarray]:
     vertex[corners.ravel()] = True
     distance, over = np.zeros(n_blocks), np.zeros(n_blocks, dtype=bool)
     distance[vertex], _, over[vertex] = septum.side(X[vertex])
-    size = mesh.comm.allreduce(float(np.ptp(X[vertex], axis=0).max(initial=0.0)) if vertex.any() else 0.0,
-                               op=MPI.MAX)
+    size = mesh.comm.allreduce(float(np.ptp(X[vertex], axis=0).max(initial=0.0)) if vertex.any() else 0.0, op=MPI.MAX)
     marked = np.zeros(n_blocks)
     if septum.reach is not None:
         marked[vertex & over & (np.abs(distance) <= septum.reach)] = 1.0
@@ -115,8 +120,9 @@ def septum_nodes(V, septum: Septum) -> tuple[np.ndarray, np.ndarray]:
     nodes = np.flatnonzero(marked).astype(np.int32)
     owned = V.dofmap.index_map.size_local
     if mesh.comm.allreduce(int(np.count_nonzero(nodes < owned))) == 0:
-        raise InputError(f"[[septum]] {septum.name} holds no node of the mesh; check its position and region "
-                         f"(metres, mesh frame)")
+        raise InputError(
+            f"[[septum]] {septum.name} holds no node of the mesh; check its position and region (metres, mesh frame)"
+        )
     normal = septum.side(X[nodes])[1] if len(nodes) else np.zeros((0, 3))
     return nodes, np.asarray(normal, dtype=float).reshape(-1, 3)
 

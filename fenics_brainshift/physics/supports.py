@@ -1,8 +1,9 @@
 """Supports: homogeneous Dirichlet conditions on the nodes a condition selects."""
+
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import dolfinx.mesh
 import numpy as np
@@ -44,19 +45,24 @@ def fixed_conditions(V, supports) -> list:
         if count == 0:
             raise InputError(f"{support.label} selects no node of the mesh; check the coordinates (metres, mesh frame)")
         if count == vertices.size_global and len(support.components) == 3:
-            raise InputError(f"{support.label} selects every node of the mesh, so nothing could move; check the "
-                             f"coordinates (metres, mesh frame: a bound in millimetres?)")
+            raise InputError(
+                f"{support.label} selects every node of the mesh, so nothing could move; check the "
+                f"coordinates (metres, mesh frame: a bound in millimetres?)"
+            )
         if len(support.components) == 3:
             dofs = np.unique(np.concatenate([fem.locate_dofs_topological(V, d, e) for d, e in entities.items()]))
             bcs.append(fem.dirichletbc(np.zeros(3, dtype=PETSc.ScalarType), dofs.astype(np.int32), V))
         else:
             for i in support.components:
-                dofs = np.unique(np.concatenate([fem.locate_dofs_topological(V.sub(i), d, e)
-                                                 for d, e in entities.items()]))
+                dofs = np.unique(
+                    np.concatenate([fem.locate_dofs_topological(V.sub(i), d, e) for d, e in entities.items()])
+                )
                 bcs.append(fem.dirichletbc(PETSc.ScalarType(0.0), dofs.astype(np.int32), V.sub(i)))
     if bcs and _all_dofs_fixed(V, bcs):
-        raise InputError("[[fixed]] the supports together hold every node in every direction, so nothing could "
-                         "move; check the coordinates (metres, mesh frame) and axes")
+        raise InputError(
+            "[[fixed]] the supports together hold every node in every direction, so nothing could "
+            "move; check the coordinates (metres, mesh frame) and axes"
+        )
     return bcs
 
 

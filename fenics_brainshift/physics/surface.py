@@ -1,4 +1,5 @@
 """The exterior surface of the cells present: its facets and what the fluid assembly needs."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -46,8 +47,9 @@ def surface_facets(V, present: np.ndarray | None = None) -> SurfaceFacets:
     if compat.element_degree(V) == 2:
         edges = basix.topology(basix.CellType.tetrahedron)[1]
         edge_of = {frozenset(e): layout.entity_dofs(1, i)[0] for i, e in enumerate(edges)}
-        table = np.array([[edge_of[frozenset(others[lf][[j for j in range(3) if j != k]])]
-                           for k in range(3)] for lf in range(4)])
+        table = np.array(
+            [[edge_of[frozenset(others[lf][[j for j in range(3) if j != k]])] for k in range(3)] for lf in range(4)]
+        )
         edge_dofs = dofs[rows, table[local]]
     return SurfaceFacets(
         vertex_dofs=dofs[rows, vertex_local[fv]],
@@ -56,3 +58,18 @@ def surface_facets(V, present: np.ndarray | None = None) -> SurfaceFacets:
         x_vertices=x[geo[rows, fv]],
         x_opposite=x[geo[rows[:, 0], local]],
     )
+
+
+def gathered_outward_surface(facets, comm, u=None) -> tuple[np.ndarray, np.ndarray]:
+    """The whole body surface on every rank, as (points, triangles) with outward normals:
+    each facet's vertex order is turned so that its normal points away from the cell's
+    opposite vertex. u: a displacement Function on the facets' space (the deformed surface)."""
+    X, opposite = facets.x_vertices, facets.x_opposite
+    if u is not None:
+        values = u.x.array.reshape(-1, 3)
+        X, opposite = X + values[facets.vertex_dofs], opposite + values[facets.opposite_dofs]
+    normal = np.cross(X[:, 1] - X[:, 0], X[:, 2] - X[:, 0])
+    inward = np.einsum("ni,ni->n", normal, opposite - X[:, 0]) > 0
+    X = np.where(inward[:, None, None], X[:, ::-1], X)
+    X = np.concatenate(comm.allgather(X))
+    return X.reshape(-1, 3), np.arange(3 * len(X)).reshape(-1, 3)

@@ -11,6 +11,7 @@ quadrature rule, so every triangle is split exactly there (the paper's cases 1-4
 
 Pure numpy, vectorised over facets; multiply by rho_f |g| (-n) for nodal forces.
 """
+
 from __future__ import annotations
 
 import numpy as np

@@ -3,10 +3,12 @@
 The only module besides scene/ that knows the scene's sections; everything it builds takes
 arrays, numbers, callables and option dicts.
 """
+
 from __future__ import annotations
 
 from dataclasses import asdict
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from dolfinx import fem
@@ -17,16 +19,20 @@ from ..meshing.extent import body_diagonal, size_problem
 from ..meshing.label_surface import label_surface
 from ..meshing.label_volume import labels_at
 from ..outputs.fine_surface import load_fine_surface
-from ..meshing.voxelize import VoxelizeError, read_surface
 from ..physics import Cut, FluidSettings, Model, Support
 from ..physics.contact import SkullContact
 from ..physics.septa import Septum
-from ..physics.skull import RigidSkull, closed_surface_problem, gathered_outward_surface, outward
-from ..physics.surface import surface_facets
+from ..physics.surface import gathered_outward_surface, surface_facets
 from ..scene import Scene
-from .load_checks import check_loads
-from ..scene.body import LENGTH_UNITS
 from ..stepping import TimeIntegrator
+from ..surfaces.files import SurfaceFileError, read_surface
+from ..surfaces.skull import RigidSkull
+from ..surfaces.triangles import closed_surface_problem, outward
+from ..units import LENGTH_UNITS
+from .load_checks import check_loads
+
+if TYPE_CHECKING:
+    from mpi4py import MPI
 
 
 def build_mesh(scene: Scene, comm):
@@ -42,15 +48,23 @@ def mesh_from_spec(spec, comm, degree: int = 1):
     if spec.shape is not None:
         return gmsh_shape(comm, spec.shape, spec.size, spec.origin, spec.h, degree)
     if spec.needs_voxels:
-        return voxelized_mesh(comm, spec.file, spec.voxel, spec.scale, spec.fill, spec.parts,
-                              list(spec.labels) if spec.labels else None, degree)[0]
+        return voxelized_mesh(
+            comm,
+            spec.file,
+            spec.voxel,
+            spec.scale,
+            spec.fill,
+            spec.parts,
+            list(spec.labels) if spec.labels else None,
+            degree,
+        )[0]
     return read_mesh_file(comm, spec.file, spec.scale)
 
 
 def supports(scene: Scene) -> list[Support]:
     held = [Support(f"[[fixed]] {f.describe()}", _node_selector(scene, f), tuple(f.components)) for f in scene.fixed]
     if scene.skull is not None and scene.skull.glue is not None:  # glued to the skull: held in place
-        held.append(Support(f"[skull] fixed_where = \"{scene.skull.fixed_where}\"", scene.skull.glue, (0, 1, 2)))
+        held.append(Support(f'[skull] fixed_where = "{scene.skull.fixed_where}"', scene.skull.glue, (0, 1, 2)))
     return held
 
 
@@ -78,20 +92,24 @@ def skull_contact(scene: Scene, model):
     else:
         try:
             points, triangles = read_surface(Path(spec.file), scene.mesh.scale)
-        except VoxelizeError as exc:
+        except SurfaceFileError as exc:
             raise InputError(f"[skull] file: {exc}") from None
         problem = closed_surface_problem(triangles)
         if problem:
-            raise InputError(f"[skull] file '{Path(spec.file).name}' is not a closed surface: {problem}; close it "
-                             f"(e.g. fill holes in 3D Slicer or MeshLab) or use gap = ... instead")
+            raise InputError(
+                f"[skull] file '{Path(spec.file).name}' is not a closed surface: {problem}; close it "
+                f"(e.g. fill holes in 3D Slicer or MeshLab) or use gap = ... instead"
+            )
         skull = RigidSkull(points, outward(points, triangles))
     contact = SkullContact(model.V, facets, skull, scene.material.E, spec.tolerance, model.constraints)
     clearance = contact.clearance(fem.Function(model.V))  # at rest
     if spec.file is not None:
         _check_skull_size(scene, skull.triangles.reshape(-1, 3), model.V.mesh, clearance)
     if clearance < -spec.tolerance:
-        raise InputError(f"[skull] the body's surface is {-clearance * 1e3:.3g} mm past the skull at t = 0: the "
-                         f"skull must enclose the body (check its unit, [mesh] unit, and its frame)")
+        raise InputError(
+            f"[skull] the body's surface is {-clearance * 1e3:.3g} mm past the skull at t = 0: the "
+            f"skull must enclose the body (check its unit, [mesh] unit, and its frame)"
+        )
     return contact
 
 
@@ -107,21 +125,28 @@ def _check_body_size(scene: Scene, mesh) -> None:
     what, unit = problem
     spec = scene.mesh
     where = f"[mesh] file '{Path(spec.file).name}'" if spec.file else "[mesh] size"
-    hint = (f"is it in {unit}? give [mesh] unit = \"{unit}\"" if unit and spec.file
-            else "check [mesh] unit and the sizes (metres)")
-    raise InputError(f"{where}: {what} with [mesh] unit = \"{spec.unit}\": {hint}")
+    hint = (
+        f'is it in {unit}? give [mesh] unit = "{unit}"'
+        if unit and spec.file
+        else "check [mesh] unit and the sizes (metres)"
+    )
+    raise InputError(f'{where}: {what} with [mesh] unit = "{spec.unit}": {hint}')
 
 
 def _check_skull_values(scene: Scene, mesh) -> None:
     """[skull] gap and tolerance against the body's size: metres meant as mm are refused."""
     spec, body = scene.skull, body_diagonal(mesh)
     if spec.gap is not None and spec.gap >= 0.5 * body:
-        raise InputError(f"[skull] gap = {spec.gap:g} m against a {body:.3g} m body: the CSF layer is a few mm "
-                         f"(gap = 0.003 for 3 mm; metres)")
+        raise InputError(
+            f"[skull] gap = {spec.gap:g} m against a {body:.3g} m body: the CSF layer is a few mm "
+            f"(gap = 0.003 for 3 mm; metres)"
+        )
     limit = min(0.1 * spec.gap if spec.gap is not None else np.inf, 0.01 * body)
     if spec.tolerance > limit:
-        raise InputError(f"[skull] tolerance = {spec.tolerance:g} m would let the body pass {spec.tolerance * 1e3:g} mm "
-                         f"into the skull ({limit:.3g} m at most here; metres, default 1e-5)")
+        raise InputError(
+            f"[skull] tolerance = {spec.tolerance:g} m would let the body pass {spec.tolerance * 1e3:g} mm "
+            f"into the skull ({limit:.3g} m at most here; metres, default 1e-5)"
+        )
 
 
 def _check_skull_size(scene: Scene, skull_points, mesh, clearance: float) -> None:
@@ -138,17 +163,28 @@ def _check_skull_size(scene: Scene, skull_points, mesh, clearance: float) -> Non
     guesses = [u for u, f in LENGTH_UNITS.items() if u != unit and body <= size * f / scale <= large * body]
     guess = f"is it in {guesses[0]}? " if guesses else ""
     far = f", {clearance:.3g} m from it at rest" if size > large * body else ""
-    raise InputError(f"[skull] file '{Path(scene.skull.file).name}' is {size:.3g} m across against a {body:.3g} m "
-                     f"body{far}: {guess}give the skull in the mesh's unit ({unit}), enclosing the body")
+    raise InputError(
+        f"[skull] file '{Path(scene.skull.file).name}' is {size:.3g} m across against a {body:.3g} m "
+        f"body{far}: {guess}give the skull in the mesh's unit ({unit}), enclosing the body"
+    )
 
 
 def fluid_settings(scene: Scene) -> FluidSettings | None:
     f = scene.fluid
     if f is None:
         return None
-    return FluidSettings(density=f.density, gravity=scene.gravity.vector, rule=f.rule, follower=f.follower,
-                         reuse_tol=f.reuse_tol, quadrature_degree=f.quadrature_degree, level=f.level,
-                         volume=f.volume, container_area=f.container_area, floor=f.floor)
+    return FluidSettings(
+        density=f.density,
+        gravity=scene.gravity.vector,
+        rule=f.rule,
+        follower=f.follower,
+        reuse_tol=f.reuse_tol,
+        quadrature_degree=f.quadrature_degree,
+        level=f.level,
+        volume=f.volume,
+        container_area=f.container_area,
+        floor=f.floor,
+    )
 
 
 def cuts(scene: Scene) -> list[Cut]:
@@ -158,7 +194,9 @@ def cuts(scene: Scene) -> list[Cut]:
         if r.predicate is not None:
             select = (lambda predicate: lambda centroids: predicate(centroids.T))(r.predicate)
         else:
-            select = (lambda label: lambda centroids: labels_at(scene.mesh.file, centroids, scene.mesh.scale, label))(r.label)
+            select = (lambda label: lambda centroids: labels_at(scene.mesh.file, centroids, scene.mesh.scale, label))(
+                r.label
+            )
         out.append(Cut(r.at, r.describe(), select))
     return out
 
@@ -182,8 +220,10 @@ def _check_swelling(scene: Scene, model: Model) -> None:
     owned = model.mesh.topology.index_map(3).size_local
     for region, (mask, _) in zip(scene.swelling, model.growth.regions):
         if model.comm.allreduce(int(np.count_nonzero(mask[:owned]))) == 0:
-            raise InputError(f"[[swelling]] {region.describe()} selects no cell of the mesh (cell centroids); "
-                             f"check the region (metres, mesh frame)")
+            raise InputError(
+                f"[[swelling]] {region.describe()} selects no cell of the mesh (cell centroids); "
+                f"check the region (metres, mesh frame)"
+            )
 
 
 def septa(scene: Scene) -> list[Septum]:
@@ -196,25 +236,37 @@ def septa(scene: Scene) -> list[Septum]:
         if spec.file is not None:
             try:
                 points, triangles = read_surface(Path(spec.file), scene.mesh.scale)
-            except VoxelizeError as exc:
+            except SurfaceFileError as exc:
                 raise InputError(f"[[septum]] {spec.title} file: {exc}") from None
         else:
-            points, triangles = label_surface(scene.mesh.file, [spec.label], scene.mesh.scale,
-                                              f"[[septum]] {spec.title} label")
+            points, triangles = label_surface(
+                scene.mesh.file, [spec.label], scene.mesh.scale, f"[[septum]] {spec.title} label"
+            )
         out.append(Septum.surface(spec.title, points, triangles, spec.predicate, spec.reach))
     return out
 
 
-def build_model(scene: Scene, comm) -> Model:
+def build_model(scene: Scene, comm: MPI.Intracomm) -> Model:
     """Mesh, space, supports, material and loads of a scene; every input check happens here."""
     mesh = build_mesh(scene, comm)
     _check_body_size(scene, mesh)
     check_loads(scene, mesh)
     mat = scene.material
-    model = Model.create(mesh, scene.element.degree, mat.E, mat.nu, mat.density, scene.gravity.vector,
-                         supports(scene), fluid_settings(scene), cuts(scene),
-                         lumped=scene.element.mass == "lumped", material_model=mat.model, swelling=swelling(scene),
-                         septa=septa(scene))
+    model = Model.create(
+        mesh,
+        scene.element.degree,
+        mat.E,
+        mat.nu,
+        mat.density,
+        scene.gravity.vector,
+        supports(scene),
+        fluid_settings(scene),
+        cuts(scene),
+        lumped=scene.element.mass == "lumped",
+        material_model=mat.model,
+        swelling=swelling(scene),
+        septa=septa(scene),
+    )
     _check_swelling(scene, model)
     return model
 

@@ -3,6 +3,7 @@
 Every input check happens while building the Simulation and setting up its solver, before
 the output folder is created, so bad input leaves no output behind.
 """
+
 from __future__ import annotations
 
 import time
@@ -51,8 +52,13 @@ class Result:
         return self.summary["probes"]
 
 
-def run(scene: Scene, out: str | Path | None = None, comm=MPI.COMM_WORLD, raise_on_stop: bool = True,
-        keep=()) -> Result:
+def run(
+    scene: Scene,
+    out: str | Path | None = None,
+    comm: MPI.Intracomm = MPI.COMM_WORLD,
+    raise_on_stop: bool = True,
+    keep: tuple | list = (),
+) -> Result:
     """Run a scene. With ``out``, write DIR/summary.json, displacement.xdmf, probes.csv (and the
     fine surface and pictures when the scene asks); without it, write nothing. A guard that
     fires raises SolverError after the last good state is written (raise_on_stop=False: the
@@ -79,8 +85,16 @@ def run(scene: Scene, out: str | Path | None = None, comm=MPI.COMM_WORLD, raise_
             clear_run(out, comm, scene.name, keep)
             _write_skull(sim, out)
             m = sim.model
-            writer = FieldWriter(out, m.mesh, m.V, scene.output.fields, m.constitutive, embedding,
-                                 m.tissue.indicator if m.tissue is not None else None, sim.contact)
+            writer = FieldWriter(
+                out,
+                m.mesh,
+                m.V,
+                scene.output.fields,
+                m.constitutive,
+                embedding,
+                m.tissue.indicator if m.tissue is not None else None,
+                sim.contact,
+            )
         setup_s = time.perf_counter() - t_start
         _log_start(sim, setup_s)
         h, stopped = march(sim, writer)
@@ -135,7 +149,15 @@ def _log_start(sim: Simulation, setup_s: float) -> None:
         log.info(line)
     for line in sim.plan.warnings:
         log.warning("%s: %s", scene.name, line)
-    log.info("%s: %d nodes, %d cells, %d dofs, P%d, %s, solver %s, %d rank(s); setup %.2f s",
-             scene.name, sizes["nodes"], sizes["cells"], sizes["dofs"], scene.element.degree,
-             f"{scene.time.scheme} dt={scene.time.dt:g} s" if sim.is_dynamic else "quasi-static",
-             scene.solver.kind, sim.model.comm.size, setup_s)
+    log.info(
+        "%s: %d nodes, %d cells, %d dofs, P%d, %s, solver %s, %d rank(s); setup %.2f s",
+        scene.name,
+        sizes["nodes"],
+        sizes["cells"],
+        sizes["dofs"],
+        scene.element.degree,
+        f"{scene.time.scheme} dt={scene.time.dt:g} s" if sim.is_dynamic else "quasi-static",
+        scene.solver.kind,
+        sim.model.comm.size,
+        setup_s,
+    )

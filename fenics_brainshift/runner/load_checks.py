@@ -2,6 +2,7 @@
 a stiffness in kPa where Pa belong (the body's weight alone would strain it a hundredfold: the
 solve ended in NaN and "reduce [time] dt" in a quasi-static run), a CSF level in mm where
 metres belong (85 "m" above a brain: 830 kPa of water pressure)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -24,8 +25,10 @@ def heights(mesh, up: np.ndarray) -> tuple[float, float]:
     """The lowest and highest node of the body along ``up`` (m), on every rank."""
     h = mesh.geometry.x @ up
     comm = mesh.comm
-    return (comm.allreduce(float(h.min(initial=np.inf)), op=MPI.MIN),
-            comm.allreduce(float(h.max(initial=-np.inf)), op=MPI.MAX))
+    return (
+        comm.allreduce(float(h.min(initial=np.inf)), op=MPI.MIN),
+        comm.allreduce(float(h.max(initial=-np.inf)), op=MPI.MAX),
+    )
 
 
 def check_loads(scene: Scene, mesh) -> None:
@@ -38,15 +41,23 @@ def check_loads(scene: Scene, mesh) -> None:
     mat = scene.material
     strain = mat.density * size * (high - low) / mat.E
     if strain > WEIGHT_STRAIN:
-        raise InputError(f"[material] E = {mat.E:.4g} Pa (G = {mat.G:.4g} Pa): the body's weight alone would strain it "
-                         f"about {strain:.3g} (rho g H / E; soft tissue under gravity: 0.01-1): is it in kPa? moduli "
-                         f"are Pa (the brain: G = 2370)")
+        raise InputError(
+            f"[material] E = {mat.E:.4g} Pa (G = {mat.G:.4g} Pa): the body's weight alone would strain it "
+            f"about {strain:.3g} (rho g H / E; soft tissue under gravity: 0.01-1): is it in kPa? moduli "
+            f"are Pa (the brain: G = 2370)"
+        )
     fluid = scene.fluid
     if fluid is None or fluid.level is None:
         return
     body = body_diagonal(mesh)
     for t, level in fluid.level.points:
         if level > high + LEVEL_REACH or level < low - LEVEL_REACH:
-            where = f"{level - high:.3g} m above the body's top" if level > high else f"{low - level:.3g} m below its bottom"
-            raise InputError(f"[fluid] level = {level:g} at t = {t:g} s is {where} (the body is {body:.3g} m across, "
-                             f"{low:.3g} to {high:.3g} m along up): levels are metres along up; is it in mm?")
+            where = (
+                f"{level - high:.3g} m above the body's top"
+                if level > high
+                else f"{low - level:.3g} m below its bottom"
+            )
+            raise InputError(
+                f"[fluid] level = {level:g} at t = {t:g} s is {where} (the body is {body:.3g} m across, "
+                f"{low:.3g} to {high:.3g} m along up): levels are metres along up; is it in mm?"
+            )

@@ -1,6 +1,7 @@
 """The one loop of a run: advance (a time step, or the next settled state), record, write;
 a guard that fires restores the last good state, which is recorded and written before the
 error goes on."""
+
 from __future__ import annotations
 
 import time
@@ -88,11 +89,18 @@ def march(sim, writer=None) -> tuple[History, SolverError | None]:
                 write(sim.t, sim.u, sim.state.v)
                 h.measure_strain(sim)
                 written = sim.t
-            bar.set_postfix_str(f"t={sim.t:.2f} s level={_level(sim.level)} {h.step_seconds[-1] * 1e3:.0f} ms/step",
-                                refresh=False)
+            bar.set_postfix_str(
+                f"t={sim.t:.2f} s level={_level(sim.level)} {h.step_seconds[-1] * 1e3:.0f} ms/step", refresh=False
+            )
             if not sim.is_dynamic or n % max(1, len(plan) // 10) == 0 or n == len(plan):
-                log.info("  t=%.3f s  level=%s  its=%d  follower iterations=%d  |u|max=%.3e m", sim.t,
-                         _level(sim.level), its, sim.follower_iterations, sim.state.max_displacement())
+                log.info(
+                    "  t=%.3f s  level=%s  its=%d  follower iterations=%d  |u|max=%.3e m",
+                    sim.t,
+                    _level(sim.level),
+                    its,
+                    sim.follower_iterations,
+                    sim.state.max_displacement(),
+                )
     except (SolverError, KeyboardInterrupt) as exc:  # keep the last good state, then say why
         stopped = exc if isinstance(exc, SolverError) else Interrupted("interrupted (Ctrl-C)")
         sim.restore(snapshot)

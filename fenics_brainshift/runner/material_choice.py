@@ -5,6 +5,7 @@ hyperelastic run) measures the largest principal strain; past the limit (outputs
 or when the linear run finds no equilibrium, the scene is solved with the neo-Hookean model
 instead. The choice and its reason go into the plan.
 """
+
 from __future__ import annotations
 
 import copy
@@ -29,8 +30,10 @@ def resolve_material(scene: Scene, comm) -> tuple[Scene, str]:
     history, stopped = march(trial)
     trial.destroy()
     report = history.strain
-    found = (f"a linear trial run's largest strain is {abs(report.strain):.1%} ({report.near}), "
-             f"{report.volume_past_limit:.1%} of the volume past {STRAIN_LIMIT:.0%}")
+    found = (
+        f"a linear trial run's largest strain is {abs(report.strain):.1%} ({report.near}), "
+        f"{report.volume_past_limit:.1%} of the volume past {STRAIN_LIMIT:.0%}"
+    )
     if stopped is None and not in_doubt(report):
         return linear, f"linear: {found}"
     nonlinear = copy.deepcopy(scene)

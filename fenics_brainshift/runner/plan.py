@@ -19,14 +19,19 @@
   for E -/+ sd costs no solve (exact for quasi-static without follower loading; an estimate
   otherwise, marked so).
 """
+
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 from mpi4py import MPI
 
 from ..scene import Scene
+
+if TYPE_CHECKING:
+    from dolfinx import mesh as dmesh
 
 SLOW_FACTOR = 10.0  # a load change lasting this many lowest periods is quasi-static
 # P1 tetrahedra lock as nu nears 0.5: the paper's cube moves 0.90x of P2's at 0.499, 0.71x at
@@ -36,6 +41,9 @@ LOCKING_NU = 0.499
 
 @dataclass
 class Plan:
+    """What the planner chose for a scene and why: the time mode, the reasons, the periods it
+    compared, what is reused between steps, the fluid load, the fields and the material model."""
+
     mode: str
     reasons: list[str] = field(default_factory=list)
     lowest_period_s: float = 0.0
@@ -104,14 +112,16 @@ def settled_times(scene: Scene) -> list[float]:
     return sorted(times)
 
 
-def make_plan(scene: Scene, mesh) -> Plan:
+def make_plan(scene: Scene, mesh: dmesh.Mesh) -> Plan:
+    """What the scene needs, chosen and explained: the time mode (dynamic or settled states),
+    the model, the element, the solver, the step (docs/scenes.md, The plan)."""
     requested = scene.time.mode
     period = lowest_period(scene, height_along_gravity(mesh, scene))
     change = fastest_change(scene)
     reasons = []
     if requested != "auto":
         mode = requested
-        reasons.append(f"[time] mode = \"{requested}\" as asked")
+        reasons.append(f'[time] mode = "{requested}" as asked')
     elif scene.remove:
         mode = "dynamic"
         reasons.append("[[remove]]: a freed piece needs inertia (K alone may be singular)")
@@ -120,58 +130,93 @@ def make_plan(scene: Scene, mesh) -> Plan:
         reasons.append("no [[fixed]] support: only the mass makes the system solvable")
     elif change is not None and change < SLOW_FACTOR * period:
         mode = "dynamic"
-        reasons.append(f"the fluid changes within {change:g} s, less than {SLOW_FACTOR:g} lowest periods "
-                       f"(T1 ~ {period:.3g} s)")
+        reasons.append(
+            f"the fluid changes within {change:g} s, less than {SLOW_FACTOR:g} lowest periods (T1 ~ {period:.3g} s)"
+        )
     else:
         mode = "quasi-static"
-        reasons.append("no removal, and the loads change slowly: " + (
-            "they are constant" if change is None else
-            f"the fastest change takes {change:g} s, at least {SLOW_FACTOR:g} lowest periods (T1 ~ {period:.3g} s)"))
+        reasons.append(
+            "no removal, and the loads change slowly: "
+            + (
+                "they are constant"
+                if change is None
+                else f"the fastest change takes {change:g} s, "
+                f"at least {SLOW_FACTOR:g} lowest periods (T1 ~ {period:.3g} s)"
+            )
+        )
         reasons.append("settled states at the schedule's breakpoints, no time stepping")
     fluid = "none (dry)"
     if scene.fluid is not None:
         fluid = "reassembled when the level changes"
         if scene.fluid.follower:
-            fluid += (f" or the surface has moved by more than {scene.fluid.reuse_tol:g} of its largest "
-                      f"displacement (follower loading)")
+            fluid += (
+                f" or the surface has moved by more than {scene.fluid.reuse_tol:g} of its largest "
+                f"displacement (follower loading)"
+            )
         fluid += "; dry facets skipped"
     wanted = [f for f in scene.output.fields if f != "displacement"]
-    fields = ("fields: displacement" + (f", {', '.join(wanted)}" if wanted else " only (no stresses, no velocity)")
-              + (f" every {scene.output.interval:g} s" if scene.output.interval > 0 else " at every output step")
-              + ("; pictures at the end" if scene.output.pictures else "; no pictures"))
+    fields = (
+        "fields: displacement"
+        + (f", {', '.join(wanted)}" if wanted else " only (no stresses, no velocity)")
+        + (f" every {scene.output.interval:g} s" if scene.output.interval > 0 else " at every output step")
+        + ("; pictures at the end" if scene.output.pictures else "; no pictures")
+    )
     band = ""
     r = scene.material.relative_sd
     if r is not None:
         exact = mode == "quasi-static" and (scene.fluid is None or not scene.fluid.follower)
-        band = (f"stiffness band E x (1 -/+ {r:.3g}) from 1/E scaling, no extra solve "
-                f"({'exact' if exact else 'an estimate: follower loading or dynamics'})")
+        band = (
+            f"stiffness band E x (1 -/+ {r:.3g}) from 1/E scaling, no extra solve "
+            f"({'exact' if exact else 'an estimate: follower loading or dynamics'})"
+        )
     contact = ""
     if scene.skull is not None:
         if mode == "quasi-static" and scene.material.model == "linear":
-            contact = ("skipped while the contact-free answer stays clear of the skull (then exact); Newton with "
-                       "contact from the first settled state that would pass it")
+            contact = (
+                "skipped while the contact-free answer stays clear of the skull (then exact); Newton with "
+                "contact from the first settled state that would pass it"
+            )
         elif mode == "dynamic" and scene.material.model == "linear":
-            contact = ("the contact-free step's fixed point with the skull's reaction as a lagged load, its factor "
-                       "updated for the pressed nodes; Newton with contact where that does not settle")
+            contact = (
+                "the contact-free step's fixed point with the skull's reaction as a lagged load, its factor "
+                "updated for the pressed nodes; Newton with contact where that does not settle"
+            )
         else:
             contact = "Newton with the contact forces in every " + ("step" if mode == "dynamic" else "settled state")
     growth = ""
     if scene.swelling:
         where = "; ".join(r.describe() for r in scene.swelling)
-        growth = (f"{len(scene.swelling)} region(s) ({where}): " + (
-            "the eigenstrain's load, assembled again when a schedule moves" if scene.material.model == "linear"
-            else "the growth in the internal force (F = F_e F_g)"))
+        growth = f"{len(scene.swelling)} region(s) ({where}): " + (
+            "the eigenstrain's load, assembled again when a schedule moves"
+            if scene.material.model == "linear"
+            else "the growth in the internal force (F = F_e F_g)"
+        )
     septa = ""
     if scene.septa:
-        septa = (f"{len(scene.septa)} ({'; '.join(f'{s.title}: {s.describe()}' for s in scene.septa)}): the "
-                 f"tissue slides along them; their nodes' normal motion is held exactly (every matrix projected "
-                 f"once per assembly, P A P + I - P)")
+        septa = (
+            f"{len(scene.septa)} ({'; '.join(f'{s.title}: {s.describe()}' for s in scene.septa)}): the "
+            f"tissue slides along them; their nodes' normal motion is held exactly (every matrix projected "
+            f"once per assembly, P A P + I - P)"
+        )
     warnings = []
     if scene.element.degree == 1 and scene.material.nu >= LOCKING_NU:
-        warnings.append(f"P1 tetrahedra lock at nu = {scene.material.nu:g}: the body comes out too stiff (the paper's "
-                        f"cube moves 0.71x of P2's at nu = 0.4999, 0.02x at 0.4999999); use [element] degree = 2")
-    return Plan(mode, reasons, period, change, fluid_load=fluid, fields=fields, stiffness_band=band, contact=contact,
-                swelling=growth, septa=septa, warnings=warnings)
+        warnings.append(
+            f"P1 tetrahedra lock at nu = {scene.material.nu:g}: the body comes out too stiff (the paper's "
+            f"cube moves 0.71x of P2's at nu = 0.4999, 0.02x at 0.4999999); use [element] degree = 2"
+        )
+    return Plan(
+        mode,
+        reasons,
+        period,
+        change,
+        fluid_load=fluid,
+        fields=fields,
+        stiffness_band=band,
+        contact=contact,
+        swelling=growth,
+        septa=septa,
+        warnings=warnings,
+    )
 
 
 def stiffness_band(scene: Scene, plan: Plan, max_displacement: float, probes: dict) -> dict | None:

@@ -1,12 +1,13 @@
 """A scene set up to run, for users who drive the loop themselves (and for run()).
 
-    sim = Simulation(load_scene("cube"))   # mesh, model, plan: every input check
-    sim.setup()                            # operators and the factor or preconditioner
-    while sim.t < 1.0:
-        sim.step()                         # one time step (dynamic)
-    sim.solve_to_settled(10.0)             # or the settled state for the loads at t = 10 s
-    sim.u                                  # the displacement, a DOLFINx Function
+sim = Simulation(load_scene("cube"))   # mesh, model, plan: every input check
+sim.setup()                            # operators and the factor or preconditioner
+while sim.t < 1.0:
+    sim.step()                         # one time step (dynamic)
+sim.solve_to_settled(10.0)             # or the settled state for the loads at t = 10 s
+sim.u                                  # the displacement, a DOLFINx Function
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -17,12 +18,12 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from .. import compat
+from ..errors import InputError
 from ..linalg import rigid_body_modes
 from ..outputs.probes import Probes, SurfaceAverages
 from ..outputs.validity import StrainMeter
 from ..physics import total_force
 from ..scene import Scene
-from ..errors import InputError
 from ..stepping import DynamicStepper, Solves, State, StaticSolver
 from ..stepping.contact_skip import ContactWhenReached
 from ..stepping.newton import NewtonStatic
@@ -37,8 +38,10 @@ class Simulation:
     def __init__(self, scene: Scene, comm=MPI.COMM_WORLD, model=None):
         """``model``: one built before from this scene (build_model), to share its mesh."""
         if scene.material.model == "auto":
-            raise InputError("[material] model = \"auto\" is decided by run() (a linear trial run first); "
-                             "a Simulation needs \"linear\", \"neo-hookean\" or \"saint-venant-kirchhoff\"")
+            raise InputError(
+                '[material] model = "auto" is decided by run() (a linear trial run first); '
+                'a Simulation needs "linear", "neo-hookean" or "saint-venant-kirchhoff"'
+            )
         self.scene = scene
         self.model = model if model is not None else build.build_model(scene, comm)
         self.plan = make_plan(scene, self.model.mesh)
@@ -46,9 +49,11 @@ class Simulation:
         if self.plan.mode == "quasi-static" and self.contact is None:  # (the skull may hold it; the mass does)
             free = self.model.constraints.free_rigid_motion()
             if free is not None:
-                raise InputError(f"[[fixed]] / [[septum]]: the supports and septa leave the body free to {free}, so a "
-                                 f"settled state has no unique answer; hold it there (a [[fixed]] region or another "
-                                 f"septum), or use [time] mode = \"dynamic\"")
+                raise InputError(
+                    f"[[fixed]] / [[septum]]: the supports and septa leave the body free to {free}, so a "
+                    f"settled state has no unique answer; hold it there (a [[fixed]] region or another "
+                    f'septum), or use [time] mode = "dynamic"'
+                )
         self.state = State(self.model.V)
         self.probes = Probes(self.model.mesh, scene.probes)
         self.surfaces = SurfaceAverages(self.state.u, scene.surfaces)
@@ -88,8 +93,14 @@ class Simulation:
     def _dynamic(self) -> DynamicStepper:
         if self.dynamic is None:
             self.solves.hint = "reduce [time] dt, or check the loads against the stiffness (moduli in Pa, levels in m)"
-            common = (self.model, self.state, build.integrator(self.scene),
-                      (self.scene.damping.a, self.scene.damping.b), self.solves, build.follower_tolerance(self.scene))
+            common = (
+                self.model,
+                self.state,
+                build.integrator(self.scene),
+                (self.scene.damping.a, self.scene.damping.b),
+                self.solves,
+                build.follower_tolerance(self.scene),
+            )
             if self.model.nonlinear or self.contact is not None:  # Newton in every step
                 self.dynamic = NewtonDynamicStepper(*common, contact=self.contact)
             else:
@@ -100,14 +111,18 @@ class Simulation:
     def _static(self) -> StaticSolver | NewtonStatic:
         if self.static is None:
             if self.model.nonlinear:  # Newton: a material that needs it
-                self.static = NewtonStatic(self.model, self.state, self.solves, rtol=self.newton_rtol,
-                                           contact=self.contact)
+                self.static = NewtonStatic(
+                    self.model, self.state, self.solves, rtol=self.newton_rtol, contact=self.contact
+                )
             elif self.contact is not None:  # the fixed point while nothing reaches the skull
                 self.static = ContactWhenReached(
                     StaticSolver(self.model, self.state, self.solves, build.follower_tolerance(self.scene)),
-                    lambda: NewtonStatic(self.model, self.state, self.solves, rtol=self.newton_rtol,
-                                         contact=self.contact),
-                    self.contact, self.state)
+                    lambda: NewtonStatic(
+                        self.model, self.state, self.solves, rtol=self.newton_rtol, contact=self.contact
+                    ),
+                    self.contact,
+                    self.state,
+                )
             else:
                 self.static = StaticSolver(self.model, self.state, self.solves, build.follower_tolerance(self.scene))
             self.static.setup()
@@ -162,10 +177,12 @@ class Simulation:
         on the current state."""
         grav, fluid = self.model.external_load(self.state.t, self.state.u)
         hydro = self.model.fluid.hydro if fluid is not None else None
-        return {"gravity_force_N": total_force(grav, self.model.comm),
-                "fluid_force_N": hydro.force if hydro else np.zeros(3),
-                "submerged_volume_m3": hydro.submerged_volume if hydro else 0.0,
-                "final_level_m": self.level}
+        return {
+            "gravity_force_N": total_force(grav, self.model.comm),
+            "fluid_force_N": hydro.force if hydro else np.zeros(3),
+            "submerged_volume_m3": hydro.submerged_volume if hydro else 0.0,
+            "final_level_m": self.level,
+        }
 
     def septa_report(self) -> list[dict]:
         """What each septum carries at the current state (physics/constraints.py): its

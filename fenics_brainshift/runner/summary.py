@@ -1,4 +1,5 @@
 """summary.json and probes.csv of a run: what it computed, how fast, and whether it is valid."""
+
 from __future__ import annotations
 
 import statistics
@@ -13,8 +14,11 @@ from .plan import stiffness_band
 
 def probe_table(sim, h) -> tuple[list[str], list[list[float]]]:
     """probes.csv: header and rows (t, level, probes, surface means)."""
-    header = (["t", "level"] + [f"{n}_{c}" for n in sim.probes.names for c in "xyz"]
-              + [f"{n}_mean_{c}" for n in sim.surfaces.names for c in "xyz"])
+    header = (
+        ["t", "level"]
+        + [f"{n}_{c}" for n in sim.probes.names for c in "xyz"]
+        + [f"{n}_mean_{c}" for n in sim.surfaces.names for c in "xyz"]
+    )
     rows = [[t, lv, *p.ravel(), *s.ravel()] for t, lv, p, s in zip(h.times, h.levels, h.probes, h.surfaces)]
     return header, rows
 
@@ -30,7 +34,11 @@ def summary(sim, h, stopped, setup_s: float) -> dict:
         "scene": scene.name,
         # a mesh from an image (NIfTI / NRRD) is in its RAS frame: pictures label the anatomy
         "frame": "RAS" if scene.mesh.file and formats.is_label_volume(scene.mesh.file) else None,
-        "status": "ok" if stopped is None else "interrupted" if isinstance(stopped, Interrupted) else f"stopped: {stopped}",
+        "status": "ok"
+        if stopped is None
+        else "interrupted"
+        if isinstance(stopped, Interrupted)
+        else f"stopped: {stopped}",
         "dolfinx_version": compat.DOLFINX_VERSION,
         "ranks": model.comm.size,
         **model.sizes(),
@@ -57,18 +65,24 @@ def summary(sim, h, stopped, setup_s: float) -> dict:
     if dynamic and sim.dynamic is not None:
         e = sim.dynamic.energy
         t, kinetic, strain, work = e.history[-1] if e.history else (sim.t, 0.0, 0.0, 0.0)
-        out["energy_J"] = {"kinetic": kinetic, "strain": strain, "external_work": work,
-                           "balance": kinetic + strain - work}
+        out["energy_J"] = {
+            "kinetic": kinetic,
+            "strain": strain,
+            "external_work": work,
+            "balance": kinetic + strain - work,
+        }
     if scene.material.relative_sd is not None:
         out["stiffness_band"] = stiffness_band(scene, plan, max_u, probes)
     if model.fluid is not None:
         out["fluid_assemblies"], out["fluid_reuses"] = model.fluid.assemblies, model.fluid.reuses
     if sim.contact is not None:
         solver = sim.dynamic if dynamic else sim.static
-        out["skull_contact"] = {**sim.contact.report(sim.state.u),
-                                "multiplier_updates": getattr(solver, "contact_rounds", 0),
-                                "states_without_contact": getattr(solver, "skipped", 0),
-                                "contact_from_s": getattr(solver, "engaged_at", None)}
+        out["skull_contact"] = {
+            **sim.contact.report(sim.state.u),
+            "multiplier_updates": getattr(solver, "contact_rounds", 0),
+            "states_without_contact": getattr(solver, "skipped", 0),
+            "contact_from_s": getattr(solver, "engaged_at", None),
+        }
     if model.constraints.labels:
         out["septa"] = sim.septa_report()
     if model.tissue is not None:

@@ -1,4 +1,5 @@
 """The body: its mesh, material, element, supports and removals."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -6,12 +7,11 @@ from pathlib import Path
 
 from .. import formats
 from ..errors import InputError
+from ..units import LENGTH_UNITS
 from .checks import choice, integer, non_negative, number, positive, vector3
 from .predicates import Predicate, PredicateError, parse_predicate
 from .schedule import Schedule
 
-
-LENGTH_UNITS = {"m": 1.0, "cm": 1e-2, "mm": 1e-3}
 SHAPES = ("box", "ellipsoid")
 
 
@@ -45,7 +45,7 @@ class MeshSpec:
 
     def __post_init__(self):
         if (self.shape is None) == (self.file is None):
-            raise InputError("[mesh] give exactly one of shape = \"box\" or file = \"mesh.msh\"")
+            raise InputError('[mesh] give exactly one of shape = "box" or file = "mesh.msh"')
         if self.shape is not None:
             choice("[mesh] shape", self.shape, SHAPES)
         self.size = vector3("[mesh] size", self.size)
@@ -67,15 +67,20 @@ class MeshSpec:
             self.voxel = positive("[mesh] voxel", self.voxel)
         self.fill = number("[mesh] fill", self.fill)
         if not 0.0 <= self.fill <= 1.0:
-            raise InputError(f"[mesh] fill must be in [0, 1] (got {self.fill:g}); 0 keeps every voxel the object touches")
+            raise InputError(
+                f"[mesh] fill must be in [0, 1] (got {self.fill:g}); 0 keeps every voxel the object touches"
+            )
         self.parts = integer("[mesh] parts", self.parts, 1)
         if self.labels is not None:
             if not isinstance(self.labels, (list, tuple)) or not all(
-                    isinstance(v, (int, str)) and not isinstance(v, bool) for v in self.labels):
+                isinstance(v, (int, str)) and not isinstance(v, bool) for v in self.labels
+            ):
                 raise InputError(f"[mesh] labels must be a list of label values or segment names (got {self.labels!r})")
             self.labels = tuple(self.labels)
         if self.file is not None and self.needs_voxels and self.voxel is None:
-            raise InputError(f"[mesh] file '{Path(self.file).name}' is a segmentation: give voxel = size in m (e.g. 0.005)")
+            raise InputError(
+                f"[mesh] file '{Path(self.file).name}' is a segmentation: give voxel = size in m (e.g. 0.005)"
+            )
         if self.surface is not None and not isinstance(self.surface, str):
             raise InputError("[mesh] surface must be a file name")
 
@@ -112,7 +117,9 @@ class Material:
         choice("[material] model", self.model, MATERIAL_MODELS)
         self.nu = number("[material] nu", self.nu)
         if not -1.0 < self.nu < 0.5:
-            raise InputError(f"[material] nu must be in (-1, 0.5) (got {self.nu:g}); 0.5 is incompressible, use 0.4999 at most")
+            raise InputError(
+                f"[material] nu must be in (-1, 0.5) (got {self.nu:g}); 0.5 is incompressible, use 0.4999 at most"
+            )
         self.density = positive("[material] density", self.density)
         if self.G is not None:
             self.G = positive("[material] G", self.G)
@@ -127,8 +134,10 @@ class Material:
             if sd is not None:
                 sd = positive(f"[material] {key}", sd)
                 if sd >= modulus:
-                    raise InputError(f"[material] {key} = {sd:g} must be below the modulus ({modulus:g}): "
-                                     f"the band's soft end would have no stiffness")
+                    raise InputError(
+                        f"[material] {key} = {sd:g} must be below the modulus ({modulus:g}): "
+                        f"the band's soft end would have no stiffness"
+                    )
                 setattr(self, key, sd)
 
     @property
@@ -161,11 +170,14 @@ class FixedRegion:
 
     def __post_init__(self):
         if self.name is not None and (not isinstance(self.name, str) or not self.name.isidentifier()):
-            raise InputError(f"[[fixed]] name must be a word of letters, digits and _ such as \"brain_stem\" "
-                             f"(got {self.name!r})")
+            raise InputError(
+                f'[[fixed]] name must be a word of letters, digits and _ such as "brain_stem" (got {self.name!r})'
+            )
         if (self.where is None) == (self.label is None):
-            raise InputError("[[fixed]] give exactly one of where = \"z < 0.01\" or label = N (a label or segment "
-                             "name of [mesh] file's label volume)")
+            raise InputError(
+                '[[fixed]] give exactly one of where = "z < 0.01" or label = N (a label or segment '
+                "name of [mesh] file's label volume)"
+            )
         if self.where is not None:
             try:
                 self.predicate = parse_predicate(self.where)
@@ -173,15 +185,20 @@ class FixedRegion:
                 raise InputError(f"[[fixed]] where: {exc}") from None
         elif not isinstance(self.label, str):
             self.label = integer("[[fixed]] label", self.label, 1)
-        if not isinstance(self.axes, str) or not self.axes or set(self.axes) - set("xyz") or len(set(self.axes)) != len(self.axes):
-            raise InputError(f"[[fixed]] axes must be letters from 'xyz' such as \"xyz\" or \"z\" (got {self.axes!r})")
+        if (
+            not isinstance(self.axes, str)
+            or not self.axes
+            or set(self.axes) - set("xyz")
+            or len(set(self.axes)) != len(self.axes)
+        ):
+            raise InputError(f'[[fixed]] axes must be letters from \'xyz\' such as "xyz" or "z" (got {self.axes!r})')
 
     @property
     def components(self) -> list[int]:
         return sorted("xyz".index(a) for a in self.axes)
 
     def describe(self) -> str:
-        return f"where = \"{self.where}\"" if self.where is not None else f"label = {self.label!r}"
+        return f'where = "{self.where}"' if self.where is not None else f"label = {self.label!r}"
 
 
 @dataclass
@@ -197,7 +214,7 @@ class Removal:
     def __post_init__(self):
         self.at = non_negative("[[remove]] at", self.at)
         if (self.where is None) == (self.label is None):
-            raise InputError("[[remove]] give exactly one of where = \"(x-a)**2 + ... < r**2\" or label = N")
+            raise InputError('[[remove]] give exactly one of where = "(x-a)**2 + ... < r**2" or label = N')
         if self.where is not None:
             if not isinstance(self.where, str):
                 raise InputError(f"[[remove]] where must be a condition on x, y, z in quotes (got {self.where!r})")
@@ -209,7 +226,7 @@ class Removal:
             self.label = integer("[[remove]] label", self.label, 1)
 
     def describe(self) -> str:
-        return f"where = \"{self.where}\"" if self.where is not None else f"label = {self.label}"
+        return f'where = "{self.where}"' if self.where is not None else f"label = {self.label}"
 
 
 @dataclass
@@ -229,10 +246,12 @@ class Swelling:
     def __post_init__(self):
         self.volume_change = number("[[swelling]] volume_change", self.volume_change)
         if not -1.0 < self.volume_change < 1.0 or self.volume_change == 0.0:
-            raise InputError(f"[[swelling]] volume_change is a fraction of the volume, not zero and between -1 and 1 "
-                             f"(got {self.volume_change:g}): -0.03 shrinks by 3 %, 0.05 swells by 5 %")
+            raise InputError(
+                f"[[swelling]] volume_change is a fraction of the volume, not zero and between -1 and 1 "
+                f"(got {self.volume_change:g}): -0.03 shrinks by 3 %, 0.05 swells by 5 %"
+            )
         if (self.where is None) == (self.label is None):
-            raise InputError("[[swelling]] give exactly one of where = \"(x-a)**2 + ... < r**2\" or label = N")
+            raise InputError('[[swelling]] give exactly one of where = "(x-a)**2 + ... < r**2" or label = N')
         if self.where is not None:
             if not isinstance(self.where, str):
                 raise InputError(f"[[swelling]] where must be a condition on x, y, z in quotes (got {self.where!r})")
@@ -246,11 +265,13 @@ class Swelling:
             self.schedule = Schedule(self.schedule, "[[swelling]] schedule")
         for t, fraction in self.schedule.points:
             if t < 0.0 or not 0.0 <= fraction <= 1.0:
-                raise InputError(f"[[swelling]] schedule: a fraction of volume_change in [0, 1] at a time >= 0 s "
-                                 f"(got [{t:g}, {fraction:g}]); give the size of the change in volume_change")
+                raise InputError(
+                    f"[[swelling]] schedule: a fraction of volume_change in [0, 1] at a time >= 0 s "
+                    f"(got [{t:g}, {fraction:g}]); give the size of the change in volume_change"
+                )
 
     def describe(self) -> str:
-        where = f"where = \"{self.where}\"" if self.where is not None else f"label = {self.label}"
+        where = f'where = "{self.where}"' if self.where is not None else f"label = {self.label}"
         return f"{where}, volume_change = {self.volume_change:+g}"
 
     def at(self, t: float) -> float:

@@ -1,4 +1,5 @@
 """Small validators for scene values: each raises InputError naming the field."""
+
 from __future__ import annotations
 
 import difflib
@@ -47,7 +48,7 @@ def integer(where: str, value: Any, minimum: int) -> int:
 
 
 def did_you_mean(name: str, known) -> str:
-    """" did you mean 'x'?" for the closest of ``known`` to a mistyped ``name``, or "": the
+    """ " did you mean 'x'?" for the closest of ``known`` to a mistyped ``name``, or "": the
     same name in another case first ('g' for 'G', which difflib finds no closer than 'E')."""
     same = [str(k) for k in known if str(k).lower() == str(name).lower()]
     close = same or difflib.get_close_matches(str(name), [str(k) for k in known], n=1, cutoff=0.6)

@@ -1,4 +1,5 @@
 """The loads: gravity, and the fluid (CSF or oil) with its level or volume schedule."""
+
 from __future__ import annotations
 
 import math
@@ -12,6 +13,8 @@ from .schedule import Schedule
 
 @dataclass(slots=True)
 class Gravity:
+    """[gravity]: the acceleration vector in the mesh's frame (m/s^2; default -9.81 along z)."""
+
     vector: tuple[float, float, float] = (0.0, 0.0, -9.81)
 
     def __post_init__(self):
@@ -80,14 +83,18 @@ class Fluid:
         if not isinstance(self.follower, bool):
             raise InputError(f"[fluid] follower must be true or false (got {self.follower!r})")
         if self.rule == "quadrature" and self.follower:
-            raise InputError("[fluid] rule = \"quadrature\" integrates on the undeformed surface only: set "
-                             "follower = false, or use rule = \"consistent\" for follower loading")
+            raise InputError(
+                '[fluid] rule = "quadrature" integrates on the undeformed surface only: set '
+                'follower = false, or use rule = "consistent" for follower loading'
+            )
         self.quadrature_degree = integer("[fluid] quadrature_degree", self.quadrature_degree, 1)
         self.reuse_tol = non_negative("[fluid] reuse_tol", self.reuse_tol)
         self.follower_tol = positive("[fluid] follower_tol", self.follower_tol)
         if self.follower_tol >= 1.0:
-            raise InputError(f"[fluid] follower_tol is a fraction of the displacement and must be below 1 "
-                             f"(got {self.follower_tol!r}); the default is 1e-4")
+            raise InputError(
+                f"[fluid] follower_tol is a fraction of the displacement and must be below 1 "
+                f"(got {self.follower_tol!r}); the default is 1e-4"
+            )
 
     @property
     def schedule(self) -> Schedule:

@@ -1,11 +1,11 @@
 """How a scene is solved and written: time scheme, damping, solver, element, output."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
 from ..errors import InputError
 from .checks import choice, integer, non_negative, number, positive
-
 
 SCHEMES = ("newmark", "generalized-alpha")
 MODES = ("auto", "dynamic", "quasi-static")
@@ -95,7 +95,7 @@ class Element:
             self.mass = "lumped" if self.degree == 1 else "consistent"
         choice("[element] mass", self.mass, ("lumped", "consistent"))
         if self.mass == "lumped" and self.degree == 2:
-            raise InputError("[element] mass = \"lumped\" is only for degree 1; use \"consistent\" with degree 2")
+            raise InputError('[element] mass = "lumped" is only for degree 1; use "consistent" with degree 2')
 
 
 OUTPUT_FIELDS = ("displacement", "velocity", "von_mises")
@@ -113,7 +113,7 @@ class Output:
 
     def __post_init__(self):
         if not isinstance(self.folder, str) or not self.folder:
-            raise InputError("[output] folder must be a folder name such as \"out_cube\"")
+            raise InputError('[output] folder must be a folder name such as "out_cube"')
         if not isinstance(self.fields, (list, tuple)):
             raise InputError(f"[output] fields must be a list from {', '.join(OUTPUT_FIELDS)}")
         for f in self.fields:

@@ -7,6 +7,7 @@ the wrong number of arguments, or a number that overflows is rejected with a mes
 says what is allowed. The result is vectorised: it takes coordinates of shape (3, N) and returns a
 boolean array of length N.
 """
+
 from __future__ import annotations
 
 import ast
@@ -80,9 +81,21 @@ def parse_predicate(text: str) -> Predicate:
 
 def _check(node: ast.AST, text: str) -> None:
     ok = (
-        ast.BoolOp, ast.UnaryOp, ast.BinOp, ast.Compare, ast.Name, ast.Constant, ast.Call,
-        ast.And, ast.Or, ast.Not, ast.USub, ast.UAdd, ast.Load,
-        *_BINARY, *_COMPARE,
+        ast.BoolOp,
+        ast.UnaryOp,
+        ast.BinOp,
+        ast.Compare,
+        ast.Name,
+        ast.Constant,
+        ast.Call,
+        ast.And,
+        ast.Or,
+        ast.Not,
+        ast.USub,
+        ast.UAdd,
+        ast.Load,
+        *_BINARY,
+        *_COMPARE,
     )
     for sub in ast.walk(node):
         if not isinstance(sub, ok):
@@ -90,9 +103,7 @@ def _check(node: ast.AST, text: str) -> None:
         if isinstance(sub, ast.Name) and sub.id not in _NAMES and sub.id not in _FUNCTIONS:
             hint = did_you_mean(sub.id, [*_NAMES, *_FUNCTIONS])
             raise PredicateError(f"'{text}' uses unknown name '{sub.id}';{hint} allowed: {ALLOWED}")
-        if isinstance(sub, ast.Constant) and (
-            isinstance(sub.value, bool) or not isinstance(sub.value, (int, float))
-        ):
+        if isinstance(sub, ast.Constant) and (isinstance(sub.value, bool) or not isinstance(sub.value, (int, float))):
             raise PredicateError(f"'{text}' has a non-numeric constant {sub.value!r}")
         if isinstance(sub, ast.Constant) and not _finite(sub.value):
             raise PredicateError(f"'{text}': the number {str(sub.value)[:20]}... is out of range")
@@ -107,8 +118,9 @@ def _check(node: ast.AST, text: str) -> None:
             _, fewest, most = _FUNCTIONS[name]
             if count < fewest or (most is not None and count > most):
                 wanted = f"exactly {fewest}" if most == fewest else f"at least {fewest}"
-                raise PredicateError(f"'{text}': {name}() takes {wanted} argument{'s' if fewest > 1 else ''} "
-                                     f"(got {count})")
+                raise PredicateError(
+                    f"'{text}': {name}() takes {wanted} argument{'s' if fewest > 1 else ''} (got {count})"
+                )
 
 
 def _finite(value) -> bool:

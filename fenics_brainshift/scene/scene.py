@@ -1,4 +1,5 @@
 """A scene: every section together, with the checks that need more than one section."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -18,6 +19,9 @@ MAX_RHO_INF_WITH_CONTACT = 0.5  # a block bouncing on the floor kept its energy 
 
 @dataclass(slots=True)
 class Scene:
+    """Every input of a run, validated: the mesh, material, gravity, fluid, skull, supports,
+    removals, swelling, septa, time, damping, solver, element, probes and output (docs/scenes.md)."""
+
     mesh: MeshSpec
     material: Material
     gravity: Gravity = field(default_factory=Gravity)
@@ -40,45 +44,72 @@ class Scene:
         if self.fluid is not None and self.gravity.magnitude == 0.0:
             raise InputError("[gravity] vector must be non-zero when a [fluid] is present (it defines 'up')")
         if self.fluid is not None and self.fluid.rule == "paper" and self.element.degree != 1:
-            raise InputError("[fluid] rule = \"paper\" shares forces among triangle vertices: degree 1 only; use \"consistent\"")
+            raise InputError(
+                '[fluid] rule = "paper" shares forces among triangle vertices: degree 1 only; use "consistent"'
+            )
         glued = self.skull is not None and self.skull.glue is not None
         if self.time.mode == "quasi-static" and not self.fixed and not glued and not self.septa:
-            raise InputError("[[fixed]] a quasi-static scene needs at least one fixed region (K alone is singular; "
-                             "with a [skull], its fixed_where also holds; septa that hold every rigid motion do)")
+            raise InputError(
+                "[[fixed]] a quasi-static scene needs at least one fixed region (K alone is singular; "
+                "with a [skull], its fixed_where also holds; septa that hold every rigid motion do)"
+            )
         for f in self.fixed:
             if f.label is not None and not formats.is_label_volume(self.mesh.file or ""):
-                raise InputError("[[fixed]] label needs [mesh] file to be a label volume (.nii, .nii.gz, .nrrd); "
-                                 "use where = \"...\" otherwise")
+                raise InputError(
+                    "[[fixed]] label needs [mesh] file to be a label volume (.nii, .nii.gz, .nrrd); "
+                    'use where = "..." otherwise'
+                )
         for s in self.septa:
             if s.label is not None and not formats.is_label_volume(self.mesh.file or ""):
-                raise InputError(f"[[septum]] {s.title} label needs [mesh] file to be a label volume (.nii, .nii.gz, "
-                                 f".nrrd); give a plane (point, normal) or a file otherwise")
+                raise InputError(
+                    f"[[septum]] {s.title} label needs [mesh] file to be a label volume (.nii, .nii.gz, "
+                    f".nrrd); give a plane (point, normal) or a file otherwise"
+                )
         for r in self.remove:
             if self.time.mode == "quasi-static":
-                raise InputError("[[remove]] needs [time] mode = \"dynamic\" (or \"auto\"): a freed piece makes K "
-                                 "singular, the mass matrix keeps the dynamic system solvable")
+                raise InputError(
+                    '[[remove]] needs [time] mode = "dynamic" (or "auto"): a freed piece makes K '
+                    "singular, the mass matrix keeps the dynamic system solvable"
+                )
             if r.at >= self.time.end:
                 raise InputError(f"[[remove]] at = {r.at:g} s is not before [time] end = {self.time.end:g} s")
             if self.fluid is not None and self.fluid.rule == "quadrature":
-                raise InputError("[[remove]] needs the fluid load on the surface left after the cut: use [fluid] "
-                                 "rule = \"consistent\" (\"quadrature\" acts on the original surface only)")
+                raise InputError(
+                    "[[remove]] needs the fluid load on the surface left after the cut: use [fluid] "
+                    'rule = "consistent" ("quadrature" acts on the original surface only)'
+                )
             if r.label is not None and not formats.is_label_volume(self.mesh.file or ""):
-                raise InputError("[[remove]] label needs [mesh] file to be a label volume (.nii, .nii.gz, .nrrd); "
-                                 "use where = \"...\" otherwise")
+                raise InputError(
+                    "[[remove]] label needs [mesh] file to be a label volume (.nii, .nii.gz, .nrrd); "
+                    'use where = "..." otherwise'
+                )
         for r in self.swelling:
             if r.label is not None and not formats.is_label_volume(self.mesh.file or ""):
-                raise InputError("[[swelling]] label needs [mesh] file to be a label volume (.nii, .nii.gz, .nrrd); "
-                                 "use where = \"...\" otherwise")
-        if self.skull is not None and self.skull.label is not None and not formats.is_label_volume(self.mesh.file or ""):
-            raise InputError("[skull] label needs [mesh] file to be a label volume (.nii, .nii.gz, .nrrd); give "
-                             "file = \"skull.stl\" or gap = 0.003 otherwise")
-        if self.skull is not None and self.time.mode != "quasi-static" and (
-                self.time.scheme != "generalized-alpha" or self.time.rho_inf > MAX_RHO_INF_WITH_CONTACT):
+                raise InputError(
+                    "[[swelling]] label needs [mesh] file to be a label volume (.nii, .nii.gz, .nrrd); "
+                    'use where = "..." otherwise'
+                )
+        if (
+            self.skull is not None
+            and self.skull.label is not None
+            and not formats.is_label_volume(self.mesh.file or "")
+        ):
+            raise InputError(
+                "[skull] label needs [mesh] file to be a label volume (.nii, .nii.gz, .nrrd); give "
+                'file = "skull.stl" or gap = 0.003 otherwise'
+            )
+        if (
+            self.skull is not None
+            and self.time.mode != "quasi-static"
+            and (self.time.scheme != "generalized-alpha" or self.time.rho_inf > MAX_RHO_INF_WITH_CONTACT)
+        ):
             # Newmark enforcing contact at the step's end pumps energy in at every impact
             # (measured: a block bouncing on the floor gains energy even with damping)
-            raise InputError(f"[skull] time stepping with contact needs [time] scheme = \"generalized-alpha\" with "
-                             f"rho_inf <= {MAX_RHO_INF_WITH_CONTACT:g} (its damping of the highest modes keeps "
-                             f"impacts from adding energy); or use mode = \"quasi-static\"")
+            raise InputError(
+                f'[skull] time stepping with contact needs [time] scheme = "generalized-alpha" with '
+                f"rho_inf <= {MAX_RHO_INF_WITH_CONTACT:g} (its damping of the highest modes keeps "
+                f'impacts from adding energy); or use mode = "quasi-static"'
+            )
         self.remove = tuple(sorted(self.remove, key=lambda r: r.at))
         probes = {}
         for k, v in self.probes.items():
@@ -92,7 +123,6 @@ class Scene:
                 raise InputError(f"[surfaces] {k}: {exc}") from None
         self.surfaces = surfaces
 
-
     @property
     def settled_time(self) -> float:
         """The time whose loads a settled (drained) state of the scene takes, as the atlas and the
@@ -105,6 +135,7 @@ class Scene:
         for r in self.swelling:
             times += list(r.schedule.times)
         return float(max(times))
+
 
 def _column_name(name: str, taken: dict) -> str:
     """A probe's or surface's name as probes.csv's columns can hold it: commas, quotes and line

@@ -1,8 +1,9 @@
 """Values given as a number or as [[t, value], ...], piecewise linear in time."""
+
 from __future__ import annotations
 
-from .checks import number
 from ..errors import InputError
+from .checks import number
 
 
 class Schedule:
@@ -24,7 +25,9 @@ class Schedule:
             pts.append((number(f"{where}[{i}] time", p[0]), number(f"{where}[{i}] value", p[1])))
         for i in range(1, len(pts)):
             if pts[i][0] <= pts[i - 1][0]:
-                raise InputError(f"{where}[{i}] time {pts[i][0]:g} s must be later than {pts[i - 1][0]:g} s (times must increase)")
+                raise InputError(
+                    f"{where}[{i}] time {pts[i][0]:g} s must be later than {pts[i - 1][0]:g} s (times must increase)"
+                )
         self.points = tuple(pts)
 
     def __call__(self, t: float) -> float:

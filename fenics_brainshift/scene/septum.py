@@ -1,5 +1,6 @@
 """[[septum]]: a rigid membrane fixed to the skull (the falx, the tentorium) that the tissue
 slides along and does not cross."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -31,8 +32,10 @@ class SeptumSpec:
     def __post_init__(self):
         given = [k for k in ("normal", "file", "label") if getattr(self, k) is not None]
         if len(given) != 1:
-            raise InputError(f"[[septum]] {self.title}: give exactly one of normal = [nx, ny, nz] (with point), "
-                             f"file = \"septum.stl\" or label = N (got {', '.join(given) or 'none'})")
+            raise InputError(
+                f"[[septum]] {self.title}: give exactly one of normal = [nx, ny, nz] (with point), "
+                f'file = "septum.stl" or label = N (got {", ".join(given) or "none"})'
+            )
         if self.normal is not None:
             if self.point is None:
                 raise InputError(f"[[septum]] {self.title}: a plane needs point = [x, y, z] (m) as well as normal")
@@ -41,16 +44,19 @@ class SeptumSpec:
             if max(abs(v) for v in self.normal) == 0.0:
                 raise InputError(f"[[septum]] {self.title} normal must not be zero")
         elif self.point is not None:
-            raise InputError(f"[[septum]] {self.title}: point belongs to a plane (with normal); a file or label "
-                             f"septum has its own position")
+            raise InputError(
+                f"[[septum]] {self.title}: point belongs to a plane (with normal); a file or label "
+                f"septum has its own position"
+            )
         if self.file is not None and not isinstance(self.file, str):
             raise InputError(f"[[septum]] {self.title} file must be a file name (got {self.file!r})")
         if self.label is not None and not isinstance(self.label, str):
             self.label = integer(f"[[septum]] {self.title} label", self.label, 1)
         if self.where is not None:
             if not isinstance(self.where, str):
-                raise InputError(f"[[septum]] {self.title} where must be a condition on x, y, z in quotes "
-                                 f"(got {self.where!r})")
+                raise InputError(
+                    f"[[septum]] {self.title} where must be a condition on x, y, z in quotes (got {self.where!r})"
+                )
             try:
                 self.predicate = parse_predicate(self.where)
             except PredicateError as exc:
@@ -60,8 +66,9 @@ class SeptumSpec:
         if not isinstance(self.enabled, bool):
             raise InputError(f"[[septum]] {self.title} enabled must be true or false (got {self.enabled!r})")
         if self.name is not None and (not isinstance(self.name, str) or not self.name.isidentifier()):
-            raise InputError(f"[[septum]] name must be a word of letters, digits and _ such as \"falx\" "
-                             f"(got {self.name!r})")
+            raise InputError(
+                f'[[septum]] name must be a word of letters, digits and _ such as "falx" (got {self.name!r})'
+            )
 
     @property
     def title(self) -> str:
@@ -74,4 +81,4 @@ class SeptumSpec:
             what = f"surface {self.file.rsplit('/', 1)[-1]}"
         else:
             what = f"boundary of label {self.label}"
-        return what + (f" where \"{self.where}\"" if self.where else "")
+        return what + (f' where "{self.where}"' if self.where else "")

@@ -1,4 +1,5 @@
 """Scenes from TOML files or dictionaries, and `--set section.key=value` overrides."""
+
 from __future__ import annotations
 
 import tomllib
@@ -8,19 +9,25 @@ from typing import Any
 
 from .. import formats
 from ..errors import InputError
-from .checks import did_you_mean
 from .body import FixedRegion, Material, MeshSpec, Removal, Swelling
+from .checks import did_you_mean
 from .loads import Fluid, Gravity
 from .numerics import Damping, Element, Output, SolverConfig, TimeScheme
+from .scene import Scene
 from .septum import SeptumSpec
 from .skull import Skull
-from .scene import Scene
-
 
 # ---------------------------------------------------------------- TOML loading
 _SECTIONS = {
-    "mesh": MeshSpec, "material": Material, "gravity": Gravity, "fluid": Fluid, "skull": Skull,
-    "time": TimeScheme, "damping": Damping, "solver": SolverConfig, "element": Element,
+    "mesh": MeshSpec,
+    "material": Material,
+    "gravity": Gravity,
+    "fluid": Fluid,
+    "skull": Skull,
+    "time": TimeScheme,
+    "damping": Damping,
+    "solver": SolverConfig,
+    "element": Element,
     "output": Output,
 }
 
@@ -47,27 +54,34 @@ def scene_from_dict(data: dict, base: Path | None = None) -> Scene:
     for required in ("mesh", "material"):
         if required not in data:
             raise InputError(f"missing section [{required}]")
-    kwargs: dict[str, Any] = {name: _build(cls, data[name], f"[{name}]")
-                              for name, cls in _SECTIONS.items() if name in data}
+    kwargs: dict[str, Any] = {
+        name: _build(cls, data[name], f"[{name}]") for name, cls in _SECTIONS.items() if name in data
+    }
     fixed = data.get("fixed", [])
     if not isinstance(fixed, list):
-        raise InputError("[[fixed]] must be an array of tables: [[fixed]] where = \"z < 0.001\"")
+        raise InputError('[[fixed]] must be an array of tables: [[fixed]] where = "z < 0.001"')
     kwargs["fixed"] = tuple(_build(FixedRegion, f, "[[fixed]]") for f in fixed)
     remove = data.get("remove", [])
     if not isinstance(remove, list):
-        raise InputError("[[remove]] must be an array of tables: [[remove]] at = 10.0, where = \"...\"")
+        raise InputError('[[remove]] must be an array of tables: [[remove]] at = 10.0, where = "..."')
     kwargs["remove"] = tuple(_build(Removal, r, "[[remove]]") for r in remove)
     swelling = data.get("swelling", [])
     if not isinstance(swelling, list):
-        raise InputError("[[swelling]] must be an array of tables: [[swelling]] where = \"...\", volume_change = -0.02")
+        raise InputError('[[swelling]] must be an array of tables: [[swelling]] where = "...", volume_change = -0.02')
     kwargs["swelling"] = tuple(_build(Swelling, r, "[[swelling]]") for r in swelling)
     septa = data.get("septum", [])
     if not isinstance(septa, list):
-        raise InputError("[[septum]] must be an array of tables: [[septum]] name = \"falx\", point = [0, 0, 0], "
-                         "normal = [1, 0, 0]")
-    septa = [_build(SeptumSpec, {"name": f"septum{i + 1}", **r} if isinstance(r, dict) else r,
-                    f"[[septum]] {r.get('name', f'septum{i + 1}') if isinstance(r, dict) else i + 1}")
-             for i, r in enumerate(septa)]
+        raise InputError(
+            '[[septum]] must be an array of tables: [[septum]] name = "falx", point = [0, 0, 0], normal = [1, 0, 0]'
+        )
+    septa = [
+        _build(
+            SeptumSpec,
+            {"name": f"septum{i + 1}", **r} if isinstance(r, dict) else r,
+            f"[[septum]] {r.get('name', f'septum{i + 1}') if isinstance(r, dict) else i + 1}",
+        )
+        for i, r in enumerate(septa)
+    ]
     for septum in septa:
         if septum.file is not None:
             if base is not None and not Path(septum.file).is_absolute():
@@ -84,7 +98,7 @@ def scene_from_dict(data: dict, base: Path | None = None) -> Scene:
     kwargs["probes"] = _with_markups(dict(probes), base)
     surfaces = data.get("surfaces", {})
     if not isinstance(surfaces, dict):
-        raise InputError("[surfaces] must be a table of name = \"condition on x, y, z\"")
+        raise InputError('[surfaces] must be a table of name = "condition on x, y, z"')
     kwargs["surfaces"] = surfaces
     if "name" in data:
         if not isinstance(data["name"], str):
@@ -123,8 +137,9 @@ def apply_override(data: dict, assignment: str) -> None:
         value = tomllib.loads(f"v = {text.strip()}")["v"]
     except tomllib.TOMLDecodeError:
         value = text.strip()
-    if (key.strip() in FILE_KEYS or key.strip().startswith("septum.") and key.strip().endswith(".file")) \
-            and isinstance(value, str):
+    if (key.strip() in FILE_KEYS or key.strip().startswith("septum.") and key.strip().endswith(".file")) and isinstance(
+        value, str
+    ):
         value = str(Path(value).resolve())  # typed in a shell: relative to where it was typed
     node: Any = data
     parts = key.strip().split(".")
@@ -135,7 +150,9 @@ def apply_override(data: dict, assignment: str) -> None:
             if named:
                 part = str(named[0])
             if not part.isdigit() or int(part) >= len(node):
-                names = [entry["name"] for entry in node if isinstance(entry, dict) and isinstance(entry.get("name"), str)]
+                names = [
+                    entry["name"] for entry in node if isinstance(entry, dict) and isinstance(entry.get("name"), str)
+                ]
                 known = f" or a name ({', '.join(names)})" if names else ""
                 raise InputError(f"--set '{key}': '{part}' is not an index of that array (0..{len(node) - 1}){known}")
             if last:
@@ -171,8 +188,11 @@ def scene_data(path: str | Path, overrides: list[str] = ()) -> tuple[dict, Path]
             from ..data import scene_names
 
             hint = did_you_mean(path.name, scene_names()) if path.parent == Path(".") else ""
-            raise InputError(f"scene file '{path}' not found" + (f";{hint}" if hint else "")
-                             + " (bundled scenes: `brainshift scenes`)")
+            raise InputError(
+                f"scene file '{path}' not found"
+                + (f";{hint}" if hint else "")
+                + " (bundled scenes: `brainshift scenes`)"
+            )
         path = bundled
     try:
         data = tomllib.loads(path.read_text())

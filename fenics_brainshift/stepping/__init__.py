@@ -1,5 +1,6 @@
 """Stepping: the state, Newmark / generalized-alpha time steps with the energy guard, the
 quasi-static path, and the follower-load settle both share."""
+
 from .dynamic import DynamicStepper
 from .energy import EnergyBalance
 from .integrators import TimeIntegrator, newmark_discrete_frequency
@@ -7,5 +8,12 @@ from .solves import Solves
 from .state import State
 from .static import StaticSolver
 
-__all__ = ["DynamicStepper", "EnergyBalance", "Solves", "State", "StaticSolver", "TimeIntegrator",
-           "newmark_discrete_frequency"]
+__all__ = [
+    "DynamicStepper",
+    "EnergyBalance",
+    "Solves",
+    "State",
+    "StaticSolver",
+    "TimeIntegrator",
+    "newmark_discrete_frequency",
+]

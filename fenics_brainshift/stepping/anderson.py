@@ -7,6 +7,7 @@ load stiffness, p/h, is comparable with G, and linear elasticity has no initial-
 stiffness to balance it. Anderson mixing combines the last m map values and, keeping them from
 one time step to the next, settles such steps in a few solves (docs/performance.md).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -17,7 +18,7 @@ class AndersonAcceleration:
     """Anderson mixing (type II, depth m) for the same fixed point u = G(u): the next iterate
     combines the last m+1 map values so that the linearised residual is least in the 2-norm
     (Walker & Ni 2011). The small least-squares problem is formed from global dot products,
-    so it is the same on every rank. """
+    so it is the same on every rank."""
 
     def __init__(self, template: PETSc.Vec, depth: int = 8, regularisation: float = 1e-12):
         import collections

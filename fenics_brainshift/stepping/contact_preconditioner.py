@@ -23,9 +23,10 @@ since, or whose block has changed, into a low-rank update (linalg/low_rank.py: t
 triangular solves per node, done together), until more than MAX_UPDATED have: then a new
 factor.
 """
+
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 import scipy.sparse
@@ -109,8 +110,11 @@ class ContactPreconditioner:
         self._pressed = np.sort(blocks[0])
         self._built_at = self.solves.factors
         self.rebuilds += 1
-        log.debug("  contact: preconditioner rebuilt with %d pressed nodes (%.2f s)", len(blocks[0]),
-                  self.solves.last_factor_seconds)
+        log.debug(
+            "  contact: preconditioner rebuilt with %d pressed nodes (%.2f s)",
+            len(blocks[0]),
+            self.solves.last_factor_seconds,
+        )
 
     def adjust(self, blocks) -> None:
         """Make the preconditioner base + the contact stiffness of ``blocks`` (the tangent's at
@@ -145,8 +149,10 @@ class ContactPreconditioner:
             factor = (lambda: pc.getFactorMatrix()) if self.solves.settings["kind"] in ("cholesky", "lu") else None
             self._update = LowRankUpdate(lambda rhs, x: pc.apply(rhs, x), self.contact.vector, factor)
         self._update.set(scalar, B.toarray())
-        self.stiffness = (np.concatenate([old_dofs[kept], new[0][added]]),
-                          np.concatenate([np.where(drifted[:, None, None], now, was), new[1][added]]))
+        self.stiffness = (
+            np.concatenate([old_dofs[kept], new[0][added]]),
+            np.concatenate([np.where(drifted[:, None, None], now, was), new[1][added]]),
+        )
         self._pressed = np.sort(new[0])
         self.updates += 1
         self.refreshed += int(drifted.sum())
@@ -163,7 +169,7 @@ class ContactPreconditioner:
 
     def factor_is_base(self) -> bool:
         """Is the solver's factor that of the base alone (no node pressed in it, on any rank)?"""
-        local = (self._pressed is None or len(self._pressed) == 0 or self.solves.factors != self._built_at)
+        local = self._pressed is None or len(self._pressed) == 0 or self.solves.factors != self._built_at
         return self.contact.comm.allreduce(local, op=MPI.LAND)
 
     def forget(self) -> None:
@@ -183,8 +189,11 @@ def fixed_global(V, fixed: np.ndarray) -> set[int]:
     local (unrolled) ones."""
     index_map = V.dofmap.index_map
     fixed = np.asarray(fixed)
-    held = (3 * index_map.local_to_global(np.asarray(fixed // 3, dtype=np.int32)) + fixed % 3 if len(fixed)
-            else np.zeros(0, dtype=np.int64))
+    held = (
+        3 * index_map.local_to_global(np.asarray(fixed // 3, dtype=np.int32)) + fixed % 3
+        if len(fixed)
+        else np.zeros(0, dtype=np.int64)
+    )
     return set(np.concatenate(V.mesh.comm.allgather(held)).tolist())
 
 
@@ -204,9 +213,10 @@ def gathered_blocks(V, dofs: np.ndarray, blocks: np.ndarray, fixed: set[int], li
     first = 3 * where[:, None, None]
     rows, columns = first + np.arange(3)[None, :, None], first + np.arange(3)[None, None, :]
     size = 3 * len(unique)
-    B = scipy.sparse.csr_matrix((blocks.ravel(), (np.broadcast_to(rows, blocks.shape).ravel(),
-                                                  np.broadcast_to(columns, blocks.shape).ravel())),
-                                shape=(size, size))  # (duplicates, the ranks' shares, summed)
+    B = scipy.sparse.csr_matrix(
+        (blocks.ravel(), (np.broadcast_to(rows, blocks.shape).ravel(), np.broadcast_to(columns, blocks.shape).ravel())),
+        shape=(size, size),
+    )  # (duplicates, the ranks' shares, summed)
     scalar = (3 * unique[:, None] + np.arange(3)).ravel()
     keep = np.flatnonzero([d not in fixed for d in scalar.tolist()])
     return scalar[keep], B[keep][:, keep]

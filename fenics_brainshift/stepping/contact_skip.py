@@ -7,6 +7,7 @@ last state that did not, by Newton with contact (newton.py), which then serves t
 the run (a body that has reached the skull may stay on it). A body that touches the skull already
 at rest (it may rest on it: K alone can be singular) gets contact from the start.
 """
+
 from __future__ import annotations
 
 from ..logs import get_logger
@@ -43,8 +44,11 @@ class ContactWhenReached:
                 self.skipped += 1
                 self._t_settled = t
                 return its
-            log.info("  t=%g s: the contact-free answer passes the skull by %.3g mm: contact from here on",
-                     t, self.contact.penetration(self.state.u) * 1e3)
+            log.info(
+                "  t=%g s: the contact-free answer passes the skull by %.3g mm: contact from here on",
+                t,
+                self.contact.penetration(self.state.u) * 1e3,
+            )
             self.state.u.x.array[:] = before
             self.engaged, self.engaged_at = self.make_contact_solver(), t
             self.engaged._t_settled = self._t_settled  # load steps from the last settled state

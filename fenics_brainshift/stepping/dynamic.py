@@ -5,6 +5,7 @@ costs one right-hand side (a diagonal mass product, and K applied to the state o
 with the energy guard), one solve warm-started from the previous increment (per follower
 iteration), and the array update of u, v, a.
 """
+
 from __future__ import annotations
 
 import dolfinx.la
@@ -28,8 +29,15 @@ class DynamicStepper:
     integrator: a TimeIntegrator; damping: Rayleigh (a 1/s, b s); solves: the step solver
     (Solves); the guard stops a run whose energy grows (energy.py)."""
 
-    def __init__(self, model, state: State, integrator: TimeIntegrator, damping: tuple[float, float],
-                 solves: Solves, follower_tolerance: float = 1e-4):
+    def __init__(
+        self,
+        model,
+        state: State,
+        integrator: TimeIntegrator,
+        damping: tuple[float, float],
+        solves: Solves,
+        follower_tolerance: float = 1e-4,
+    ):
         self.model, self.state, self.integrator = model, state, integrator
         self.damping_a, self.damping_b = damping
         self.solves = solves
@@ -39,7 +47,8 @@ class DynamicStepper:
         # work vectors, allocated once (they own their memory: never wrap a temporary Function)
         self._F = dolfinx.la.create_petsc_vector(V.dofmap.index_map, V.dofmap.index_map_bs)
         self._F_old, self._rhs, self._tmp, self._wm, self._wk, self._base, self._K_u, self._K_wk = (
-            self._F.duplicate() for _ in range(8))
+            self._F.duplicate() for _ in range(8)
+        )
         self._K_wk_of_step = -1
         self.settle = Settle(self._F, model.constraints, model.fluid, follower_tolerance)
         newmark = integrator.alpha_m == 0.0 and integrator.alpha_f == 0.0
@@ -158,11 +167,18 @@ class DynamicStepper:
         for index in due:
             cut = tissue.cuts[index]
             count, isolated = tissue.apply(index)
-            self.removals.append({"at": cut.at, "t": self.state.t, "region": cut.label, "cells": count,
-                                  "isolated_cells": isolated})
-            log.info("  t=%.3f s: removed %d cells (%s) and %d left hanging by an edge or vertex; %.1f %% of "
-                     "the body removed so far", self.state.t, count, cut.label, isolated,
-                     100.0 * tissue.removed_fraction)
+            self.removals.append(
+                {"at": cut.at, "t": self.state.t, "region": cut.label, "cells": count, "isolated_cells": isolated}
+            )
+            log.info(
+                "  t=%.3f s: removed %d cells (%s) and %d left hanging by an edge or vertex; %.1f %% of "
+                "the body removed so far",
+                self.state.t,
+                count,
+                cut.label,
+                isolated,
+                100.0 * tissue.removed_fraction,
+            )
         self.model.tissue_changed()
         if self.model.fluid is not None:
             self.model.fluid.set_present(tissue.present)
@@ -249,8 +265,15 @@ class DynamicStepper:
             return self._rhs
 
         def settle(same: bool) -> int:
-            return self.settle(self.du, rhs_for_current_du, solve or self.solves, t_new, scale=st.norm(st.u),
-                               same_problem=same, depends_on_x=reaction is not None)
+            return self.settle(
+                self.du,
+                rhs_for_current_du,
+                solve or self.solves,
+                t_new,
+                scale=st.norm(st.u),
+                same_problem=same,
+                depends_on_x=reaction is not None,
+            )
 
         its = settle(same_problem)
         while reaction is not None:
@@ -292,8 +315,9 @@ class DynamicStepper:
         """w_m and w_k of the current state (rhs = F_mid - M w_m - K w_k) into their vectors."""
         st = self.state
         n = st.n_owned
-        wm, wk = self.integrator.rhs_vectors(st.u.x.array[:n], st.v.x.array[:n], st.a.x.array[:n],
-                                             self.damping_a, self.damping_b)
+        wm, wk = self.integrator.rhs_vectors(
+            st.u.x.array[:n], st.v.x.array[:n], st.a.x.array[:n], self.damping_a, self.damping_b
+        )
         self._wm.array[:] = wm
         self._wk.array[:] = wk
 

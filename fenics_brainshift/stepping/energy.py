@@ -15,6 +15,7 @@ overshoot (37 % of the energy at rho_inf = 0, omega dt = 3, measured) while an i
 grows without bound.
 (NaN/Inf and diverged Krylov solves are caught where they happen: solves.py and linalg.)
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -24,6 +25,10 @@ from ..errors import SolverError
 
 @dataclass
 class EnergyBalance:
+    """The energy guard of a dynamic run: H = kinetic + strain energy - the loads' work, step by
+    step; H rising above its lowest value by more than ``tolerance`` times the energy scale
+    stops the run (energy from nowhere)."""
+
     tolerance: float = 1e-2
     work: float = 0.0
     lowest: float = float("inf")
@@ -41,8 +46,9 @@ class EnergyBalance:
             raise SolverError(
                 f"energy grew without a source at t = {t:g} s: kinetic + strain - work = {h:.3e} J rose "
                 f"{(h - self.lowest) / self.scale:.1%} of the energy scale {self.scale:.3e} J above its "
-                f"lowest value; the step is unstable: reduce [time] dt, use scheme = \"generalized-alpha\" or "
-                f"tighten [solver] rtol")
+                f'lowest value; the step is unstable: reduce [time] dt, use scheme = "generalized-alpha" or '
+                f"tighten [solver] rtol"
+            )
         self.lowest = min(self.lowest, h)
         self.scale = max(self.scale, kinetic + strain + abs(self.work))
         return h

@@ -14,6 +14,7 @@ GMRES is left only the follower load's tangent. Used where K's own factor is at 
 linear material, a factor (not AMG), and no node touching the skull at rest (K alone may be
 singular there).
 """
+
 from __future__ import annotations
 
 import time
@@ -37,8 +38,7 @@ class ExactContactSolve:
         self.solves, self.contact = solves, contact
         self.factored = solves.solver  # the LinearSolver whose factor this uses
         pc_K = solves.solver.ksp.getPC()
-        self.compliance = Compliance(lambda rhs, x: pc_K.apply(rhs, x), contact.vector,
-                                     lambda: pc_K.getFactorMatrix())
+        self.compliance = Compliance(lambda rhs, x: pc_K.apply(rhs, x), contact.vector, lambda: pc_K.getFactorMatrix())
         self._fixed = fixed_global(contact.V, fixed)
         self.ksp = PETSc.KSP().create(contact.comm)
         # flexible GMRES keeps the preconditioned vectors: the answer is their combination, not
@@ -93,8 +93,10 @@ class ExactContactSolve:
                 pc.setFactorSolverType("mumps")
             ksp.solve(rhs, x)
             if ksp.getConvergedReason() < 0 or not np.isfinite(x.norm()):
-                raise SolverError("Newton's solve with skull contact failed: GMRES did not converge, and an LU "
-                                  "factor of the tangent gave no answer")
+                raise SolverError(
+                    "Newton's solve with skull contact failed: GMRES did not converge, and an LU "
+                    "factor of the tangent gave no answer"
+                )
             return 1
         finally:
             ksp.destroy()

@@ -14,6 +14,7 @@ acceleration and velocity at the mid-point. Every function below works on numpy 
 so the same update serves the owned values of a DOLFINx Function and a test's plain arrays.
 K_eff is constant for a linear material and fixed dt: it is assembled and factored once.
 """
+
 from __future__ import annotations
 
 import math
@@ -24,6 +25,9 @@ import numpy as np
 
 @dataclass(frozen=True, slots=True)
 class TimeIntegrator:
+    """The generalized-alpha (and Newmark) coefficients of a time step dt: alpha_m, alpha_f,
+    beta, gamma."""
+
     dt: float
     alpha_m: float = 0.0
     alpha_f: float = 0.0
@@ -31,12 +35,12 @@ class TimeIntegrator:
     gamma: float = 0.5
 
     @classmethod
-    def newmark(cls, dt: float) -> "TimeIntegrator":
+    def newmark(cls, dt: float) -> TimeIntegrator:
         """Average constant acceleration (beta = 1/4, gamma = 1/2): the paper's scheme."""
         return cls(dt)
 
     @classmethod
-    def generalized_alpha(cls, dt: float, rho_inf: float) -> "TimeIntegrator":
+    def generalized_alpha(cls, dt: float, rho_inf: float) -> TimeIntegrator:
         """Second-order accurate, unconditionally stable, high-frequency spectral radius rho_inf.
         rho_inf = 1 gives no numerical dissipation (the same trajectory as newmark)."""
         am = (2.0 * rho_inf - 1.0) / (rho_inf + 1.0)

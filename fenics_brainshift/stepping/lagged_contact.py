@@ -14,6 +14,7 @@ load and the nodes that came or went since are left to Anderson's acceleration, 
 follower load alone is in the contact-free step. The multipliers are then updated and the
 step settled again until the contact conditions hold to the tolerance, as with Newton.
 """
+
 from __future__ import annotations
 
 from ..errors import SolverError
@@ -45,8 +46,10 @@ class LaggedContact:
         if off <= self.contact.tolerance:
             return False
         if self.rounds == MAX_CONTACT_ROUNDS:
-            raise SolverError(f"skull contact: the contact conditions are still off by {off * 1e3:.3g} mm "
-                              f"after {MAX_CONTACT_ROUNDS} multiplier updates")
+            raise SolverError(
+                f"skull contact: the contact conditions are still off by {off * 1e3:.3g} mm "
+                f"after {MAX_CONTACT_ROUNDS} multiplier updates"
+            )
         self.contact.update_multipliers(geometry)
         self.rounds += 1
         return True

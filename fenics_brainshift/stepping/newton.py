@@ -9,6 +9,7 @@ is tried whole; if Newton fails (too many iterations, a line search that finds n
 an element that inverts: NaN), the step is halved — the loads follow the schedule to the
 intermediate time, or, from rest, are scaled by a factor — down to MIN_FRACTION of it.
 """
+
 from __future__ import annotations
 
 import dolfinx.la
@@ -43,7 +44,7 @@ MAX_CONTACT_ROUNDS = 30  # augmented-Lagrangian multiplier updates per settled s
 # update often follows (the contact not yet within its tolerance), and the iterations from there to the
 # tight target were lost; where none follows, the state is then solved on to the tight target. An
 # atlas's settled states (5 mm brain, 3 mm gap): 5.5 Newton iterations a state against 6.3, the modes
-# 0.019 mm apart (benchmarks/results/skull_atlas.md); 1000 saved no more in a scratch run
+# 0.019 mm apart (benchmarks/results/skull_atlas.md); 1000 saved no more
 FIRST_LOOSER = 100.0
 WATCHDOG = 10  # with contact: iterations a step taken without descent has to bring |R| below where it was
 
@@ -52,8 +53,16 @@ class NewtonStatic:
     """Settled states of a Model with a hyperelastic material, or of any Model in contact with
     the skull (then also the contact forces' residual and tangent, physics/contact.py)."""
 
-    def __init__(self, model, state: State, solves: Solves, rtol: float = 1e-9, max_iterations: int = 25,
-                 load_tangent: bool = True, contact=None):
+    def __init__(
+        self,
+        model,
+        state: State,
+        solves: Solves,
+        rtol: float = 1e-9,
+        max_iterations: int = 25,
+        load_tangent: bool = True,
+        contact=None,
+    ):
         self.model, self.state, self.solves = model, state, solves
         solves.settings = tangent_settings(solves.settings)
         self.rtol, self.max_iterations = rtol, max_iterations
@@ -118,7 +127,9 @@ class NewtonStatic:
         else:  # the linear material's part never changes: copied, not assembled again
             if self._K0 is None:
                 self._K0 = reassemble(None, self._tangent, tangent_type(self.model))
-                self._A = reassemble(None, self._tangent, tangent_type(self.model))  # (a duplicate lacks the local numbering)
+                self._A = reassemble(
+                    None, self._tangent, tangent_type(self.model)
+                )  # (a duplicate lacks the local numbering)
             A = self._A
             self._K0.copy(A, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
         fluid = self.model.fluid
@@ -146,8 +157,7 @@ class NewtonStatic:
     def _exact_possible(self) -> bool:
         """Can Newton's solves be preconditioned exactly for K and the contact (exact_contact.py)?
         A linear body (K is its stiffness), factored (not AMG), in contact with the skull."""
-        return (self.contact is not None and not self.model.nonlinear
-                and self.solves.settings["kind"] in FACTOR_KINDS)
+        return self.contact is not None and not self.model.nonlinear and self.solves.settings["kind"] in FACTOR_KINDS
 
     def _start_exact(self) -> None:
         """The solver's factor is K's own: from now on every solve is preconditioned exactly."""
@@ -232,10 +242,16 @@ class NewtonStatic:
         """Newton from the current state to the loads (t, factor); False if it failed (the
         state is then wherever it stopped: the caller restores it)."""
         converged, self.history = newton_iterate(
-            self.state.u, self._du, lambda: self._residual(t, factor),
-            lambda forcing: self._solve_step(factor, t, forcing), lambda: max(self._load_norm, self._floor / self.rtol),
+            self.state.u,
+            self._du,
+            lambda: self._residual(t, factor),
+            lambda forcing: self._solve_step(factor, t, forcing),
+            lambda: max(self._load_norm, self._floor / self.rtol),
             self.rtol,
-            self.solves.settings["rtol"], self.max_iterations, *self._globalisation())
+            self.solves.settings["rtol"],
+            self.max_iterations,
+            *self._globalisation(),
+        )
         self.iterations = len(self.history) - 1
         return converged
 
@@ -285,10 +301,12 @@ class NewtonStatic:
                 iterations, tightened = self._solve_loads(t), True
                 continue
             if rounds == MAX_CONTACT_ROUNDS:
-                raise SolverError(f"skull contact at t = {t:g} s: the contact conditions are still off by "
-                                  f"{self.contact.violation(self.state.u) * 1e3:.3g} mm after "
-                                  f"{MAX_CONTACT_ROUNDS} multiplier updates; raise [skull] tolerance or check "
-                                  f"that the loads can be carried by the skull")
+                raise SolverError(
+                    f"skull contact at t = {t:g} s: the contact conditions are still off by "
+                    f"{self.contact.violation(self.state.u) * 1e3:.3g} mm after "
+                    f"{MAX_CONTACT_ROUNDS} multiplier updates; raise [skull] tolerance or check "
+                    f"that the loads can be carried by the skull"
+                )
             before = self.contact.multipliers.copy()
             self.contact.update_multipliers(self.state.u)
             rounds += 1
@@ -309,8 +327,9 @@ class NewtonStatic:
             self.model.load_into(t, rhs, u)
             rhs.axpy(1.0, self.model.growth_load(t))
             self.model.constraints.vector(rhs)
-            solve_preconditioned_by(self._K, self.solves.solver, rhs, compat.petsc_vec(u), rtol=1e-10,
-                                    name="linear start")
+            solve_preconditioned_by(
+                self._K, self.solves.solver, rhs, compat.petsc_vec(u), rtol=1e-10, name="linear start"
+            )
             self.model.constraints.project_owned(compat.petsc_vec(u))
             u.x.scatter_forward()
             return self._newton(t, 1.0)
@@ -350,13 +369,19 @@ class NewtonStatic:
             self.cuts += 1
             if step < MIN_FRACTION:
                 what = "the multipliers' update" if stepping_multipliers else "the load step"
-                raise SolverError(f"Newton did not converge at t = {t:g} s even with {what} cut to "
-                                  f"{MIN_FRACTION:g} of it (residual {self.history[-1]:.2e}); the body may have "
-                                  f"no equilibrium under these loads (a support missing?), or the material "
-                                  f"lost stability (Saint Venant-Kirchhoff does under strong compression)"
-                                  + self._contact_note(deepest))
-            log.info("  t=%g s: Newton did not converge; %s cut to %g", t,
-                     "the multipliers' update" if stepping_multipliers else "load step", step)
+                raise SolverError(
+                    f"Newton did not converge at t = {t:g} s even with {what} cut to "
+                    f"{MIN_FRACTION:g} of it (residual {self.history[-1]:.2e}); the body may have "
+                    f"no equilibrium under these loads (a support missing?), or the material "
+                    f"lost stability (Saint Venant-Kirchhoff does under strong compression)"
+                    + self._contact_note(deepest)
+                )
+            log.info(
+                "  t=%g s: Newton did not converge; %s cut to %g",
+                t,
+                "the multipliers' update" if stepping_multipliers else "load step",
+                step,
+            )
         self._t_settled = t
         self.state.t = t
         return self.iterations
@@ -376,8 +401,10 @@ class NewtonStatic:
             return ""
         where = "" if deepest is None else f"the deepest node {deepest:.3g} m past the skull where Newton stopped, "
         if deepest is not None and deepest <= self.contact.tolerance:  # not the tolerance: the skull's shape
-            advice = ("the deepest node is within it, a looser one will not help; the skull's shape where the "
-                      "body presses it may be the cause, docs/limits.md")
+            advice = (
+                "the deepest node is within it, a looser one will not help; the skull's shape where the "
+                "body presses it may be the cause, docs/limits.md"
+            )
         else:
             advice = "if the body is held, a looser tolerance may settle"
         return f"; with skull contact: {where}[skull] tolerance = {self.contact.tolerance:g} m ({advice})"

@@ -12,6 +12,7 @@ solves it with GMRES preconditioned by the factor of the linear effective matrix
 The energy guard uses the stored energy of the material in place of u.K u / 2; for a nonlinear
 material Newmark's balance is no longer exact, it holds to O(dt^2) (tests/test_hyperelastic.py).
 """
+
 from __future__ import annotations
 
 from dataclasses import replace
@@ -32,8 +33,8 @@ from .contact_preconditioner import ContactPreconditioner
 from .dynamic import DynamicStepper
 from .lagged_contact import LaggedContact
 from .newton import MAX_CONTACT_ROUNDS, STALL_WITH_CONTACT
-from .tangent import reassemble, tangent_settings, tangent_type
 from .newton_iteration import newton_iterate, round_off_floor
+from .tangent import reassemble, tangent_settings, tangent_type
 
 log = get_logger("newton")
 MAX_CUTS = 5  # a failed step is cut in halves, down to dt / 32
@@ -57,8 +58,7 @@ class NewtonDynamicStepper(DynamicStepper):
     rtol = 1e-9  # |R| relative to the step's loads
     max_iterations = 25
 
-    def __init__(self, model, state, integrator, damping, solves, follower_tolerance: float = 1e-4,
-                 contact=None):
+    def __init__(self, model, state, integrator, damping, solves, follower_tolerance: float = 1e-4, contact=None):
         self.contact = contact  # a SkullContact or None (set first: setup uses it)
         self._contact_pc = None  # the factor with the pressed nodes (contact_preconditioner.py)
         self._blocks = None  # the contact's tangent blocks at the current iterate
@@ -71,8 +71,9 @@ class NewtonDynamicStepper(DynamicStepper):
         self._internal = fem.form(material.internal_force(self._x, v))
         # the step's tangent as one form: the blocks are assembled once, with no matrix sums
         self._coefficient = {part: fem.Constant(model.mesh, PETSc.ScalarType(0.0)) for part in ("f", "M", "K0")}
-        tangent = (self._coefficient["f"] * material.tangent(self._x, w, v)
-                   + self._coefficient["K0"] * model.stiffness_form())
+        tangent = (
+            self._coefficient["f"] * material.tangent(self._x, w, v) + self._coefficient["K0"] * model.stiffness_form()
+        )
         if not model.lumped:  # a lumped mass is added as its diagonal
             tangent += self._coefficient["M"] * model.mass_form()
         self._tangent = fem.form(tangent)
@@ -186,8 +187,9 @@ class NewtonDynamicStepper(DynamicStepper):
             for attempt in range(2):
                 reaction = LaggedContact(contact, pc, w_new)
                 try:
-                    its = self._linear_step(t_new, same_problem=self._fixed_point_run, solve=pc.solve,
-                                            reaction=reaction)
+                    its = self._linear_step(
+                        t_new, same_problem=self._fixed_point_run, solve=pc.solve, reaction=reaction
+                    )
                 except SolverError:  # did not settle: with the nodes pressed where it stopped?
                     self._x.x.array[:] = st.u.x.array + self.du.x.array
                     pressed = contact.pressed_dofs(self._x)
@@ -297,28 +299,41 @@ class NewtonDynamicStepper(DynamicStepper):
 
         def newton() -> bool:
             converged, self.newton_history = newton_iterate(
-                self.du, self._update, residual, solve,
-                lambda: max(self._F.norm() + self.model.growth_scale(t_new), self._floor / self.rtol), self.rtol,
-                self.solves.settings["rtol"], self.max_iterations,
-                STALL_WITH_CONTACT if self.contact is not None else 1.0)
+                self.du,
+                self._update,
+                residual,
+                solve,
+                lambda: max(self._F.norm() + self.model.growth_scale(t_new), self._floor / self.rtol),
+                self.rtol,
+                self.solves.settings["rtol"],
+                self.max_iterations,
+                STALL_WITH_CONTACT if self.contact is not None else 1.0,
+            )
             return converged
 
         converged, rounds = newton(), 0
         while converged and self.contact is not None and self.contact.violation(self._x) > self.contact.tolerance:
             if rounds == MAX_CONTACT_ROUNDS:
-                raise SolverError(f"skull contact at t = {t_new:g} s: the contact conditions are still off by "
-                                  f"{self.contact.violation(self._x) * 1e3:.3g} mm after "
-                                  f"{MAX_CONTACT_ROUNDS} multiplier updates")
+                raise SolverError(
+                    f"skull contact at t = {t_new:g} s: the contact conditions are still off by "
+                    f"{self.contact.violation(self._x) * 1e3:.3g} mm after "
+                    f"{MAX_CONTACT_ROUNDS} multiplier updates"
+                )
             self.contact.update_multipliers(self._x)
             rounds += 1
-            log.debug("  contact: conditions off by %.3g mm; multipliers updated (%d)",
-                      self.contact.violation(self._x) * 1e3, rounds)
+            log.debug(
+                "  contact: conditions off by %.3g mm; multipliers updated (%d)",
+                self.contact.violation(self._x) * 1e3,
+                rounds,
+            )
             converged = newton()
         self.contact_rounds += rounds
         if not converged:
-            raise SolverError(f"Newton did not converge in the time step to t = {t_new:g} s even with the step "
-                              f"cut to 1/{2 ** MAX_CUTS} of dt (residual {self.newton_history[-1]:.2e}); reduce "
-                              f"[time] dt, or check the supports")
+            raise SolverError(
+                f"Newton did not converge in the time step to t = {t_new:g} s even with the step "
+                f"cut to 1/{2**MAX_CUTS} of dt (residual {self.newton_history[-1]:.2e}); reduce "
+                f"[time] dt, or check the supports"
+            )
         n = st.n_owned
         ti.update(st.u.x.array[:n], st.v.x.array[:n], st.a.x.array[:n], self.du.x.array[:n])
         for f in (st.u, st.v, st.a):

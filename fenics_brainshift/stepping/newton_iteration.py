@@ -1,6 +1,7 @@
 """Newton's iteration on a Function, globalised by a backtracking line search on |R|, with
 Eisenstat-Walker forcing and, for contact, a watchdog step. The settled states (newton.py) and
 the time steps (newton_dynamic.py) both drive it with their own residual and solve."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -22,8 +23,19 @@ def round_off_floor(K: PETSc.Mat, cell_size: float) -> float:
     return float(np.finfo(float).eps * K.norm(PETSc.NormType.FROBENIUS) * cell_size)
 
 
-def newton_iterate(x, dx, residual, solve, scale, rtol: float, krylov_floor: float, max_iterations: int,
-                   stall: float = 1.0, watchdog: int = 0, step_limit=None):
+def newton_iterate(
+    x,
+    dx,
+    residual,
+    solve,
+    scale,
+    rtol: float,
+    krylov_floor: float,
+    max_iterations: int,
+    stall: float = 1.0,
+    watchdog: int = 0,
+    step_limit=None,
+):
     """Newton's iteration on the Function x with a backtracking line search on |R|.
 
     residual() evaluates R at x into the caller's vector and returns |R| (inf when R is not
@@ -43,6 +55,7 @@ def newton_iterate(x, dx, residual, solve, scale, rtol: float, krylov_floor: flo
     still holds it, each halving of the step only halves the distance left, or finds no
     descent; the step as far as the first node's contact lets the next iteration press it.
     Returns (converged, the |R| history); on failure x is wherever it stopped."""
+
     def target():
         return rtol * max(scale(), 1e-300)
 
@@ -75,7 +88,7 @@ def newton_iterate(x, dx, residual, solve, scale, rtol: float, krylov_floor: flo
                 return True, history + [trial]
             if not watchdog or watched is not None:
                 return False, history
-            alpha = max(1.0 if step_limit is None else step_limit(), 0.5 ** 7)
+            alpha = max(1.0 if step_limit is None else step_limit(), 0.5**7)
             x.x.array[:] = start + alpha * dx.x.array
             trial, watched = residual(), (norm, iteration)
             if not np.isfinite(trial):

@@ -5,12 +5,12 @@ solve a fixed-point problem, iterated with Anderson acceleration (anderson.py) u
 update is below ``tolerance`` of the displacement's size, or until the fluid load was reused
 because the surface has not moved (then the map's value is the last solve's answer, exactly).
 """
+
 from __future__ import annotations
 
 from .. import compat
 from ..errors import SolverError
 from .anderson import AndersonAcceleration
-
 
 GROWTH = 100.0  # a fixed point with the skull's reaction whose iterate grows this much over its first solve diverges
 
@@ -29,8 +29,9 @@ class Settle:
         self._trial = template.duplicate()
         self.iterations = 0  # of the last call
 
-    def __call__(self, x, rhs_for_current_x, solve, t: float, scale: float, same_problem: bool,
-                 depends_on_x: bool = False) -> int:
+    def __call__(
+        self, x, rhs_for_current_x, solve, t: float, scale: float, same_problem: bool, depends_on_x: bool = False
+    ) -> int:
         """Solve for the Function x (its values are the initial guess). ``rhs_for_current_x()``
         assembles the right-hand side for the current x; ``solve(rhs, vec, t)`` solves; scale:
         changes are measured against max(scale, |x|); same_problem: keep the acceleration's
@@ -57,14 +58,18 @@ class Settle:
             first = max(scale, size) if first is None else first
             if depends_on_x and size > GROWTH * first:  # diverging: the rest would only go farther (the skull's
                 # distances to iterates metres out cost most of a resection's run; its caller falls back to Newton)
-                raise SolverError(f"the fixed point with the skull's reaction diverged at t = {t:g} s (|x| "
-                                  f"{size / first:.0f} times its first solve's after {k} iterations)")
+                raise SolverError(
+                    f"the fixed point with the skull's reaction diverged at t = {t:g} s (|x| "
+                    f"{size / first:.0f} times its first solve's after {k} iterations)"
+                )
             change = self.acceleration.update(x_vec, trial) / max(scale, size, 1e-300)
             x.x.scatter_forward()
             if change <= self.tolerance:
                 break
         else:
-            raise SolverError(f"follower-load iteration did not settle in {self.max_iterations} iterations at "
-                              f"t = {t:g} s (relative change {change:.1e}); use [fluid] follower = false")
+            raise SolverError(
+                f"follower-load iteration did not settle in {self.max_iterations} iterations at "
+                f"t = {t:g} s (relative change {change:.1e}); use [fluid] follower = false"
+            )
         self.iterations = k
         return its

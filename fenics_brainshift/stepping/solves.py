@@ -1,4 +1,5 @@
 """Every linear solve of a run goes through here: counted, timed, checked for NaN/Inf."""
+
 from __future__ import annotations
 
 import time

@@ -1,4 +1,5 @@
 """The state of a run: displacement, velocity and acceleration on the model's space."""
+
 from __future__ import annotations
 
 import numpy as np

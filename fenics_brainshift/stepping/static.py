@@ -1,4 +1,5 @@
 """The quasi-static path: K u = F(t), the settled state for a load that changes slowly."""
+
 from __future__ import annotations
 
 import dolfinx.la
@@ -25,8 +26,14 @@ class StaticSolver:
 
     def solve(self, t: float) -> int:
         """u for the loads at time t; returns the Krylov iterations of the last solve."""
-        its = self.settle(self.state.u, lambda: self.model.load_into(t, self._rhs, self.state.u), self.solves, t,
-                          scale=0.0, same_problem=False)
+        its = self.settle(
+            self.state.u,
+            lambda: self.model.load_into(t, self._rhs, self.state.u),
+            self.solves,
+            t,
+            scale=0.0,
+            same_problem=False,
+        )
         self.state.t = t
         return its
 

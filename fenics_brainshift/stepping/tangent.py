@@ -1,6 +1,7 @@
 """Newton's tangent matrix, shared by the settled states (newton.py) and the time steps
 (newton_dynamic.py): how it is stored, assembled into one matrix again and again, and the
 Krylov method that solves with it."""
+
 from __future__ import annotations
 
 from dolfinx.fem.petsc import assemble_matrix, create_matrix

@@ -15,6 +15,7 @@ own (coordinateSystem), a surface file in its header (SPACE=LPS, as Slicer write
 file is in MINC's world coordinates (RAS); a CSV file and an untagged surface are in
 ``--frame`` (default RAS). Everything is turned to RAS.
 """
+
 from __future__ import annotations
 
 import csv
@@ -25,13 +26,16 @@ import numpy as np
 
 from .. import formats
 from ..errors import InputError
-from ..images.frames import read_markups
+from .frames import read_markups
 
 MAX_SURFACE_POINTS = 2000  # a scanned surface is thinned to about this many points
 
 
 @dataclass
 class Target:
+    """Measured intra-operative points (m, RAS) with their labels: point to point with the
+    same points before the shift (``pre``), else point to the predicted surface."""
+
     measured: np.ndarray  # (n, 3) intra-operative positions, m
     pre: np.ndarray | None  # (n, 3) the same points before (point to point), or None (to the surface)
     labels: list[str]
@@ -58,17 +62,23 @@ def read_target(target: str | Path, pre: str | Path | None = None, frame: str | 
         for option, names, path in (("--target", labels, target), ("--pre", pre_labels, Path(pre))):
             twice = sorted({label for label in names if names.count(label) > 1})
             if twice:  # matching by label would pair one of them at random
-                raise InputError(f"{option}: '{path.name}': the label(s) {', '.join(twice[:5])} name more than one "
-                                 f"point; give each point its own label (points are matched by label)")
+                raise InputError(
+                    f"{option}: '{path.name}': the label(s) {', '.join(twice[:5])} name more than one "
+                    f"point; give each point its own label (points are matched by label)"
+                )
         where = {label: i for i, label in enumerate(pre_labels)}
         missing = [label for label in labels if label not in where]
         if missing:
-            raise InputError(f"--target: points {', '.join(missing[:5])} have no namesake in --pre '{Path(pre).name}'; "
-                             f"label each intra-operative point as its pre-operative one")
+            raise InputError(
+                f"--target: points {', '.join(missing[:5])} have no namesake in --pre '{Path(pre).name}'; "
+                f"label each intra-operative point as its pre-operative one"
+            )
         return Target(points * 1e-3, pre_points[[where[label] for label in labels]] * 1e-3, labels)
     if pre is not None:
-        raise InputError("--pre goes with a .mrk.json --target (points matched by label); a CSV or .tag target "
-                         "carries the pre-operative points itself")
+        raise InputError(
+            "--pre goes with a .mrk.json --target (points matched by label); a CSV or .tag target "
+            "carries the pre-operative points itself"
+        )
     if name.endswith(".tag"):
         if frame is not None:
             raise InputError("--frame is for a CSV or surface target: a .tag file is in MINC's world frame (RAS)")
@@ -76,15 +86,17 @@ def read_target(target: str | Path, pre: str | Path | None = None, frame: str | 
     if name.endswith(".csv"):
         return _read_csv(target, frame)
     if formats.is_surface(target):
-        from ..meshing.voxelize import read_surface
+        from ..surfaces.files import read_surface
 
         points, _ = read_surface(target, 1e-3, frame)
         points = np.unique(points, axis=0)
         if len(points) > MAX_SURFACE_POINTS:
             points = points[np.linspace(0, len(points) - 1, MAX_SURFACE_POINTS).astype(int)]
         return Target(points, None, [f"s{i}" for i in range(len(points))])
-    raise InputError(f"--target: '{target.name}': use a Slicer point list (.mrk.json), a CSV (x, y, z in mm), an "
-                     f"MNI .tag of landmark pairs or a surface ({', '.join(formats.SURFACE_SUFFIXES)})")
+    raise InputError(
+        f"--target: '{target.name}': use a Slicer point list (.mrk.json), a CSV (x, y, z in mm), an "
+        f"MNI .tag of landmark pairs or a surface ({', '.join(formats.SURFACE_SUFFIXES)})"
+    )
 
 
 def _read_csv(path: Path, frame: str | None) -> Target:
@@ -95,22 +107,30 @@ def _read_csv(path: Path, frame: str | None) -> Target:
                 reader.fieldnames = [name.strip() for name in reader.fieldnames]
             rows = list(reader)
     except UnicodeDecodeError as exc:  # (a Latin-1 label, or not text at all)
-        raise InputError(f"--target: '{path.name}' is not UTF-8 text (byte 0x{exc.object[exc.start]:02x} at "
-                         f"{exc.start}): save it as UTF-8 (a spreadsheet's \"CSV UTF-8\"), x, y, z in mm under a "
-                         f"header line; or give a Slicer .mrk.json or a surface") from None
+        raise InputError(
+            f"--target: '{path.name}' is not UTF-8 text (byte 0x{exc.object[exc.start]:02x} at "
+            f'{exc.start}): save it as UTF-8 (a spreadsheet\'s "CSV UTF-8"), x, y, z in mm under a '
+            f"header line; or give a Slicer .mrk.json or a surface"
+        ) from None
     except csv.Error as exc:
-        raise InputError(f"--target: '{path.name}' is not a CSV file ({exc}): give x, y, z in mm (a header line, "
-                         f"then a row per point), a Slicer .mrk.json or a surface") from None
+        raise InputError(
+            f"--target: '{path.name}' is not a CSV file ({exc}): give x, y, z in mm (a header line, "
+            f"then a row per point), a Slicer .mrk.json or a surface"
+        ) from None
     if not rows:
         raise InputError(f"--target: '{path.name}' has no rows under a header line")
     columns = set(rows[0])
     pre_columns = {"x_pre", "y_pre", "z_pre"} & columns
     if pre_columns and pre_columns != {"x_pre", "y_pre", "z_pre"}:
-        raise InputError(f"--target: '{path.name}' has {', '.join(sorted(pre_columns))} but not all of x_pre, y_pre, "
-                         f"z_pre: give all three (point to point) or none (point to surface)")
+        raise InputError(
+            f"--target: '{path.name}' has {', '.join(sorted(pre_columns))} but not all of x_pre, y_pre, "
+            f"z_pre: give all three (point to point) or none (point to surface)"
+        )
     if not {"x", "y", "z"} <= columns:
-        raise InputError(f"--target: '{path.name}' needs columns x, y, z (mm; and x_pre, y_pre, z_pre for point "
-                         f"to point); it has {', '.join(sorted(columns))}")
+        raise InputError(
+            f"--target: '{path.name}' needs columns x, y, z (mm; and x_pre, y_pre, z_pre for point "
+            f"to point); it has {', '.join(sorted(columns))}"
+        )
     keys = list("xyz") + ([f"{k}_pre" for k in "xyz"] if {"x_pre", "y_pre", "z_pre"} <= columns else [])
     values = np.zeros((len(rows), len(keys)))
     for i, row in enumerate(rows):
@@ -141,12 +161,16 @@ def _read_tag(path: Path) -> Target:
     structure id, a patient id and a quoted label; the last ends with ";"."""
     text = path.read_text(errors="replace")
     if not text.lstrip().startswith("MNI Tag Point File"):
-        raise InputError(f"--target: '{path.name}' is not an MNI tag file (its first line must be 'MNI Tag Point File')")
+        raise InputError(
+            f"--target: '{path.name}' is not an MNI tag file (its first line must be 'MNI Tag Point File')"
+        )
     head, sep, body = text.partition("Points =")
     volumes = [line.split("=", 1)[1].strip(" ;") for line in head.splitlines() if line.strip().startswith("Volumes")]
     if not sep or volumes != ["2"]:
-        raise InputError(f"--target: '{path.name}' must hold landmark pairs (Volumes = 2; then Points =), it has "
-                         f"{'Volumes = ' + volumes[0] if volumes else 'no Volumes line'}")
+        raise InputError(
+            f"--target: '{path.name}' must hold landmark pairs (Volumes = 2; then Points =), it has "
+            f"{'Volumes = ' + volumes[0] if volumes else 'no Volumes line'}"
+        )
     pre, measured, labels = [], [], []
     for line in body.replace(";", "\n").splitlines():
         label = line.split('"')[1] if line.count('"') >= 2 else None
@@ -158,8 +182,10 @@ def _read_tag(path: Path) -> Target:
         except ValueError:
             values = []
         if len(values) < 6 or not np.all(np.isfinite(values)):
-            raise InputError(f"--target: '{path.name}': point {len(pre) + 1} is not six finite numbers "
-                             f"(x1 y1 z1 x2 y2 z2 mm): {line.strip()[:60]!r}")
+            raise InputError(
+                f"--target: '{path.name}': point {len(pre) + 1} is not six finite numbers "
+                f"(x1 y1 z1 x2 y2 z2 mm): {line.strip()[:60]!r}"
+            )
         pre.append(values[:3])
         measured.append(values[3:6])
         labels.append(label or str(len(pre)))
@@ -173,8 +199,10 @@ def _read_tag(path: Path) -> Target:
 
 def _check_millimetres(values_mm: np.ndarray, path: Path) -> None:
     """Several points all within METRES_LOOK mm of the origin: metres where mm belong."""
-    from ..images.frames import METRES_LOOK
+    from .frames import METRES_LOOK
 
     if len(values_mm) > 1 and np.abs(values_mm).max() < METRES_LOOK:
-        raise InputError(f"--target: '{path.name}': every position is within {METRES_LOOK:g} mm of the origin "
-                         f"(largest {np.abs(values_mm).max():.3g}): positions in metres? give millimetres")
+        raise InputError(
+            f"--target: '{path.name}': every position is within {METRES_LOOK:g} mm of the origin "
+            f"(largest {np.abs(values_mm).max():.3g}): positions in metres? give millimetres"
+        )

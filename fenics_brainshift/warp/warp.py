@@ -14,20 +14,21 @@ The same v, in LPS millimetres on the input's grid, is an ITK displacement-field
 (output point -> input point, what resampling needs): 3D Slicer applies it to any volume,
 segmentation or model; SimpleITK's Resample with it reproduces this warp.
 """
+
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 from scipy import ndimage
 
 from ..errors import InputError
+from ..images.frames import LPS_TO_RAS
+from ..images.rasterize import rasterize
+from ..images.volumes import Volume
 from ..logs import get_logger
-from .frames import LPS_TO_RAS
-from .rasterize import rasterize
-from .volumes import Volume
+from .deformed import DeformedMesh
 
 log = get_logger("warp")
 
@@ -35,56 +36,9 @@ SAMPLES_PER_CHUNK = 2_000_000  # voxels interpolated at a time
 
 
 @dataclass
-class DeformedMesh:
-    """A run's mesh and final displacement in the image's RAS millimetres."""
-    points: np.ndarray  # (n, 3) reference positions, RAS mm
-    tets: np.ndarray  # (m, 4), the tissue still present
-    displacement: np.ndarray  # (n, 3), RAS mm
-
-    @classmethod
-    def from_run(cls, run_dir: str | Path, mesh_frame: str = "RAS") -> "DeformedMesh":
-        """The last state a run wrote (RUN_DIR/displacement.xdmf; metres, the scene's frame)."""
-        from ..outputs.pictures import read_last_state
-
-        xdmf = Path(run_dir) / "displacement.xdmf"
-        status = run_status(Path(run_dir))
-        if status == "running":  # killed, or still running: its files are incomplete
-            raise InputError(f"RUN_DIR: the run in '{run_dir}' did not finish (summary.json says \"running\": "
-                             f"killed, or still running); run it again, or wait for it")
-        if not xdmf.is_file():
-            raise InputError(f"RUN_DIR: no displacement.xdmf in '{run_dir}'; run a scene with --out and "
-                             f"[output] fields including \"displacement\" first")
-        try:
-            points, tets, u, tissue = read_last_state(xdmf)
-        except (KeyError, StopIteration):
-            if status not in (None, "ok"):  # stopped or interrupted before its first output
-                raise InputError(f"RUN_DIR: the run in '{run_dir}' wrote no state (summary.json: {status}); "
-                                 f"run it again") from None
-            raise InputError(f"RUN_DIR: '{xdmf}' has no displacement field; add \"displacement\" to [output] "
-                             f"fields and run again") from None
-        except Exception as exc:  # a truncated .h5 or half an .xdmf (h5py, meshio, XML errors)
-            raise InputError(f"RUN_DIR: '{xdmf.name}' or its .h5 in '{run_dir}' cannot be read ({type(exc).__name__}: "
-                             f"{str(exc)[:120]}); damaged or incomplete: run the scene again") from None
-        if tissue is not None:  # a resection: the removed cells are not there any more
-            tets = tets[np.asarray(tissue) >= 0.5]
-        flip = LPS_TO_RAS if mesh_frame.upper() == "LPS" else np.eye(3)
-        return cls(1e3 * points[:, :3] @ flip, np.asarray(tets, dtype=np.int64), 1e3 * u[:, :3] @ flip)
-
-
-def run_status(run_dir: Path) -> str | None:
-    """summary.json's status of a run folder ("ok", "running", "interrupted", "stopped: ..."),
-    or None without one."""
-    import json
-
-    try:
-        return str(json.loads((run_dir / "summary.json").read_text()).get("status"))
-    except (OSError, ValueError, AttributeError):
-        return None
-
-
-@dataclass
 class Warp:
     """The inverse displacement on an image's grid: x(y) = y + v(y), v in voxel-index units."""
+
     volume: Volume
     v: np.ndarray  # (ni, nj, nk, 3), index units
     inside: np.ndarray  # (ni, nj, nk) bool: y in the deformed tissue (v exact there)
@@ -92,8 +46,9 @@ class Warp:
     before: np.ndarray | None = None  # (ni, nj, nk) bool: y in the tissue before the shift
 
     @classmethod
-    def compute(cls, volume: Volume, body: DeformedMesh, blend_mm: float = 10.0, comm=None,
-                labels: bool = False) -> "Warp":
+    def compute(
+        cls, volume: Volume, body: DeformedMesh, blend_mm: float = 10.0, comm=None, labels: bool = False
+    ) -> Warp:
         """Lay the deformed mesh on the volume's grid; comm: ranks share the tetrahedra.
         labels: the volume is a label map (the mesh before the shift is laid on it too)."""
         if not 0 < blend_mm < float("inf"):
@@ -149,7 +104,7 @@ class Warp:
         shape = data.shape
         source = np.asarray(data, dtype=np.float64) if not labels else data
         for start in range(0, len(moved), SAMPLES_PER_CHUNK):
-            flat = moved[start:start + SAMPLES_PER_CHUNK]
+            flat = moved[start : start + SAMPLES_PER_CHUNK]
             y = np.stack(np.unravel_index(flat, shape), axis=0).astype(float)
             x = y + self.v.reshape(-1, 3)[flat].T
             if labels:
@@ -177,9 +132,11 @@ def _check_overlap(X: np.ndarray, shape, volume: Volume) -> None:
     within = np.all((X >= -0.5) & (X <= np.array(shape) - 0.5), axis=1)
     if within.mean() < OVERLAP:
         extent = np.ptp(volume.index_to_ras(np.array([[0, 0, 0], np.array(shape) - 1.0])), axis=0)
-        raise InputError(f"warp: {within.mean():.0%} of the run's mesh lies on '{volume.path.name}' ({OVERLAP:.0%} "
-                         f"at least): is it the run of this image's object, in its frame (--mesh-frame) and unit? "
-                         f"(the image spans {extent[0]:.0f} x {extent[1]:.0f} x {extent[2]:.0f} mm)")
+        raise InputError(
+            f"warp: {within.mean():.0%} of the run's mesh lies on '{volume.path.name}' ({OVERLAP:.0%} "
+            f"at least): is it the run of this image's object, in its frame (--mesh-frame) and unit? "
+            f"(the image spans {extent[0]:.0f} x {extent[1]:.0f} x {extent[2]:.0f} mm)"
+        )
 
 
 FOREGROUND = 0.05  # of the image's range above its darkest (1st percentile): above is the object
@@ -206,9 +163,11 @@ def _check_foreground(centroids: np.ndarray, volume: Volume, labels: bool = Fals
     on, what = _on_object(volume, labels)
     bright = float(on(np.asarray(data[tuple(index.T)], dtype=np.float64)).mean())
     if bright < OVERLAP:
-        raise InputError(f"warp: {bright:.0%} of the run's mesh lies on the object in '{volume.path.name}' ({what}; "
-                         f"{OVERLAP:.0%} at least), the rest on its background: is it the run of this image's "
-                         f"object, in its frame (--mesh-frame) and unit?")
+        raise InputError(
+            f"warp: {bright:.0%} of the run's mesh lies on the object in '{volume.path.name}' ({what}; "
+            f"{OVERLAP:.0%} at least), the rest on its background: is it the run of this image's "
+            f"object, in its frame (--mesh-frame) and unit?"
+        )
 
 
 SIZE = 0.4  # the mesh's diagonal at least this fraction of the image object's
@@ -232,9 +191,11 @@ def check_size(points: np.ndarray, volume: Volume, labels: bool = False) -> None
     object_mm = float(np.linalg.norm(hi - lo))
     mesh_mm = float(np.linalg.norm(np.ptp(points, axis=0)))
     if mesh_mm < SIZE * object_mm:
-        raise InputError(f"warp: the run's mesh is {mesh_mm:.0f} mm across (its bounding box's diagonal), the object "
-                         f"in '{volume.path.name}' {object_mm:.0f} mm: is it the run of this image's object, in its "
-                         f"unit? (of a part of it: crop the image to that part first)")
+        raise InputError(
+            f"warp: the run's mesh is {mesh_mm:.0f} mm across (its bounding box's diagonal), the object "
+            f"in '{volume.path.name}' {object_mm:.0f} mm: is it the run of this image's object, in its "
+            f"unit? (of a part of it: crop the image to that part first)"
+        )
 
 
 def _blend_outside(v: np.ndarray, inside: np.ndarray, spacing: np.ndarray, blend_mm: float) -> None:
@@ -259,66 +220,3 @@ def _cast(values: np.ndarray, dtype) -> np.ndarray:
         info = np.iinfo(dtype)
         return np.clip(np.rint(values), info.min, info.max).astype(dtype)
     return values.astype(dtype)
-
-
-def write_itk_transform(warp: Warp, path: str | Path, float32: bool = False) -> Path:
-    """The warp as an ITK displacement-field transform file (.h5 / .hdf5), LPS mm, on the input's
-    grid as SimpleITK reads it, cropped to the voxels that move (and one around them); float32:
-    the values stored in single precision (half the file; 1e-7 relative, far below a voxel)."""
-    import SimpleITK as sitk
-
-    path = Path(path)
-    if not path.name.lower().endswith((".h5", ".hdf5")):
-        raise InputError(f"--transform: '{path.name}': use an ITK HDF5 transform file name (.h5), which 3D Slicer "
-                         f"loads as a transform")
-    reference = sitk.ReadImage(str(warp.volume.path))
-    _check_same_grid(reference, warp.volume)
-    # the field on the box of the voxels that move, a voxel of zeros around it: ITK moves no
-    # point outside a displacement field's grid, and the whole 1 mm head grid was 208 MB
-    moving = np.argwhere(warp.moved())
-    shape = np.array(warp.v.shape[:3])
-    lo = np.maximum(moving.min(axis=0) - 1, 0) if len(moving) else np.zeros(3, dtype=int)
-    hi = np.minimum(moving.max(axis=0) + 2, shape) if len(moving) else np.ones(3, dtype=int)
-    box = tuple(slice(a, b) for a, b in zip(lo, hi))
-    field = sitk.GetImageFromArray(np.ascontiguousarray(warp.displacement_lps_mm()[box].transpose(2, 1, 0, 3)),
-                                   isVector=True)
-    field.SetSpacing(reference.GetSpacing())
-    field.SetDirection(reference.GetDirection())
-    field.SetOrigin(reference.TransformIndexToPhysicalPoint([int(i) for i in lo]))
-    transform = sitk.DisplacementFieldTransform(sitk.Cast(field, sitk.sitkVectorFloat64))
-    tmp = path.with_name(f".{path.name}.tmp.h5")
-    try:
-        sitk.WriteTransform(transform, str(tmp))
-        _compress_parameters(tmp, np.float32 if float32 else np.float64)
-        tmp.replace(path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    return path
-
-
-def _compress_parameters(path: Path, dtype) -> None:
-    """The field's values stored gzip-compressed (level 1), in ``dtype``: ITK (SimpleITK, 3D
-    Slicer) reads them as before, HDF5 converting float32 to the transform's double; the
-    resampling is unchanged to the bit for float64 (tests/test_warp.py). On the 1 mm head:
-    208 MB for the whole grid uncompressed, 65 MB cropped and compressed, 33 MB in float32
-    (benchmarks/results/warp.md). SimpleITK itself writes neither."""
-    import h5py
-
-    with h5py.File(path, "r+") as f:
-        name = "TransformGroup/0/TransformParameters"
-        values = f[name][...]
-        del f[name]
-        f.create_dataset(name, data=values.astype(dtype), compression="gzip", compression_opts=1, chunks=True)
-
-
-def _check_same_grid(image, volume: Volume) -> None:
-    """ITK's view of the file's grid (LPS) must be ours (RAS): else the transform would be
-    written on another grid than the warp (a NIfTI whose qform and sform disagree, say)."""
-    corners = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=float) * (np.array(volume.data.shape) - 1)
-    ours = volume.index_to_ras(corners) @ LPS_TO_RAS
-    theirs = np.array([image.TransformContinuousIndexToPhysicalPoint(c.tolist()) for c in corners])
-    if np.abs(ours - theirs).max() > 1e-3 * volume.spacing.min():
-        raise InputError(f"--image: ITK and nibabel/pynrrd read different grids from '{volume.path.name}' (corners "
-                         f"{np.abs(ours - theirs).max():.3g} mm apart; a NIfTI with disagreeing qform and sform?); "
-                         f"re-save it from 3D Slicer")

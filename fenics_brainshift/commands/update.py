@@ -1,6 +1,7 @@
 """`brainshift update ATLAS --target T --out OUT`: the update, written as a run folder that
 `brainshift warp` takes (displacement.xdmf with the per-node uncertainty beside it, the moved
 fine surface, the probes and the measured markups moved), and OUT/update.json."""
+
 from __future__ import annotations
 
 import os
@@ -9,20 +10,76 @@ from pathlib import Path
 
 import numpy as np
 
+from ..atlas import store
+from ..atlas.update import prepare, update
 from ..errors import InputError
-from ..outputs.files import RunLock, clear_run, write_json
-from ..outputs.files import check_writable
-from . import store
-from .update import prepare, update
+from ..images.targets import read_target
+from ..outputs.files import RunLock, check_writable, clear_run, write_json
+from .help_format import Defaults
 
 DEFAULT_NOISE_MM = 1.0  # a tracked pointer's error on the cortex
 NEAR_MM = 20.0  # the uncertainty's headline: the nodes this close to a measured point
 
 
-def update_command(args, comm) -> list[str]:
-    """`brainshift update` (arguments: arguments.py); returns the report's lines."""
-    from ..fit.targets import read_target
+def add(sub) -> None:
+    update = sub.add_parser(
+        "update",
+        formatter_class=Defaults,
+        help="in theatre: fit the atlas's modes to intra-operative measurements, in "
+        "milliseconds; writes a run folder for warp",
+        description="Fit the weights of the atlas's modes to measured points (point to point: "
+        "--pre and --target .mrk.json by label, a CSV with x_pre.. columns, an MNI "
+        ".tag of landmark pairs; point to surface: points or a scanned surface) as "
+        "a constrained least-squares problem; alpha by "
+        "cross-validation. Writes OUT/displacement.xdmf (with the per-node "
+        "uncertainty), OUT/update.json, the moved surface and markups.",
+    )
+    update.add_argument("atlas", help="atlas folder (brainshift atlas SCENE -o ATLAS)")
+    update.add_argument(
+        "--target",
+        required=True,
+        help="measured intra-operative points (mm): .mrk.json, .csv, .tag or a surface (.stl, .vtk, .ply, ...)",
+    )
+    update.add_argument("--pre", help="the same points before the shift (.mrk.json, matched by label)")
+    update.add_argument(
+        "--frame",
+        type=str.upper,
+        choices=["RAS", "LPS"],
+        default=None,
+        help="frame of a CSV or an untagged surface target (default RAS)",
+    )
+    update.add_argument(
+        "--noise",
+        type=float,
+        default=None,
+        help="measurement noise of a point, mm per coordinate (default 1, a tracked pointer's; "
+        "the report says which was used)",
+    )
+    update.add_argument(
+        "--bootstrap",
+        type=int,
+        default=0,
+        help="the uncertainty from this many resamplings of the points (a refit each) instead of "
+        "the weights' posterior (default: 0, the posterior, in closed form)",
+    )
+    update.add_argument(
+        "--keep-all",
+        action="store_true",
+        help="fit every point: none set aside as an outlier (by default a point whose "
+        "left-out error is far past the noise and the others' is set aside and reported)",
+    )
+    update.add_argument("--image", help="a volume (.nii.gz, .nrrd) on whose grid to write OUT/uncertainty.nii.gz")
+    update.add_argument("--out", default="out_update", help="output folder")
+    update.add_argument(
+        "--replace",
+        action="store_true",
+        help="replace an earlier update in --out (refused otherwise: keep each update in its own "
+        "folder, the record of what guided the operation)",
+    )
 
+
+def main(args, comm) -> list[str]:
+    """`brainshift update`: fit, write OUT, and return the report's lines."""
     start = time.perf_counter()
     out = Path(args.out)
     check_writable(out, comm)
@@ -57,15 +114,24 @@ def update_command(args, comm) -> list[str]:
         comm.barrier()
         report = _report(atlas, target, result, args, time.perf_counter() - start)
         write_json(out / "update.json", report, comm)
-        write_json(out / "summary.json", {"scene": atlas.info.get("scene_name"), "status": "ok",
-                                          "kind": "update", "atlas": str(Path(args.atlas).resolve()),
-                                          "warning": result.warning}, comm)
+        write_json(
+            out / "summary.json",
+            {
+                "scene": atlas.info.get("scene_name"),
+                "status": "ok",
+                "kind": "update",
+                "atlas": str(Path(args.atlas).resolve()),
+                "warning": result.warning,
+            },
+            comm,
+        )
     finally:
         lock.release()
     lines = _lines(atlas, target, result, out, image is not None)
     if not noise_stated:
-        lines.insert(1, f"  noise: {DEFAULT_NOISE_MM:g} mm per coordinate, the default (--noise to state the "
-                        f"measurement's own)")
+        lines.insert(
+            1, f"  noise: {DEFAULT_NOISE_MM:g} mm per coordinate, the default (--noise to state the measurement's own)"
+        )
     return lines
 
 
@@ -83,8 +149,10 @@ def _check_no_earlier_update(out: Path, replace: bool, comm) -> None:
             earlier = "its update.json unreadable"
     earlier = comm.bcast(earlier, root=0)
     if earlier is not None and not replace:
-        raise InputError(f"--out '{out}' holds an earlier update ({earlier}): give each update its own --out "
-                         f"(out_update_2, ...), or --replace to overwrite it")
+        raise InputError(
+            f"--out '{out}' holds an earlier update ({earlier}): give each update its own --out "
+            f"(out_update_2, ...), or --replace to overwrite it"
+        )
 
 
 def _write_outputs(out: Path, atlas, target, result, image, spread_image) -> None:
@@ -110,12 +178,13 @@ def _write_outputs(out: Path, atlas, target, result, image, spread_image) -> Non
         os.chdir(here)
     if atlas.surface_points is not None:
         moved = atlas.surface_points + result.surface_displacement
-        meshio.Mesh(moved, [("triangle", atlas.surface_triangles)],
-                    point_data={"displacement": result.surface_displacement}).write(out / "surface_final.vtk")
+        meshio.Mesh(
+            moved, [("triangle", atlas.surface_triangles)], point_data={"displacement": result.surface_displacement}
+        ).write(out / "surface_final.vtk")
         write_slicer_stl(out / "surface_final.stl", moved * 1e3, atlas.surface_triangles)
     probes = atlas.info.get("probes") or {}
     if probes:
-        from .locate import MeshLocator
+        from ..atlas.locate import MeshLocator
 
         names = list(probes)
         points = np.array([probes[k] for k in names])
@@ -123,17 +192,24 @@ def _write_outputs(out: Path, atlas, target, result, image, spread_image) -> Non
         moved = points + np.einsum("nj,njd->nd", weight, u[index])
         write_markups(out / "probes_final.mrk.json", names, moved * 1e3)
     if target.pre is not None:  # the pre-operative points where the update puts them
-        from .locate import MeshLocator
+        from ..atlas.locate import MeshLocator
 
         index, weight, _ = MeshLocator(atlas.points, atlas.tetrahedra).weights(target.pre)
-        write_markups(out / "targets_updated.mrk.json", target.labels,
-                      (target.pre + np.einsum("nj,njd->nd", weight, u[index])) * 1e3)
+        write_markups(
+            out / "targets_updated.mrk.json",
+            target.labels,
+            (target.pre + np.einsum("nj,njd->nd", weight, u[index])) * 1e3,
+        )
     if image is not None:
+        from ..atlas.update_picture import write_update_picture
         from ..images.volumes import write_like
-        from .update_picture import write_update_picture
 
-        write_like(image, spread_image, out / "uncertainty.nii.gz",
-                   f"uncertainty of the updated shift, mm ({result.spread_from} RMS spread)")
+        write_like(
+            image,
+            spread_image,
+            out / "uncertainty.nii.gz",
+            f"uncertainty of the updated shift, mm ({result.spread_from} RMS spread)",
+        )
         write_update_picture(out / "update.png", image, atlas, target, result)
 
 
@@ -173,35 +249,50 @@ def _report(atlas, target, result, args, seconds: float) -> dict:
     mm = 1e3
     keep = _kept(result)
     return {
-        "atlas": str(Path(args.atlas).resolve()), "mesh_id": atlas.mesh_id(), "target": str(args.target),
-        "kind": target.kind, "points": len(target.measured), "noise_mm": args.noise,
+        "atlas": str(Path(args.atlas).resolve()),
+        "mesh_id": atlas.mesh_id(),
+        "target": str(args.target),
+        "kind": target.kind,
+        "points": len(target.measured),
+        "noise_mm": args.noise,
         "noise_stated": args.noise_stated,
-        "alpha": result.alpha, "cross_validation": result.curve,
+        "alpha": result.alpha,
+        "cross_validation": result.curve,
         "prior_residual_rms_mm": float(np.sqrt(np.mean(result.prior_residual[keep] ** 2))) * mm,
         "residual_rms_mm": float(np.sqrt(np.mean(result.residual[keep] ** 2))) * mm,
         "leave_one_out_rms_mm": float(np.sqrt(np.nanmean(result.leave_one_out[keep] ** 2))) * mm,
         "leave_one_out_points": int(np.count_nonzero(np.isfinite(result.leave_one_out[keep]))),
         "set_aside": [target.labels[i] for i in result.outliers],
-        "per_point": [{"label": label, "prior_mm": p * mm, "updated_mm": r * mm, "left_out_mm": o * mm,
-                       "set_aside": not k}
-                      for label, p, r, o, k in zip(target.labels, result.prior_residual, result.residual,
-                                                   result.leave_one_out, keep)],
+        "per_point": [
+            {"label": label, "prior_mm": p * mm, "updated_mm": r * mm, "left_out_mm": o * mm, "set_aside": not k}
+            for label, p, r, o, k in zip(
+                target.labels, result.prior_residual, result.residual, result.leave_one_out, keep
+            )
+        ],
         "family_weights": result.family_weights(atlas),
         "volume_changes": result.volume_changes(atlas),
-        "stiffness_G_Pa": result.stiffness(atlas), "stiffness_range_Pa": atlas.info.get("stiffness"),
+        "stiffness_G_Pa": result.stiffness(atlas),
+        "stiffness_range_Pa": atlas.info.get("stiffness"),
         "stiffness_at_bound": result.stiffness_at_bound(atlas),
         "weights": [float(c) for c in result.weights],
         "bootstrap_samples": args.bootstrap,
-        "uncertainty_mm": {"from": result.spread_from, "near_points": _spread_near(atlas, target, result) * mm,
-                           "near_points_within_mm": NEAR_MM, "mean": float(result.spread.mean()) * mm,
-                           "max": float(result.spread.max()) * mm},
+        "uncertainty_mm": {
+            "from": result.spread_from,
+            "near_points": _spread_near(atlas, target, result) * mm,
+            "near_points_within_mm": NEAR_MM,
+            "mean": float(result.spread.mean()) * mm,
+            "max": float(result.spread.max()) * mm,
+        },
         "largest_displacement_mm": float(np.linalg.norm(result.displacement, axis=1).max()) * mm,
-        "skull": result.skull, "timings_ms": result.seconds, "command_s": seconds, "warning": result.warning,
+        "skull": result.skull,
+        "timings_ms": result.seconds,
+        "command_s": seconds,
+        "warning": result.warning,
     }
 
 
 def _lines(atlas, target, result, out: Path, image: bool) -> list[str]:
-    rms = lambda r: float(np.sqrt(np.mean(r ** 2))) * 1e3  # noqa: E731
+    rms = lambda r: float(np.sqrt(np.mean(r**2))) * 1e3  # noqa: E731
     keep = _kept(result)
     drained = (atlas.info.get("prior") or {}).get("fluid.level")
 
@@ -210,28 +301,41 @@ def _lines(atlas, target, result, out: Path, image: bool) -> list[str]:
             return f"{k}={v:g} ({(v - drained) * 1e3:+.0f} mm about the scene's drained level)"
         return f"{k}={v:g}"
 
-    top = ", ".join(f"{s['weight']:.2f} x " + " ".join(said(k, v) for k, v in s.items() if k != "weight")
-                    for s in result.family_weights(atlas)[:3])
-    lines = [f"update: {target.kind}, {len(target.measured)} points, {len(result.weights)} modes; residual RMS "
-             f"{rms(result.prior_residual[keep]):.2f} mm (scene) -> {rms(result.residual[keep]):.2f} mm (updated), "
-             f"left out {float(np.sqrt(np.nanmean(result.leave_one_out[keep] ** 2))) * 1e3:.2f} mm; fit "
-             f"{result.seconds['weights_ms']:.0f} ms (alpha {result.alpha:g} by cross-validation), the whole update "
-             f"{result.seconds['total_ms']:.0f} ms",
-             f"  scenarios: {top or 'none'}"]
+    top = ", ".join(
+        f"{s['weight']:.2f} x " + " ".join(said(k, v) for k, v in s.items() if k != "weight")
+        for s in result.family_weights(atlas)[:3]
+    )
+    lines = [
+        f"update: {target.kind}, {len(target.measured)} points, {len(result.weights)} modes; residual RMS "
+        f"{rms(result.prior_residual[keep]):.2f} mm (scene) -> {rms(result.residual[keep]):.2f} mm (updated), "
+        f"left out {float(np.sqrt(np.nanmean(result.leave_one_out[keep] ** 2))) * 1e3:.2f} mm; fit "
+        f"{result.seconds['weights_ms']:.0f} ms (alpha {result.alpha:g} by cross-validation), the whole update "
+        f"{result.seconds['total_ms']:.0f} ms",
+        f"  scenarios: {top or 'none'}",
+    ]
     if result.stiffness(atlas) is not None:
         bound = result.stiffness_at_bound(atlas)
-        lines.append(f"  stiffness: G = {result.stiffness(atlas):.4g} Pa (the scene's {atlas.info['stiffness']['G']:.4g}"
-                     + (f"; AT THE ATLAS'S {bound.upper()} BOUND: not a measurement)" if bound else ")"))
+        lines.append(
+            f"  stiffness: G = {result.stiffness(atlas):.4g} Pa (the scene's {atlas.info['stiffness']['G']:.4g}"
+            + (f"; AT THE ATLAS'S {bound.upper()} BOUND: not a measurement)" if bound else ")")
+        )
     for name, theta in result.volume_changes(atlas).items():
         lines.append(f"  swelling {name}: volume change {theta:+.3%}")
     if result.skull:
-        lines.append(f"  skull: {result.skull['nodes_with_rows']} nodes held inside by the fit's rows, deepest past "
-                     f"{result.skull['deepest_past_mm']:.2f} mm")
-    lines.append(f"  uncertainty ({result.spread_from}): {_spread_near(atlas, target, result) * 1e3:.2f} mm within "
-                 f"{NEAR_MM:g} mm of the measured points (mean of the nodes there); the whole brain's mean "
-                 f"{result.spread.mean() * 1e3:.2f} mm, largest {result.spread.max() * 1e3:.2f} mm")
+        lines.append(
+            f"  skull: {result.skull['nodes_with_rows']} nodes held inside by the fit's rows, deepest past "
+            f"{result.skull['deepest_past_mm']:.2f} mm"
+        )
+    lines.append(
+        f"  uncertainty ({result.spread_from}): {_spread_near(atlas, target, result) * 1e3:.2f} mm within "
+        f"{NEAR_MM:g} mm of the measured points (mean of the nodes there); the whole brain's mean "
+        f"{result.spread.mean() * 1e3:.2f} mm, largest {result.spread.max() * 1e3:.2f} mm"
+    )
     if result.warning:
         lines.append(f"  WARNING: {result.warning}")
-    lines.append(f"wrote {out}/displacement.xdmf, update.json" + (", uncertainty.nii.gz, update.png" if image else "")
-                 + f" (brainshift warp {out} --image PRE -o INTRA.nii.gz)")
+    lines.append(
+        f"wrote {out}/displacement.xdmf, update.json"
+        + (", uncertainty.nii.gz, update.png" if image else "")
+        + f" (brainshift warp {out} --image PRE -o INTRA.nii.gz)"
+    )
     return lines

@@ -9,6 +9,7 @@ saves (the 80-byte header of an STL, the title line of a VTK file, a comment of 
 and since 4.11 saves models in LPS; this project's frame is RAS, so a file tagged LPS is
 turned (x and y negated: a rotation by 180 degrees about z, which keeps every triangle's
 orientation)."""
+
 from __future__ import annotations
 
 import re
@@ -23,6 +24,10 @@ HEADER_BYTES = 4096  # the tag is in the header: before any binary data
 
 
 VTK_SUFFIXES = (".vtk", ".vtp", ".vtu")
+
+
+class SurfaceFileError(InputError):
+    """A surface file that cannot be read as triangles (the message names the file)."""
 
 
 def read_polygons(path: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -71,7 +76,7 @@ def read_polygons(path: Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 def declared_frame(path: Path) -> str | None:
-    """"RAS", "LPS", or None when the file does not say; InputError when it says both."""
+    """ "RAS", "LPS", or None when the file does not say; InputError when it says both."""
     with open(path, "rb") as f:
         head = f.read(80 if path.suffix.lower() == ".stl" else HEADER_BYTES)
     frames = {m.group(1).upper().decode() for m in _TAG.finditer(head)}
@@ -85,8 +90,35 @@ def to_ras(points: np.ndarray, path: Path, frame: str | None, option: str = "--f
     ``frame`` (None: RAS). A given ``frame`` that contradicts the header is an error."""
     declared = declared_frame(path)
     if declared is not None and frame is not None and declared != frame.upper():
-        raise InputError(f"{option} {frame} but '{path.name}' declares SPACE={declared} in its header; drop {option} "
-                         f"(the file's own tag is used) or fix the file")
+        raise InputError(
+            f"{option} {frame} but '{path.name}' declares SPACE={declared} in its header; drop {option} "
+            f"(the file's own tag is used) or fix the file"
+        )
     if (declared or frame or "RAS").upper() == "LPS":
         points = points * np.array([-1.0, -1.0, 1.0])
     return points
+
+
+def read_surface(path: Path, scale: float, frame: str | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Points (m, RAS) and triangles of a surface file, degenerate triangles dropped. The
+    frame is the one the file's header declares (SPACE=LPS as 3D Slicer writes it), else
+    ``frame`` (None: RAS)."""
+    try:
+        points, triangles = read_polygons(path)
+    except SurfaceFileError:
+        raise
+    except Exception as exc:
+        raise SurfaceFileError(f"'{path.name}' could not be read as a surface: {exc}") from None
+    points = np.asarray(points, dtype=float)
+    triangles = np.asarray(triangles, dtype=np.int64)
+    if len(triangles) == 0 or points.size == 0:
+        raise SurfaceFileError(f"'{path.name}' holds no triangles")
+    points = to_ras(points.reshape(len(points), -1)[:, :3] * scale, path, frame)
+    # bad triangles (degenerate, out-of-range indices) are dropped, not fatal
+    ok = np.all((triangles >= 0) & (triangles < len(points)), axis=1)
+    triangles = triangles[ok]
+    p = points[triangles]
+    area = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+    if not np.any(area > 0):
+        raise SurfaceFileError(f"'{path.name}' holds no triangle with an area (all degenerate or out of range)")
+    return points, triangles[area > 0]

@@ -12,44 +12,18 @@ about their centroid, holding them) is within it too. Triangles of any sizes and
 as a fine wall beside a floor of long strips, are measured alike. The side is that of the
 nearest triangle's outward normal.
 """
+
 from __future__ import annotations
 
 import numpy as np
 from scipy.spatial import cKDTree
 
+from .triangles import closest_points_on_triangles
+
 LEAF = 8  # triangles per leaf box (fewer: more boxes to test, more: more triangles to test)
 FAR = 0.05  # a point farther than this fraction of the surface's size from it is "far" ...
 FAR_CHUNK = 32  # ... and far points are measured this many at a time (their candidates: most triangles)
 KD_EPS = 1.0  # the first bound's centroid need not be the nearest: within twice its distance is found far quicker
-
-
-def closest_points_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """The point of triangle (a, b, c) closest to p, for arrays of shape (..., 3) (Ericson,
-    Real-Time Collision Detection, 5.1.5: the Voronoi regions of vertices, edges and face)."""
-    ab, ac, ap = b - a, c - a, p - a
-    d1, d2 = np.einsum("...i,...i", ab, ap), np.einsum("...i,...i", ac, ap)
-    bp = p - b
-    d3, d4 = np.einsum("...i,...i", ab, bp), np.einsum("...i,...i", ac, bp)
-    cp = p - c
-    d5, d6 = np.einsum("...i,...i", ab, cp), np.einsum("...i,...i", ac, cp)
-    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
-    with np.errstate(divide="ignore", invalid="ignore"):
-        denom = va + vb + vc
-        out = a + (vb / denom)[..., None] * ab + (vc / denom)[..., None] * ac  # the face
-        t_ab, t_ac = d1 / (d1 - d3), d2 / (d2 - d6)
-        t_bc = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-    # Ericson's tests in reverse order, so that the earlier ones win where regions touch:
-    # vertex a, vertex b, edge ab, vertex c, edge ac, edge bc, face
-    for region, point in (
-            ((va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0), lambda: b + t_bc[..., None] * (c - b)),
-            ((vb <= 0) & (d2 >= 0) & (d6 <= 0), lambda: a + t_ac[..., None] * ac),
-            ((d6 >= 0) & (d5 <= d6), lambda: c),
-            ((vc <= 0) & (d1 >= 0) & (d3 <= 0), lambda: a + t_ab[..., None] * ab),
-            ((d3 >= 0) & (d4 <= d3), lambda: b),
-            ((d1 <= 0) & (d2 <= 0), lambda: a)):
-        with np.errstate(divide="ignore", invalid="ignore"):
-            out = np.where(region[..., None], point(), out)
-    return out
 
 
 def _box_distance(y: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -67,11 +41,11 @@ class _BoxTree:
 
     def __init__(self, tri: np.ndarray):
         self.depth = max(0, int(np.ceil(np.log2(max(len(tri) / LEAF, 1.0)))))
-        order = np.full(2 ** self.depth * LEAF, -1)
+        order = np.full(2**self.depth * LEAF, -1)
         order[: len(tri)] = np.arange(len(tri))
         centroid = np.vstack([tri.mean(axis=1), np.full((1, 3), np.inf)])  # row -1: an empty slot
         for level in range(self.depth):  # sort each node's slots along its axis: halves are its children
-            rows = order.reshape(2 ** level, -1)
+            rows = order.reshape(2**level, -1)
             c = centroid[rows]
             valid = (rows >= 0)[..., None]
             extent = np.where(valid, c, -np.inf).max(axis=1) - np.where(valid, c, np.inf).min(axis=1)
@@ -86,7 +60,7 @@ class _BoxTree:
             los.append(lo)
             his.append(hi)
         self.lo, self.hi = np.vstack(los[::-1]), np.vstack(his[::-1])
-        self.first_leaf = 2 ** self.depth - 1
+        self.first_leaf = 2**self.depth - 1
 
     def within(self, y: np.ndarray, bound: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(points, leaves), sorted by point: every leaf whose box is within bound (per point)
@@ -125,8 +99,8 @@ class RigidSkull:
         v = p - self._centroids[triangle]
         squared = np.einsum("ni,ni->n", v, v)
         height = np.einsum("ni,ni->n", v, self.normals[triangle])
-        across = np.sqrt(np.maximum(squared - height ** 2, 0.0))
-        disk = np.sqrt(height ** 2 + np.maximum(across - self._radii[triangle], 0.0) ** 2)
+        across = np.sqrt(np.maximum(squared - height**2, 0.0))
+        disk = np.sqrt(height**2 + np.maximum(across - self._radii[triangle], 0.0) ** 2)
         return np.where(np.isnan(disk), np.maximum(np.sqrt(squared) - self._radii[triangle], 0.0), disk)
 
     def distance(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -160,7 +134,9 @@ class RigidSkull:
                     whole[group] = part
         return out
 
-    def _nearest(self, y: np.ndarray, first: np.ndarray, bound: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _nearest(
+        self, y: np.ndarray, first: np.ndarray, bound: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """distance's answer for points y, each with a triangle ``first`` within ``bound``."""
         point, leaf = self._tree.within(y, bound)
         slots = self._tree.slots[leaf]
@@ -204,43 +180,6 @@ class RigidSkull:
         if self.gap is None:  # inside the skull surface: phi = +distance
             return -side * dist, -outward_direction
         return self.gap - side * dist, -outward_direction  # gap - the signed distance to the brain
-
-
-def closed_surface_problem(triangles: np.ndarray) -> str | None:
-    """Why a triangulated surface is not closed (an edge not shared by exactly two
-    triangles), or None."""
-    t = np.asarray(triangles)
-    edges = np.sort(np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]]), axis=1)
-    _, counts = np.unique(edges, axis=0, return_counts=True)
-    open_edges = int(np.sum(counts == 1))
-    if open_edges:
-        return f"it has {open_edges} open edge(s) (edges of only one triangle)"
-    if np.any(counts > 2):
-        return f"{int(np.sum(counts > 2))} edge(s) are shared by more than two triangles"
-    return None
-
-
-def outward(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    """The triangles of a closed surface ordered so that their normals point out (flipped all
-    together when the enclosed volume comes out negative)."""
-    p = np.asarray(points)[triangles]
-    volume = np.einsum("ni,ni->n", p[:, 0], np.cross(p[:, 1], p[:, 2])).sum() / 6.0
-    return triangles if volume > 0 else triangles[:, ::-1]
-
-
-def gathered_outward_surface(facets, comm, u=None) -> tuple[np.ndarray, np.ndarray]:
-    """The whole body surface on every rank, as (points, triangles) with outward normals:
-    each facet's vertex order is turned so that its normal points away from the cell's
-    opposite vertex. u: a displacement Function on the facets' space (the deformed surface)."""
-    X, opposite = facets.x_vertices, facets.x_opposite
-    if u is not None:
-        values = u.x.array.reshape(-1, 3)
-        X, opposite = X + values[facets.vertex_dofs], opposite + values[facets.opposite_dofs]
-    normal = np.cross(X[:, 1] - X[:, 0], X[:, 2] - X[:, 0])
-    inward = np.einsum("ni,ni->n", normal, opposite - X[:, 0]) > 0
-    X = np.where(inward[:, None, None], X[:, ::-1], X)
-    X = np.concatenate(comm.allgather(X))
-    return X.reshape(-1, 3), np.arange(3 * len(X)).reshape(-1, 3)
 
 
 def _with_first(point: np.ndarray, triangle: np.ndarray, first: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

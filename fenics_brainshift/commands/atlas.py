@@ -1,0 +1,94 @@
+"""`brainshift atlas SCENE -o ATLAS`: before surgery, the settled states of a scene over drain
+levels, head poses and swelling (atlas/build.py), written for `brainshift update`."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..errors import InputError
+from .help_format import Defaults
+
+
+def add(sub) -> None:
+    atlas = sub.add_parser(
+        "atlas",
+        formatter_class=Defaults,
+        help="before surgery: the settled states of a scene over drain levels, head poses "
+        "and swelling (docs/update.md)",
+        description="Solve the scene's settled states over a family of scenarios (fluid.level x "
+        "head pose: convex weights in the update) and one perturbation per swelling "
+        "region (bounded amplitudes); writes "
+        "ATLAS/atlas.h5 and ATLAS/atlas.json.",
+    )
+    atlas.add_argument("scene", help="scene file or bundled scene name")
+    atlas.add_argument("-o", "--output", required=True, help="atlas folder")
+    atlas.add_argument(
+        "--vary",
+        action="append",
+        default=[],
+        metavar="KEY=VALUES",
+        help="fluid.level=0.02,0.03 or 0.01:0.05:5 (m), gravity.angle_x|y|z=-10,0,10 (degrees), "
+        "material.G=LOW,HIGH (Pa), swelling.N=LOW,HIGH (volume change of region N); default: 14 "
+        "levels x 25 poses, G from a third to three times the scene's",
+    )
+    atlas.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", help="scene overrides")
+
+
+def main(args, comm) -> list[str]:
+    """Build the atlas and write it; returns the report's lines."""
+    from ..atlas import store
+    from ..atlas.build import build
+    from ..atlas.scenarios import parse_vary
+    from ..outputs.files import check_writable
+    from ..scene import load_scene
+
+    out = Path(args.output)
+    check_writable(out, comm, "atlas folder", "-o")
+    vary = parse_vary(args.vary)
+    scene = load_scene(args.scene, args.set + ["time.mode=quasi-static"])
+    if scene.skull is not None and scene.skull.glue is not None:
+        raise InputError(
+            "atlas: a [skull] with glue (fixed_where) holds the body by contact: give the support as [[fixed]] instead"
+        )
+    if scene.remove:
+        raise InputError(
+            "atlas: [[remove]] (a resection) is not an atlas scenario; build the atlas of the scene "
+            "before the resection"
+        )
+    atlas, seconds = build(scene, vary, comm, args.scene, args.set)
+    if comm.rank == 0:  # (arrays first, then the index: each renamed into place)
+        store.write(out, atlas)
+    comm.barrier()
+    family_count = int(atlas.family.sum()) if comm.rank == 0 else 0
+    left_out = atlas.info["left_out"] if comm.rank == 0 else []
+    levels = (
+        sorted({s["values"]["fluid.level"] for s in atlas.scenarios if "fluid.level" in s.get("values", {})})
+        if comm.rank == 0
+        else []
+    )
+    drained = (atlas.info.get("prior") or {}).get("fluid.level") if comm.rank == 0 else None
+    span = (
+        [
+            f"  levels {levels[0]:.4g} to {levels[-1]:.4g} m along up: {(levels[0] - drained) * 1e3:+.0f} to "
+            f"{(levels[-1] - drained) * 1e3:+.0f} mm about the scene's drained level {drained:.4g} m"
+        ]
+        if levels and drained is not None
+        else []
+    )
+    return (
+        [
+            f"atlas: {len(atlas.scenarios) if comm.rank == 0 else 0} modes ({family_count} drain/pose "
+            f"scenarios, {len(atlas.scenarios) - family_count if comm.rank == 0 else 0} swelling) of "
+            f"'{scene.name}' in {seconds['modes_s']:.1f} s after a {seconds['setup_s']:.1f} s setup; wrote "
+            f"{out}/atlas.h5 and atlas.json"
+        ]
+        + (
+            [
+                f"warning: {len(left_out)} scenario(s) left out, settled neither from the last mode nor from rest "
+                f'(atlas.json "left_out"): {", ".join(str(o["values"]) for o in left_out[:3])}'
+            ]
+            if left_out
+            else []
+        )
+        + span
+    )

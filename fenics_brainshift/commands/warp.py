@@ -1,0 +1,147 @@
+"""`brainshift warp RUN_DIR --image PRE -o INTRA`: the command around the warp package."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..images.volumes import is_volume, read_volume, write_like
+from ..outputs.files import check_writable
+from ..outputs.run_folder import run_status
+from ..warp import DeformedMesh, Warp, check_size, write_itk_transform
+from .help_format import Defaults
+
+
+def add(sub) -> None:
+    warp = sub.add_parser(
+        "warp",
+        help="the predicted intra-operative image: warp a pre-operative volume by a run",
+        description="Every voxel y of the output (the input's grid, affine and header) takes the "
+        "input's value at the pre-operative point x with x + u(x) = y, u the run's "
+        "last displacement (exact inversion of the P1 field); outside the brain the "
+        "shift blends to zero over --blend mm. Optionally the same map as an ITK "
+        "displacement-field transform for 3D Slicer (docs/slicer.md).",
+        formatter_class=Defaults,
+    )
+    warp.add_argument("run_dir", metavar="RUN_DIR", help="a run's output folder (its displacement.xdmf)")
+    warp.add_argument(
+        "--image",
+        required=True,
+        help="pre-operative volume (.nii, .nii.gz, .nrrd, a .seg.nrrd without "
+        "overlapping segments), "
+        "in the frame of the run's mesh (mm)",
+    )
+    warp.add_argument("-o", "--output", required=True, help="warped volume (.nii.gz or .nrrd)")
+    warp.add_argument(
+        "--labels",
+        action="store_true",
+        help="a label volume: nearest voxel, labels stay labels (default: linear interpolation of intensities)",
+    )
+    warp.add_argument("--transform", help="also write the map as an ITK transform file (.h5) 3D Slicer loads")
+    warp.add_argument(
+        "--transform-float32",
+        action="store_true",
+        help="store the transform's values in single precision: half the file, 1e-7 relative",
+    )
+    warp.add_argument("--blend", type=float, default=10.0, help="mm over which the shift fades outside the brain")
+    warp.add_argument(
+        "--mesh-frame",
+        choices=["RAS", "LPS"],
+        default="RAS",
+        help="the frame of the run's mesh coordinates (RAS: meshes from NIfTI, this project's)",
+    )
+
+
+def main(args, comm) -> list[str]:
+    """`brainshift warp`: warp the image (and write the transform); returns the report's lines."""
+
+    output = Path(args.output)
+    if not 0 < args.blend < float("inf"):
+        raise InputError(f"warp: --blend must be a finite number of mm > 0 (got {args.blend:g})")
+    if not is_volume(output) or output.name.lower().endswith(".nhdr"):  # (a detached header: two files)
+        raise InputError(f"warp: -o '{output.name}': use a .nii.gz or .nrrd file name")
+    if args.transform and not args.transform.lower().endswith((".h5", ".hdf5")):
+        raise InputError(f"warp: --transform '{args.transform}': use an ITK transform file name ending in .h5")
+    for path in [output] + ([Path(args.transform)] if args.transform else []):
+        check_writable(path.parent, comm, "folder of " + ("-o" if path == output else "--transform"), "-o")
+    volume = read_volume(args.image, "warp: --image")
+    body = DeformedMesh.from_run(args.run_dir, args.mesh_frame)
+    check_size(body.points, volume, args.labels)
+    warp = Warp.compute(volume, body, args.blend, comm, labels=args.labels)
+    if not warp.inside.any():
+        raise InputError(
+            f"warp: the run's brain does not overlap '{Path(args.image).name}' (mesh {body.points.min(0)} "
+            f"to {body.points.max(0)} mm RAS); is the image in the mesh's frame? (--mesh-frame)"
+        )
+    if comm.rank == 0:  # both or neither: each to a temporary file, then both moved into place
+        warped = warp.apply(labels=args.labels)
+        transform = Path(args.transform) if args.transform else None
+        for path in [output] + ([transform] if transform else []):  # (check_writable allowed new folders)
+            path.parent.mkdir(parents=True, exist_ok=True)
+        _write_both(
+            output,
+            lambda path: write_like(volume, warped, path),
+            transform,
+            lambda path: write_itk_transform(warp, path, float32=args.transform_float32),
+        )
+    comm.barrier()
+    moved = warp.moved()
+    status = run_status(Path(args.run_dir))
+    note = (
+        []
+        if status in (None, "ok")
+        else [
+            f"warp: the run did not end well (summary.json: {status[:100]}): "
+            f"this is its last good state, not the final one"
+        ]
+    )
+    return note + [
+        f"warp: {int(moved.sum())} of {moved.size} voxels moved (largest {warp.largest_mm():.2f} mm, "
+        f"{int(warp.inside.sum())} inside the deformed brain); {'nearest' if args.labels else 'linear'} "
+        f"sampling; wrote {output}"
+        + (f" and {args.transform}" if args.transform else "")
+        + (f"; labels {sorted(np.unique(warped).tolist())[:12]}" if args.labels and comm.rank == 0 else "")
+    ]
+
+
+def _write_both(image: Path, write_image, transform: Path | None, write_transform) -> None:
+    """The image and (if asked) the transform, both or neither: each written to a temporary
+    name beside its target (the same ending, which says the format), then moved into place,
+    a file already there set aside first; where a move fails, the new files are taken back out,
+    the earlier ones put back, and the error names the target, not the temporary file."""
+    pending = [(image, image.with_name(f".tmp-{image.name}"), write_image)]
+    if transform is not None:
+        pending.append((transform, transform.with_name(f".tmp-{transform.name}"), write_transform))
+    placed, aside = [], []
+    target = None
+    try:
+        for target, temporary, write in pending:  # noqa: B007 (a failed write names its target)
+            write(temporary)
+        for target, temporary, _ in pending:
+            if target.is_file():
+                os.replace(target, target.with_name(f".old-{target.name}"))
+                aside.append(target)
+            os.replace(temporary, target)
+            placed.append(target)
+    except OSError as exc:
+        _undo(placed, aside)
+        raise OSError(exc.errno, exc.strerror or str(exc), str(target)) from None
+    except BaseException:
+        _undo(placed, aside)
+        raise
+    finally:
+        for _, temporary, _ in pending:
+            temporary.unlink(missing_ok=True)
+    for target in aside:
+        target.with_name(f".old-{target.name}").unlink(missing_ok=True)
+
+
+def _undo(placed: list[Path], aside: list[Path]) -> None:
+    """The new files out, the earlier ones (set aside) back."""
+    for target in placed:
+        target.unlink(missing_ok=True)
+    for target in aside:
+        os.replace(target.with_name(f".old-{target.name}"), target)
