@@ -12,7 +12,7 @@ start DOLFINx.
 
 from importlib import import_module
 
-__version__ = "0.3.0"
+from .version import __version__
 
 _API = {
     "Scene": "scene",

@@ -8,14 +8,14 @@ import argparse
 import sys
 from importlib import import_module
 
-from . import __version__
 from .commands import NAMES
-from .commands.help_format import Defaults
+from .commands.help_format import Defaults, Parser
+from .version import __version__
 
 
 def parser() -> argparse.ArgumentParser:
     """The parser of every command (each module's ``add``)."""
-    top = argparse.ArgumentParser(
+    top = Parser(
         prog="brainshift",
         description="Predict brain shift (or any soft body sagging as its supporting fluid drains) with DOLFINx.",
         formatter_class=Defaults,

@@ -3,7 +3,7 @@ this process loaded, which optional packages are present."""
 
 from __future__ import annotations
 
-from . import __version__
+from .version import __version__
 
 
 def versions() -> dict:

@@ -241,6 +241,44 @@ def test_an_atlas_survives_its_files_and_refuses_another_mesh(atlas, tmp_path):
         store.read(tmp_path / "a")
 
 
+@pytest.mark.parametrize(
+    "damage, words",
+    [
+        ("a NaN in a mode", "the modes hold 1 numbers that are not finite"),
+        ("a NaN in the regulariser", "the regulariser hold 1 numbers"),
+        ("a mode changed", "the regulariser's diagonal and the modes disagree"),
+        ("a cross term changed", "cross terms and the modes disagree"),
+        ("a NaN stiffness", "stiffness"),
+    ],
+)
+def test_a_damaged_atlas_is_named_damaged_in_one_line(atlas, tmp_path, capsys, damage, words):
+    """Bytes changed in atlas.h5 or a number in atlas.json (a copy gone wrong): each ended in a
+    traceback or in an update from a wrong atlas; now the update refuses the atlas as damaged."""
+    import h5py
+
+    from fenics_brainshift.cli import main
+
+    store.write(tmp_path / "a", atlas)
+    with h5py.File(tmp_path / "a" / "atlas.h5", "r+") as f:
+        if damage == "a NaN in a mode":
+            f["modes/vertex"][2, 5, 1] = np.nan
+        elif damage == "a NaN in the regulariser":
+            f["regulariser/gram"][1, 2] = np.nan
+        elif damage == "a mode changed":
+            f["modes/vertex"][3, 7, 2] += 0.01
+        elif damage == "a cross term changed":
+            f["regulariser/cross"][4] *= 1.01
+    if damage == "a NaN stiffness":
+        index = json.loads((tmp_path / "a" / "atlas.json").read_text())
+        index["stiffness"]["G"] = float("nan")
+        (tmp_path / "a" / "atlas.json").write_text(json.dumps(index))
+    write_markups(tmp_path / "p.mrk.json", ["a", "b", "c"], atlas.points[_top(atlas.points)[:3]] * 1e3)
+    code = main(["update", str(tmp_path / "a"), "--target", str(tmp_path / "p.mrk.json"), "--out", str(tmp_path / "u")])
+    err = capsys.readouterr().err
+    assert code == 2 and "is damaged" in err and words in err and "Traceback" not in err, err
+    assert not (tmp_path / "u").exists()
+
+
 @pytest.fixture(scope="module")
 def atlas_folder(atlas, tmp_path_factory):
     folder = tmp_path_factory.mktemp("atlas") / "atlas"
@@ -385,7 +423,8 @@ def test_swapped_points_a_second_update_and_the_default_noise_are_said(atlas, at
         ("no atlas", "holds no atlas"),
         ("too few", "too few for the update: give at least 3"),
         ("in metres", "outside the atlas's body"),
-        ("noise", "--noise must be a finite number of mm > 0"),
+        ("noise", "--noise: 1e-300 mm; a point's measurement noise is 0.01-50 mm"),
+        ("noise huge", "--noise: 1e+300 mm; a point's measurement noise is 0.01-50 mm"),
         ("bootstrap", "--bootstrap"),
         ("csv in metres", "positions in metres?"),
         ("image elsewhere", "does not overlap the atlas's brain"),
@@ -414,7 +453,9 @@ def test_bad_update_input_is_one_line(atlas, atlas_folder, tmp_path, capsys, cas
     elif case == "in metres":  # a slip of units: 1000x too small, every point near the origin
         write_markups(tmp_path / "pre.mrk.json", [f"P{i}" for i in range(20)], pre * 1e3 + 300.0)
     elif case == "noise":
-        args += ["--noise", "0"]
+        args += ["--noise", "1e-300"]
+    elif case == "noise huge":
+        args += ["--noise", "1e300"]
     elif case in ("csv in metres", "partial pre columns"):
         header = "x_pre, y_pre, z_pre, x, y, z" if case == "csv in metres" else "x_pre, y_pre, x, y, z"
         rows = np.hstack([pre, intra]) if case == "csv in metres" else np.hstack([pre[:, :2], intra])
@@ -831,3 +872,68 @@ def test_a_poses_next_level_starts_from_its_last_two_extrapolated():
         f = forward()
         predict_start(f, last, values)
         assert f.sim.u.x.array.tolist() == [5.0, 5.0] and f.sim.contact.multipliers.tolist() == [[9.0] * 3] * 2
+
+
+def test_residuals_the_noise_cannot_explain_are_warned_of_by_their_chi_square(atlas):
+    """Landmark pairs of another brain (a shift the atlas has no mode for, about 5 mm) against a
+    stated noise of 1 mm left a residual 7x the noise without a word (the warning fired past
+    10x). The chi-square of the residuals says it: by hand, sum (r / noise)^2 over 3 coordinates
+    a pair against the chi-square distribution's upper tail. The honest points of the same
+    operation, at their own noise, raise no warning."""
+    from scipy.stats import chi2 as chi_square
+
+    truth, points, picked, noise, measured = _cortex_points_one_slipped(atlas, 0)
+    measured[0] -= [0.0, 0.008, 0.0]  # (no slip: the honest points)
+    labels = [f"p{i}" for i in range(20)]
+    honest = update(atlas, Target(measured, points[picked], labels), noise)
+    assert honest.warning is None or "does not explain" not in honest.warning
+    other = measured + np.random.default_rng(5).normal(0.0, 3e-3, measured.shape)  # another brain's shift
+    result = update(atlas, Target(other, points[picked], labels), 1e-3, set_aside=False)
+    by_hand = chi_square.sf(np.sum((result.residual / 1e-3) ** 2), 3 * len(result.residual))
+    assert by_hand < 1e-3 and "does not explain the data" in result.warning and "chi-square" in result.warning
+    assert float(np.sqrt(np.mean(result.residual**2))) < 10 * 1e-3  # (the old rule stayed silent)
+
+
+def test_an_update_into_a_runs_folder_is_refused_and_the_run_kept(atlas, atlas_folder, tmp_path, capsys):
+    """`update --out RUN` over a run's results replaced its displacement and summary without a
+    word (a run into an update's folder was already refused); now refused, the run untouched."""
+    import hashlib
+
+    from fenics_brainshift.cli import main
+
+    run = tmp_path / "run"
+    assert main(["run", "cube", "--out", str(run), "--set", "mesh.cells=[4, 4, 2]", "--set", "time.end=0.4"]) == 0
+    before = {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in run.iterdir() if p.is_file()}
+    _markups(tmp_path, atlas)
+    code = main(["update", str(atlas_folder), "--target", str(tmp_path / "intra.mrk.json"), "--pre",
+                 str(tmp_path / "pre.mrk.json"), "--out", str(run)])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 2 and "holds a run's results" in err and "choose another --out" in err, err
+    after = {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in run.iterdir() if p.is_file()}
+    assert after == before
+
+
+def test_an_update_as_it_runs_starts_no_dolfinx_and_runs_on_two_ranks(atlas, atlas_folder, tmp_path, serial_only):
+    """`brainshift update` itself, not only its imports, starts neither DOLFINx nor PETSc (it
+    imported them on rank 0 alone to write its STL: on two ranks PETSc's start waited for the
+    other rank, which waited in a barrier, for ever); two ranks give the one rank's answer."""
+    from conftest import mpirun, subprocess_env
+
+    _markups(tmp_path, atlas, noise=0.3e-3)
+    argv = ["update", str(atlas_folder), "--target", str(tmp_path / "intra.mrk.json"), "--pre",
+            str(tmp_path / "pre.mrk.json"), "--noise", "0.3", "--out"]  # fmt: skip
+    code = (
+        "import sys\nfrom fenics_brainshift.cli import main\n"
+        f"code = main({argv + [str(tmp_path / 'one')]!r})\n"
+        "print(code, sorted(m for m in ('dolfinx', 'petsc4py', 'ufl', 'basix') if m in sys.modules))\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=subprocess_env(),
+                          timeout=300)  # fmt: skip
+    assert done.returncode == 0 and done.stdout.strip().splitlines()[-1] == "0 []", done.stdout + done.stderr
+    two = subprocess.run(mpirun() + [sys.executable, "-m", "fenics_brainshift.cli", *argv,
+                                     str(tmp_path / "two")], capture_output=True, text=True,
+                         env=subprocess_env(), timeout=300)  # fmt: skip
+    assert two.returncode == 0, two.stderr
+    one, both = (json.loads((tmp_path / d / "update.json").read_text()) for d in ("one", "two"))
+    assert both["residual_rms_mm"] == pytest.approx(one["residual_rms_mm"], rel=1e-9)
+    assert (tmp_path / "two" / "surface_final.stl").is_file() == (tmp_path / "one" / "surface_final.stl").is_file()

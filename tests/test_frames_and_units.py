@@ -13,10 +13,9 @@ import pytest
 from fenics_brainshift.data import MESHES
 from fenics_brainshift.errors import InputError
 from fenics_brainshift.images.targets import read_target
-from fenics_brainshift.outputs.fine_surface import write_slicer_stl
 from fenics_brainshift.runner import run
 from fenics_brainshift.scene import scene_from_dict
-from fenics_brainshift.surfaces.files import read_surface
+from fenics_brainshift.surfaces.files import read_surface, write_slicer_stl
 
 from conftest import COMM
 

@@ -299,7 +299,7 @@ time.sleep(60)
         assert main(args) == 2
         err = capsys.readouterr().err.strip()
         last = err.splitlines()[-1]  # (after the run's log lines)
-        assert f"another brainshift run (pid {holder.pid}) is writing into it" in last and "Traceback" not in err
+        assert f"another brainshift process (pid {holder.pid}) is writing into it" in last and "Traceback" not in err
         assert {p.name: p.stat().st_mtime_ns for p in out.iterdir()} == before  # nothing touched
         from conftest import mpirun, subprocess_env  # and on two ranks: one line, from rank 0
 
@@ -311,7 +311,7 @@ time.sleep(60)
             timeout=300,
         )
         assert done.returncode == 2 and "Traceback" not in done.stderr, done.stderr
-        assert done.stderr.count(f"another brainshift run (pid {holder.pid}) is writing into it") == 1
+        assert done.stderr.count(f"another brainshift process (pid {holder.pid}) is writing into it") == 1
         assert {p.name: p.stat().st_mtime_ns for p in out.iterdir()} == before
     finally:
         holder.send_signal(signal.SIGKILL)

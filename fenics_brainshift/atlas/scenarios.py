@@ -36,6 +36,10 @@ from ..errors import InputError
 from ..scene.checks import did_you_mean
 
 FAMILY_KEYS = ("fluid.level", "gravity.angle_x", "gravity.angle_y", "gravity.angle_z")
+MAX_VALUES = 200  # values of one --vary key
+MAX_MODES = 2000  # drain/pose scenarios of one atlas (the default has 350)
+# what a mode costs on the 5 mm brain with the skull, one core (benchmarks/results/atlas_speed.md)
+SECONDS_A_MODE = 1.3
 DEFAULT_LEVELS = (-0.045, 0.020, 14)  # m about the scene's final level: below, above, count
 DEFAULT_ANGLES = (-12.0, -6.0, 0.0, 6.0, 12.0)  # degrees, about each of two axes
 WHOLE_BRAIN = ("brain", -0.04, 0.02)  # a scene without [[swelling]]: the whole body's bounds
@@ -74,6 +78,14 @@ def parse_vary(texts: list[str]) -> dict[str, list[float]]:
         if key in out:
             raise InputError(f"--vary {key} is given twice")
         out[key] = _values(key, values)
+    modes = int(np.prod([len(v) for k, v in out.items() if k in FAMILY_KEYS] or [0], dtype=float))
+    if modes > MAX_MODES:
+        hours = modes * SECONDS_A_MODE / 3600
+        raise InputError(
+            f"--vary: {modes:,} drain/pose scenarios (the product of the values given), at most {MAX_MODES}: "
+            f"about {hours:,.0f} h at {SECONDS_A_MODE} s a mode on the 5 mm brain with the skull; give fewer "
+            f"values (the default atlas has 14 levels x 25 poses)"
+        )
     return out
 
 
@@ -83,9 +95,18 @@ def _values(key: str, text: str) -> list[float]:
             start, stop, count = text.split(":")
             if int(count) < 1 or int(count) != float(count):
                 raise ValueError
+            if int(count) > MAX_VALUES:
+                raise InputError(
+                    f"--vary {key}={text}: {int(count):,} values, at most {MAX_VALUES} (each is a settled "
+                    f"state to solve); give fewer"
+                )
             values = list(np.linspace(float(start), float(stop), int(count)))
         else:
             values = [float(v) for v in text.split(",")]
+            if len(values) > MAX_VALUES:
+                raise InputError(f"--vary {key}: {len(values):,} values, at most {MAX_VALUES}; give fewer")
+    except InputError:
+        raise
     except ValueError:
         raise InputError(f"--vary {key}={text}: not a list of numbers (a,b,c) nor start:stop:count") from None
     if not all(np.isfinite(values)):

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import json_text
 from ..errors import InputError
 
 FORMAT = 1
@@ -114,7 +115,7 @@ def write(folder: Path, atlas: Atlas) -> None:
         "scenarios": atlas.scenarios,
     }
     tmp_index = folder / ".atlas.json.tmp"
-    tmp_index.write_text(json.dumps(info, indent=1) + "\n")
+    tmp_index.write_text(json_text.dumps(info, indent=1) + "\n")
     os.replace(tmp, h5)
     os.replace(tmp_index, index)
 
@@ -176,4 +177,45 @@ def read(folder: str | Path) -> Atlas:
             f"ATLAS: '{folder}': atlas.json names {len(atlas.scenarios)} modes, atlas.h5 holds "
             f"{len(atlas.vertex_modes)} over {atlas.vertex_modes.shape[1]} nodes; build it again"
         )
+    problem = damage(atlas)
+    if problem:
+        raise InputError(f"ATLAS: '{folder}' is damaged: {problem}; build it again (or copy it again)")
     return atlas
+
+
+def damage(atlas: Atlas) -> str | None:
+    """What in an atlas's arrays is not what its build wrote, or None: every number finite, the
+    stiffness's bounds ordered and positive, and the regulariser's Gram diagonal and cross terms
+    equal to what the modes give (O(modes x nodes): a damaged mode or Gram entry is found without
+    the O(modes^2 x nodes) Gram itself)."""
+    arrays = {
+        "the modes": atlas.vertex_modes,
+        "the prior": atlas.prior_vertex,
+        "the regulariser": atlas.gram,
+        "the regulariser's cross terms": atlas.cross,
+        "the mesh's points": atlas.points,
+        "the fine surface's modes": atlas.surface_modes,
+        "the skull": atlas.skull_triangles,
+    }
+    for name, values in arrays.items():
+        if values is not None and not np.all(np.isfinite(values)):
+            bad = int(np.size(values) - np.count_nonzero(np.isfinite(values)))
+            return f"{name} hold {bad} numbers that are not finite"
+    stiffness = atlas.info.get("stiffness") or {}
+    numbers = [stiffness.get(k) for k in ("lower", "G", "upper") if k in stiffness]
+    if numbers and not (
+        all(isinstance(v, (int, float)) and np.isfinite(v) for v in numbers)
+        and 0 < min(numbers)
+        and numbers == sorted(numbers)
+    ):
+        return f"atlas.json's stiffness {stiffness} is not 0 < lower <= G <= upper"
+    n = len(atlas.points)
+    flat = atlas.vertex_modes.reshape(len(atlas.vertex_modes), -1).astype(float)
+    squares = np.einsum("ij,ij->i", flat, flat) / n
+    cross = flat @ atlas.prior_vertex.ravel() / n
+    scale = max(float(squares.max(initial=0.0)), float(atlas.prior_square), 1e-300)
+    if np.abs(np.diag(atlas.gram) - squares).max(initial=0.0) > 1e-6 * scale:
+        return "the regulariser's diagonal and the modes disagree"
+    if np.abs(atlas.cross - cross).max(initial=0.0) > 1e-6 * scale:
+        return "the regulariser's cross terms and the modes disagree"
+    return None

@@ -40,7 +40,9 @@ MIN_SURFACE_POINTS = 5
 ROUNDS = 4  # of nearest points (point to surface) and of the skull's rows
 PAST_SKULL = 0.15e-3  # m: a node deeper past the skull after the last round is reported
 FAR_FROM_PREDICTION = 0.25  # of the body's diagonal: the median prior residual of another frame
-UNEXPLAINED = 10.0  # residual RMS over the stated noise: the atlas does not explain the data
+# the updated residuals' chi-square against the stated noise: below this probability the noise
+# cannot explain them (the atlas does not explain the data)
+UNEXPLAINED_P = 1e-3
 OUTLIER = 5.0  # a point left out farther than this many times the noise's expected error...
 OUTLIER_MEDIAN = 3.0  # ...and this many times the median left-out error is set aside
 OUTLIERS_MAX = 0.25  # of the points: more than that is not a few slips, it is the model or the frame
@@ -315,7 +317,16 @@ def _update(atlas, target, noise: float, samples: int, keep_inside: bool) -> Upd
     warning = (
         "; ".join(
             w
-            for w in (against, _warning(residual, noise, skull_report.get("deepest_past_mm", 0.0) * 1e-3, keep_inside))
+            for w in (
+                against,
+                _warning(
+                    residual,
+                    noise,
+                    3 if target.pre is not None else 1,
+                    skull_report.get("deepest_past_mm", 0.0) * 1e-3,
+                    keep_inside,
+                ),
+            )
             if w
         )
         or None
@@ -428,14 +439,23 @@ def _against_prediction(measured_shift: np.ndarray, predicted_shift: np.ndarray,
     )
 
 
-def _warning(residual: np.ndarray, noise: float, deepest: float, keep_inside: bool) -> str | None:
+def _warning(residual: np.ndarray, noise: float, coordinates: int, deepest: float, keep_inside: bool) -> str | None:
+    """What the update's answer does not support: residuals the stated noise cannot explain
+    (their chi-square over ``coordinates`` a point: 3 for a pair's distance, 1 for a distance
+    to the surface), or a brain past the skull."""
+    from scipy.special import gammaincc
+
     parts = []
-    rms = float(np.sqrt(np.mean(residual**2)))
-    if rms > UNEXPLAINED * noise:
+    rms = float(np.sqrt(np.mean(residual**2))) if len(residual) else 0.0
+    chi2 = float(np.sum((residual / noise) ** 2))
+    dof = coordinates * len(residual)
+    p = float(gammaincc(dof / 2, chi2 / 2)) if dof else 1.0  # (the chi-square's upper tail)
+    if p < UNEXPLAINED_P:
         parts.append(
-            f"the atlas does not explain the data: the updated residual RMS {rms * 1e3:.3g} mm is "
-            f"{rms / noise:.0f}x the stated noise ({noise * 1e3:g} mm); a frame or unit slip, points "
-            f"mismatched between --pre and --target, or an operation outside the atlas (build it wider)"
+            f"the atlas does not explain the data: the updated residual RMS {rms * 1e3:.3g} mm against a stated "
+            f"noise of {noise * 1e3:g} mm per coordinate (chi-square {chi2:.0f} for {dof} coordinates, p = "
+            f"{p:.1e}); usually a frame (RAS/LPS) or unit slip, points mismatched between --pre and --target, "
+            f"another patient's points, or an operation the atlas lacks (a resection; a wider --vary)"
         )
     if deepest > PAST_SKULL:
         how = f"after {ROUNDS} rounds of its rows" if keep_inside else "the fit without the skull's rows"

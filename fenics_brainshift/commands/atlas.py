@@ -39,7 +39,7 @@ def main(args, comm) -> list[str]:
     from ..atlas import store
     from ..atlas.build import build
     from ..atlas.scenarios import parse_vary
-    from ..outputs.files import check_writable
+    from ..outputs.files import RunLock, check_writable
     from ..scene import load_scene
 
     out = Path(args.output)
@@ -55,10 +55,24 @@ def main(args, comm) -> list[str]:
             "atlas: [[remove]] (a resection) is not an atlas scenario; build the atlas of the scene "
             "before the resection"
         )
-    atlas, seconds = build(scene, vary, comm, args.scene, args.set)
-    if comm.rank == 0:  # (arrays first, then the index: each renamed into place)
-        store.write(out, atlas)
+    created = comm.bcast(not out.exists(), root=0)
+    if comm.rank == 0:
+        out.mkdir(parents=True, exist_ok=True)
     comm.barrier()
+    lock = RunLock(out, comm, "-o")  # (two builds into one folder would interleave their files)
+    try:
+        atlas, seconds = build(scene, vary, comm, args.scene, args.set)
+        if comm.rank == 0:  # (arrays first, then the index: each renamed into place)
+            store.write(out, atlas)
+        comm.barrier()
+    except BaseException:
+        lock.release()
+        if created and comm.rank == 0:  # (no folder left behind that holds nothing but the lock)
+            (out / RunLock.NAME).unlink(missing_ok=True)
+            if not any(out.iterdir()):
+                out.rmdir()
+        raise
+    lock.release()
     family_count = int(atlas.family.sum()) if comm.rank == 0 else 0
     left_out = atlas.info["left_out"] if comm.rank == 0 else []
     levels = (

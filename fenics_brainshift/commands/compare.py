@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
+from .. import json_text
 from ..errors import InputError
 from ..outputs.files import check_writable
 from ..outputs.metrics import compare
@@ -86,7 +86,7 @@ def main(args, comm) -> list[str]:
     except InputError as exc:  # the measures' own checks: surfaces that do not match, an empty ROI
         raise InputError(f"compare: {exc}") from None
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"units": "m", **result}, indent=1) + "\n")
+    out.write_text(json_text.dumps({"units": "m", **result}, indent=1) + "\n")
     lines = []
     for name in ("A", "B"):
         r = result[name]

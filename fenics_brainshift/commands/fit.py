@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..errors import InputError
 from .help_format import Defaults
 
 
@@ -50,7 +49,7 @@ def main(args, comm) -> list[str]:
     from ..fit.forward import ForwardModel
     from ..fit.parameters import check_names, fit_parameters, scene_changes
     from ..fit.report import write_fit_json, write_fitted_scene
-    from ..images.targets import read_target
+    from ..images.targets import check_noise, read_target
     from ..outputs.files import RunLock, check_writable, clear_run, write_json
     from ..runner import run
     from ..scene import load_scene
@@ -59,8 +58,7 @@ def main(args, comm) -> list[str]:
     check_writable(out, comm)
     names = [n.strip() for n in args.params.split(",") if n.strip()]
     check_names(names)
-    if not 0 < args.noise < float("inf"):
-        raise InputError(f"--noise must be a finite number of mm > 0 (got {args.noise:g})")
+    check_noise(args.noise)
     target = read_target(args.target, args.pre, args.frame)
     check_enough(target, len(names))  # (before the model is built: nothing else is said first)
     scene = load_scene(args.scene, args.set)

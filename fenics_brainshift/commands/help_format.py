@@ -6,11 +6,19 @@ import argparse
 
 
 class Defaults(argparse.ArgumentDefaultsHelpFormatter):
-    """Defaults in the help where they say something: not for flags (False) or options with
-    none, nor twice where the help names its own."""
+    """Defaults in the help where they say something: not for flags (False), options with none
+    or an empty list (repeatable ones), nor twice where the help names its own."""
 
     def _get_help_string(self, action):
         text = action.help or ""
-        if action.default in (None, False, argparse.SUPPRESS) or "default" in text:
+        if action.default in (None, False, [], argparse.SUPPRESS) or "default" in text:
             return text
         return super()._get_help_string(action)
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse's parser, whose errors are one line as every other input error's (argparse
+    prints the whole usage first): the message, and where the full usage is."""
+
+    def error(self, message: str):
+        self.exit(2, f"brainshift: error: {message} (see {self.prog} --help)\n")

@@ -13,7 +13,7 @@ import numpy as np
 from ..atlas import store
 from ..atlas.update import prepare, update
 from ..errors import InputError
-from ..images.targets import read_target
+from ..images.targets import check_noise, read_target
 from ..outputs.files import RunLock, check_writable, clear_run, write_json
 from .help_format import Defaults
 
@@ -86,8 +86,7 @@ def main(args, comm) -> list[str]:
     _check_no_earlier_update(out, args.replace, comm)
     noise_stated = args.noise is not None
     args.noise = args.noise if noise_stated else DEFAULT_NOISE_MM
-    if not 0 < args.noise < float("inf"):
-        raise InputError(f"--noise must be a finite number of mm > 0 (got {args.noise:g})")
+    check_noise(args.noise)
     if not 0 <= args.bootstrap <= 1000:
         raise InputError(f"--bootstrap: the number of resamplings, 0 to 1000 (got {args.bootstrap})")
     image = None
@@ -159,7 +158,7 @@ def _write_outputs(out: Path, atlas, target, result, image, spread_image) -> Non
     import meshio
 
     from ..images.frames import write_markups
-    from ..outputs.fine_surface import write_slicer_stl
+    from ..surfaces.files import write_slicer_stl
 
     u, spread = result.displacement, result.spread
     # meshio writes the .h5 into the working directory, named after the .xdmf: written as

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import json_text
 from ..errors import InputError
 
 log = logging.getLogger(__name__)
@@ -133,6 +134,6 @@ def write_markups(path: str | Path, labels: list[str], ras_mm: np.ndarray) -> Pa
         "markups": [{"type": "Fiducial", "coordinateSystem": "LPS", "coordinateUnits": "mm", "controlPoints": points}],
     }
     tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(document, indent=2) + "\n")
+    tmp.write_text(json_text.dumps(document) + "\n")
     os.replace(tmp, path)
     return path

@@ -29,6 +29,19 @@ from ..errors import InputError
 from .frames import read_markups
 
 MAX_SURFACE_POINTS = 2000  # a scanned surface is thinned to about this many points
+# a point's measurement noise (mm per coordinate): a tracked pointer's is 0.5-2 mm, an ultrasound
+# landmark's 1-3 mm; outside this range the number is a slip of unit or of typing
+NOISE_MM = (0.01, 50.0)
+
+
+def check_noise(noise_mm: float, flag: str = "--noise") -> None:
+    """Refuse a measurement noise outside NOISE_MM (InputError naming the flag)."""
+    low, high = NOISE_MM
+    if not low <= noise_mm <= high:
+        raise InputError(
+            f"{flag}: {noise_mm:g} mm; a point's measurement noise is {low:g}-{high:g} mm per coordinate "
+            f"(a tracked pointer about 1 mm; in mm, not m)"
+        )
 
 
 @dataclass
@@ -89,6 +102,7 @@ def read_target(target: str | Path, pre: str | Path | None = None, frame: str | 
         from ..surfaces.files import read_surface
 
         points, _ = read_surface(target, 1e-3, frame)
+        _check_millimetres(points * 1e3, target)
         points = np.unique(points, axis=0)
         if len(points) > MAX_SURFACE_POINTS:
             points = points[np.linspace(0, len(points) - 1, MAX_SURFACE_POINTS).astype(int)]

@@ -1,6 +1,6 @@
 """Distributed DOLFINx meshes (coordinates in metres) from grids, voxel models and files.
 
-Each takes plain values; run/build.py picks one from a scene's [mesh]. Big meshes are
+Each takes plain values; runner/build.py picks one from a scene's [mesh]. Big meshes are
 refused before they are allocated (budget.py).
 """
 

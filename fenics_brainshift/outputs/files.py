@@ -3,12 +3,12 @@ that an output folder can be written, made before any work."""
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 
 import numpy as np
 
+from .. import json_text
 from ..errors import InputError
 
 
@@ -71,7 +71,7 @@ class RunLock:
     NAME = ".brainshift.lock"
     _held: dict = {}  # folder -> how many holders in this process (a fit's run inside the fit)
 
-    def __init__(self, out: Path, comm):
+    def __init__(self, out: Path, comm, flag: str = "--out"):
         import fcntl
 
         self.comm, self._file, problem = comm, None, None
@@ -88,8 +88,8 @@ class RunLock:
                 holder = f.read().strip() or "another process"
                 f.close()
                 problem = (
-                    f"--out '{out}': another brainshift run ({holder}) is writing into it; wait for it to "
-                    f"end or choose another --out"
+                    f"{flag} '{out}': another brainshift process ({holder}) is writing into it; wait for it to "
+                    f"end or choose another {flag}"
                 )
             else:
                 f.seek(0)
@@ -118,7 +118,8 @@ def clear_run(out: Path, comm, scene_name: str, keep=(), kind: str = "run") -> N
     summary.json "running": a run killed from here on never leaves the earlier run's "ok"
     beside its own partial files. A folder holding another kind's record is refused first,
     naming it: a run beside a fit's record would mix the two, and removing the record would
-    lose the user's fit (a run of the folder's own fitted.toml, in ``keep``, is the fit's)."""
+    lose the user's fit (a run of the folder's own fitted.toml, in ``keep``, is the fit's);
+    so is a run's folder for an update, which would replace the run's results."""
     problem = None
     kept = {Path(p).resolve() for p in keep}
     if comm.rank == 0:
@@ -129,6 +130,14 @@ def clear_run(out: Path, comm, scene_name: str, keep=(), kind: str = "run") -> N
                 continue  # the fit's own scene, run where it was fitted
             problem = f"--out '{out}' holds a {other} ({names[0]}): " + (
                 "run its fitted.toml there, or choose another --out" if other == "fit" else "choose another --out"
+            )
+        own = (out / RECORDS["update"][0]).is_file()
+        if problem is None and kind == "update" and not own and (out / "displacement.xdmf").is_file():
+            # a run's results, which the update would replace (a fit clears its folder's run on
+            # purpose: the fitted scene's run takes its place)
+            problem = (
+                f"--out '{out}' holds a run's results (summary.json, displacement.xdmf) that the update would "
+                f"replace: choose another --out"
             )
     problem = comm.bcast(problem, root=0)
     if problem:
@@ -145,7 +154,7 @@ def write_json(path: Path, data: dict, comm) -> None:
     """Written by rank 0 via a temporary file and a rename: never half a file."""
     if comm.rank == 0:
         tmp = path.with_suffix(".json.tmp")
-        tmp.write_text(json.dumps(data, indent=2, default=_plain) + "\n")
+        tmp.write_text(json_text.dumps(data) + "\n")
         os.replace(tmp, path)
     comm.barrier()
 
@@ -164,11 +173,3 @@ def write_csv(path: Path, header: list[str], rows: list[list[float]], comm) -> N
         )
         os.replace(tmp, path)
     comm.barrier()
-
-
-def _plain(value):
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    raise TypeError(f"not JSON serialisable: {type(value)}")

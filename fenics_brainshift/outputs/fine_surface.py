@@ -10,7 +10,6 @@ everywhere. Works under MPI: each vertex is evaluated by one rank, the result ga
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +18,7 @@ from .. import formats
 from ..errors import InputError
 from ..meshing.extent import body_diagonal
 from ..meshing.label_surface import label_surface
-from ..surfaces.files import read_surface
+from ..surfaces.files import read_surface, write_slicer_stl
 from .points import PointEvaluator
 
 # a fine surface with more of its vertices than this far outside the coarse mesh does not
@@ -91,27 +90,6 @@ def _check_size(points: np.ndarray, triangles: np.ndarray, body: float) -> None:
             f"{body * 1e3:.3g} mm ({ratio:.3g}x): is it in another unit than the mesh (mm or m: "
             f"[mesh] unit applies to both), or of another object?"
         )
-
-
-def write_slicer_stl(path: Path, points_mm: np.ndarray, triangles: np.ndarray) -> Path:
-    """A binary STL as 3D Slicer reads it: millimetres, and the frame in its 80-byte header
-    ("SPACE=RAS", as Slicer writes it: an STL without the tag is taken as LPS, which mirrored
-    ours in x and y, and metres made it 1000x too small). Via a temporary file and a rename."""
-    p = np.asarray(points_mm, dtype=np.float64)[np.asarray(triangles)]  # (T, 3, 3)
-    normals = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-    lengths = np.linalg.norm(normals, axis=1)[:, None]
-    normals = np.divide(normals, lengths, out=np.zeros_like(normals), where=lengths > 0)
-    record = np.dtype([("normal", "<f4", 3), ("vertices", "<f4", (3, 3)), ("attribute", "<u2")])
-    data = np.zeros(len(p), dtype=record)
-    data["normal"], data["vertices"] = normals, p
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "wb") as f:
-        f.write(b"fenics-brainshift output. SPACE=RAS".ljust(80, b" "))
-        f.write(np.uint32(len(p)).tobytes())
-        f.write(data.tobytes())
-    os.replace(tmp, path)
-    return path
 
 
 def load_fine_surface(file: str | None, surface: str | None, scale: float, labels=None):

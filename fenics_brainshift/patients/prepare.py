@@ -24,10 +24,11 @@ import numpy as np
 import SimpleITK as sitk
 from scipy import ndimage
 
+from .. import json_text
 from ..data.templates import largest_part, mni_brain_mask, mni_head, mni_t1
 from ..errors import InputError
 from ..images.frames import LPS_TO_RAS
-from ..outputs.fine_surface import write_slicer_stl
+from ..surfaces.files import write_slicer_stl
 from .anatomy import BRAIN_SCENE, template_anatomy
 from .carry import index_to_lps, labels_on_patient
 from .contrast import NAMES as CONTRAST_NAMES
@@ -135,7 +136,7 @@ def prepare(args) -> list[str]:
             total_seconds=round(time.perf_counter() - began, 2),
             made=datetime.datetime.now().isoformat(timespec="seconds"),
         )
-        (tmp / PREPARE_RECORD).write_text(json.dumps(report, indent=2) + "\n")
+        (tmp / PREPARE_RECORD).write_text(json_text.dumps(report) + "\n")
     return [
         f"prepared {out}: brain {litres:.2f} l, the template explains {100 * ratio:.0f} % of the scan's variance "
         f"in it, {time.perf_counter() - began:.0f} s; run it: brainshift run {out / 'scene.toml'}"
@@ -349,7 +350,7 @@ def _refuse(out: Path, patient, labels, present, args, report: dict, problem: st
             f"{Path(args.t1).name}: REFUSED, the brain found and the carried labels",
         )
         report.update(status="refused", refused=problem, made=datetime.datetime.now().isoformat(timespec="seconds"))
-        (tmp / PREPARE_RECORD).write_text(json.dumps(report, indent=2) + "\n")
+        (tmp / PREPARE_RECORD).write_text(json_text.dumps(report) + "\n")
     raise InputError(
         f"prepare: {problem}{hints(patient, labels)}. Look at {out / 'overview.png'}: if the outline is "
         f"on the brain, go on with --force; if not, give an MRI of the whole head (T1, post-contrast T1, "

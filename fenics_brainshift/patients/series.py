@@ -82,14 +82,17 @@ def _read_dicom_series(folder: Path, what: str) -> sitk.Image:
         )
     files = {uid: sitk.ImageSeriesReader.GetGDCMSeriesFileNames(str(folder), uid) for uid in ids}
     uid = max(ids, key=lambda u: len(files[u]))
-    if len(ids) > 1:
-        log.info(
-            "%s: %d DICOM series in '%s'; reading the largest (%d files, %s)",
+    if len(ids) > 1:  # (a folder of a whole study: the largest is usually the 3-D T1, not always)
+        others = ", ".join(f"'{_description(files[u][0])}' ({len(files[u])} files)" for u in ids if u != uid)
+        log.warning(
+            "%s: %d DICOM series in '%s'; reading the largest, '%s' (%d files), not %s: if that is not the scan "
+            "to prepare, give a folder that holds it alone",
             what,
             len(ids),
             folder.name,
+            _description(files[uid][0]),
             len(files[uid]),
-            uid,
+            others,
         )
     names = list(files[uid])
     if len(names) == 1:
@@ -148,6 +151,20 @@ def _check_slice_positions(names: list[str], folder: Path, what: str) -> None:
             f"slice positions, the first after {at:.1f} mm ({steps[gaps[0]]:.2f} mm against the usual "
             f"{usual:.2f} mm); copy the whole series"
         )
+
+
+def _description(file: str) -> str:
+    """A DICOM file's series description (0008|103E), or its series number, or "?"."""
+    reader = sitk.ImageFileReader()
+    reader.SetFileName(file)
+    try:
+        reader.ReadImageInformation()
+    except RuntimeError:
+        return "?"
+    for tag in ("0008|103e", "0020|0011"):
+        if reader.HasMetaDataKey(tag) and reader.GetMetaData(tag).strip():
+            return reader.GetMetaData(tag).strip()[:60]
+    return "?"
 
 
 def _first_line(exc: Exception) -> str:

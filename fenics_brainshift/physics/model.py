@@ -1,6 +1,6 @@
 """The finite-element model: mesh, space, supports, material, matrices and loads.
 
-Built once from plain values (run/build.py makes them from a scene); the time loop and the
+Built once from plain values (runner/build.py makes them from a scene); the time loop and the
 quasi-static path both use it. Nothing here steps in time.
 """
 

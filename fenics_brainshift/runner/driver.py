@@ -137,7 +137,7 @@ def _write_skull(sim: Simulation, out: Path) -> None:
     skull = sim.contact.skull if sim.contact is not None else None
     if skull is None or skull.gap is not None or sim.model.comm.rank != 0:
         return
-    from ..outputs.fine_surface import write_slicer_stl
+    from ..surfaces.files import write_slicer_stl
 
     points = skull.triangles.reshape(-1, 3) * 1e3
     write_slicer_stl(out / "skull.stl", points, np.arange(len(points)).reshape(-1, 3))

@@ -42,6 +42,10 @@ _FUNCTIONS = {
     "max": (lambda args: functools.reduce(np.maximum, args), 2, None),
 }
 _NAMES = {"x": 0, "y": 1, "z": 2}
+# Bounds that keep the parser and the interpreter (both recursive) far inside Python's stack:
+# the bundled scenes' conditions are at most 101 characters and 8 levels deep
+MAX_LENGTH = 2000  # characters
+MAX_DEPTH = 40  # nested operations
 ALLOWED = "numbers, x, y, z, + - * / **, < <= > >=, and, or, not, ( ), abs(a), sqrt(a), min(a, b, ...), max(a, b, ...)"
 
 
@@ -69,14 +73,33 @@ def parse_predicate(text: str) -> Predicate:
     """Parse and check a predicate; raises PredicateError naming what is wrong."""
     if not isinstance(text, str) or not text.strip():
         raise PredicateError("must be a non-empty condition such as 'z < 0.01'")
+    short = text if len(text) <= 60 else text[:57] + "..."
+    if len(text) > MAX_LENGTH:
+        raise PredicateError(
+            f"'{short}' is {len(text)} characters long (at most {MAX_LENGTH}); write a shorter condition"
+        )
     try:
         tree = ast.parse(text.strip(), mode="eval").body
     except SyntaxError as exc:
-        raise PredicateError(f"cannot parse '{text}': {exc.msg}") from None
-    _check(tree, text if len(text) <= 60 else text[:57] + "...")
+        raise PredicateError(f"cannot parse '{short}': {exc.msg}") from None
+    except (RecursionError, MemoryError):  # (ast's own recursion, before the depth can be measured)
+        raise PredicateError(f"'{short}' is nested too deep (at most {MAX_DEPTH} levels); simplify it") from None
+    if (depth := _depth(tree)) > MAX_DEPTH:
+        raise PredicateError(f"'{short}' is nested {depth} levels deep (at most {MAX_DEPTH}); simplify it")
+    _check(tree, short)
     pred = Predicate(text, tree)
     pred(np.zeros((3, 1)))  # type-check on a probe point: conditions only
     return pred
+
+
+def _depth(tree: ast.AST) -> int:
+    """The tree's depth, measured without recursion."""
+    deepest, stack = 0, [(tree, 1)]
+    while stack:
+        node, level = stack.pop()
+        deepest = max(deepest, level)
+        stack.extend((child, level + 1) for child in ast.iter_child_nodes(node))
+    return deepest
 
 
 def _check(node: ast.AST, text: str) -> None:

@@ -1,4 +1,5 @@
-"""Surface files as this project reads them: their triangles, and the frame they declare.
+"""Surface files as this project reads them (their triangles, and the frame they declare) and
+writes them for 3D Slicer (write_slicer_stl: a binary STL in mm, SPACE=RAS).
 
 Triangles: GIfTI by nibabel; VTK's own formats (.vtk, .vtp, .vtu: 3D Slicer saves models as
 legacy VTK polydata, which meshio cannot read) by VTK through pyvista when it is installed;
@@ -12,6 +13,7 @@ orientation)."""
 
 from __future__ import annotations
 
+import os
 import re
 from pathlib import Path
 
@@ -113,7 +115,11 @@ def read_surface(path: Path, scale: float, frame: str | None = None) -> tuple[np
     triangles = np.asarray(triangles, dtype=np.int64)
     if len(triangles) == 0 or points.size == 0:
         raise SurfaceFileError(f"'{path.name}' holds no triangles")
-    points = to_ras(points.reshape(len(points), -1)[:, :3] * scale, path, frame)
+    points = points.reshape(len(points), -1)[:, :3]
+    if not np.isfinite(points).all():
+        bad = int(np.count_nonzero(~np.isfinite(points).all(axis=1)))
+        raise SurfaceFileError(f"'{path.name}' has {bad} vertices that are not finite (NaN or infinite); repair it")
+    points = to_ras(points * scale, path, frame)
     # bad triangles (degenerate, out-of-range indices) are dropped, not fatal
     ok = np.all((triangles >= 0) & (triangles < len(points)), axis=1)
     triangles = triangles[ok]
@@ -122,3 +128,24 @@ def read_surface(path: Path, scale: float, frame: str | None = None) -> tuple[np
     if not np.any(area > 0):
         raise SurfaceFileError(f"'{path.name}' holds no triangle with an area (all degenerate or out of range)")
     return points, triangles[area > 0]
+
+
+def write_slicer_stl(path: Path, points_mm: np.ndarray, triangles: np.ndarray) -> Path:
+    """A binary STL as 3D Slicer reads it: millimetres, and the frame in its 80-byte header
+    ("SPACE=RAS", as Slicer writes it: an STL without the tag is taken as LPS, which mirrored
+    ours in x and y, and metres made it 1000x too small). Via a temporary file and a rename."""
+    p = np.asarray(points_mm, dtype=np.float64)[np.asarray(triangles)]  # (T, 3, 3)
+    normals = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    lengths = np.linalg.norm(normals, axis=1)[:, None]
+    normals = np.divide(normals, lengths, out=np.zeros_like(normals), where=lengths > 0)
+    record = np.dtype([("normal", "<f4", 3), ("vertices", "<f4", (3, 3)), ("attribute", "<u2")])
+    data = np.zeros(len(p), dtype=record)
+    data["normal"], data["vertices"] = normals, p
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp")
+    with open(tmp, "wb") as f:
+        f.write(b"fenics-brainshift output. SPACE=RAS".ljust(80, b" "))
+        f.write(np.uint32(len(p)).tobytes())
+        f.write(data.tobytes())
+    os.replace(tmp, path)
+    return path

@@ -1,0 +1,164 @@
+"""Hostile and careless input, refused at its root: files written as strict JSON, conditions of
+bounded size and depth, atlases of bounded size estimated before any work. Each case broke,
+stalled or wrote a file no strict reader could parse before its fix."""
+
+from __future__ import annotations
+
+import json
+import re
+import time
+
+import numpy as np
+import pytest
+
+from fenics_brainshift import json_text
+from fenics_brainshift.errors import InputError
+
+
+def _strict(text: str):
+    """json.loads that refuses NaN and Infinity, as JSON itself does (and every other reader)."""
+
+    def refuse(constant):
+        raise ValueError(f"not JSON: {constant}")
+
+    return json.loads(text, parse_constant=refuse)
+
+
+def test_non_finite_numbers_are_written_as_null_and_said_where():
+    data = {"residual_mm": np.array([0.5, np.nan, 1.0]), "rms": float("inf"), "n": np.int64(3), "ok": True}
+    back = _strict(json_text.dumps(data))
+    assert back["residual_mm"] == [0.5, None, 1.0] and back["rms"] is None and back["n"] == 3
+    assert back["non_finite"] == {"residual_mm[1]": "nan", "rms": "inf"}
+    assert "non_finite" not in _strict(json_text.dumps({"a": [1.0, 2.0]}))
+
+
+def test_every_json_file_writer_is_strict(tmp_path):
+    """The writers of summary/update/fit JSON, markups and atlas.json all go through json_text."""
+    from mpi4py import MPI
+
+    from fenics_brainshift.images.frames import write_markups
+    from fenics_brainshift.outputs.files import write_json
+
+    write_json(tmp_path / "s.json", {"max": float("nan")}, MPI.COMM_SELF)
+    assert _strict((tmp_path / "s.json").read_text())["non_finite"] == {"max": "nan"}
+    write_markups(tmp_path / "m.mrk.json", ["a"], np.array([[1.0, 2.0, 3.0]]))
+    _strict((tmp_path / "m.mrk.json").read_text())
+
+
+@pytest.mark.parametrize(
+    "text, words",
+    [
+        ("(" * 5000 + "x < 1" + ")" * 5000, "characters long"),
+        ("not " * 5000 + "x < 1", "characters long"),
+        (" or ".join(["x < 1"] * 100_000), "characters long"),
+        ("-" * 1000 + "x < 1", "nested"),
+        ("+".join(["x"] * 300) + " < 1", "nested"),
+    ],
+)
+def test_a_condition_too_long_or_too_deep_is_one_line_not_a_recursion_error(text, words):
+    from fenics_brainshift.scene.predicates import parse_predicate
+
+    with pytest.raises(InputError, match=words):
+        parse_predicate(text)
+
+
+def test_conditions_a_scene_writes_still_parse():
+    from fenics_brainshift.scene.predicates import parse_predicate
+
+    where = parse_predicate("x < 0.01 or (y > 0.05 and not z < 0.02) or sqrt(x**2 + y**2) < max(0.01, abs(z))")
+    assert where(np.array([[0.0, 1.0], [0.0, 0.0], [0.5, 0.5]])).tolist() == [True, False]
+
+
+@pytest.mark.parametrize(
+    "vary, words",
+    [
+        (["fluid.level=0.01:0.05:1000000000"], "1,000,000,000 values, at most 200"),
+        (["fluid.level=0.01:0.05:1000", "gravity.angle_x=-10:10:1000"], "1,000 values"),
+        (["fluid.level=0.01:0.05:100", "gravity.angle_x=-10:10:100"], "10,000 drain/pose scenarios"),
+    ],
+)
+def test_an_atlas_too_large_is_refused_at_once_with_its_estimate(tmp_path, capsys, vary, words):
+    """10^9 levels ran out of memory (a traceback); 10^4 modes ran for hours until killed."""
+    from fenics_brainshift.cli import main
+
+    start = time.perf_counter()
+    code = main(["atlas", "brain", "-o", str(tmp_path / "a"), *[a for v in vary for a in ("--vary", v)]])
+    err = capsys.readouterr().err
+    assert code == 2 and words in err and "Traceback" not in err, err
+    assert time.perf_counter() - start < 5.0 and not (tmp_path / "a").exists()
+
+
+def test_a_folder_of_two_dicom_series_says_which_it_read(tmp_path, caplog):
+    """A study folder holding two series was prepared from the larger without a word."""
+    import logging
+    import shutil
+
+    import SimpleITK as sitk
+
+    from fenics_brainshift.patients.series import read_t1
+    from fenics_brainshift.patients.synthetic import write_dicom_series
+
+    rng = np.random.default_rng(0)
+    for name, slices in (("big", 40), ("small", 24)):
+        image = sitk.GetImageFromArray(rng.uniform(0.0, 1000.0, (slices, 40, 40)).astype(np.float32))
+        image.SetSpacing((1.0, 1.0, 1.5))
+        write_dicom_series(image, tmp_path / name)
+        for file in (tmp_path / name).iterdir():
+            (tmp_path / "study").mkdir(exist_ok=True)
+            shutil.copy(file, tmp_path / "study" / f"{name}_{file.name}")
+    logger = logging.getLogger("fenics_brainshift")  # (the CLI's logging keeps it from the root)
+    logger.addHandler(caplog.handler)
+    try:
+        with caplog.at_level(logging.WARNING, logger="fenics_brainshift"):
+            read = read_t1(tmp_path / "study")
+    finally:
+        logger.removeHandler(caplog.handler)
+    assert read.GetSize()[2] == 40
+    said = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    assert any("2 DICOM series" in m and "(40 files)" in m and "(24 files)" in m for m in said), said
+
+
+def _obj(path, points):
+    """A surface of one fan of triangles over the points, as Wavefront OBJ text."""
+    lines = [f"v {x} {y} {z}" for x, y, z in points]
+    lines += [f"f 1 {i} {i + 1}" for i in range(2, len(points))]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+@pytest.mark.parametrize(
+    "scale, broken, words",
+    [
+        (1.0, True, "vertices that are not finite"),
+        (1e-3, False, "positions in metres? give millimetres"),
+    ],
+)
+def test_a_scanned_surface_with_a_nan_vertex_or_in_metres_is_refused(tmp_path, scale, broken, words):
+    """Both were taken as measured cortex: a NaN vertex (its residual NaN in update.json) and a
+    laser scan in metres (every point at the head's centre, millimetres from the origin)."""
+    from fenics_brainshift.images.targets import read_target
+
+    rng = np.random.default_rng(1)
+    points = (np.array([0.0, 20.0, 60.0]) + rng.uniform(-30.0, 30.0, (12, 3))) * scale
+    if broken:
+        points[4, 1] = np.nan
+    with pytest.raises(InputError, match=re.escape(words)):
+        read_target(_obj(tmp_path / "scan.obj", points))
+    assert len(read_target(_obj(tmp_path / "good.obj", points[5:] / scale)).measured) == 7
+
+
+def test_two_atlas_builds_into_one_folder_are_one_at_a_time(tmp_path, capsys):
+    """Two builds into one folder both exited 0, their files interleaved; the second is now refused
+    while the first holds the folder (the lock's flock, as another process holds it)."""
+    import fcntl
+
+    from fenics_brainshift.cli import main
+
+    out = tmp_path / "a"
+    out.mkdir()
+    with open(out / ".brainshift.lock", "a+") as held:
+        fcntl.flock(held, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        code = main(["atlas", "brain", "-o", str(out), "--set", "mesh.voxel=0.01", "--vary", "fluid.level=0.02,0.03"])
+    err = capsys.readouterr().err
+    assert code == 2 and "another brainshift process" in err and "-o" in err, err
+    assert not (out / "atlas.h5").exists()
