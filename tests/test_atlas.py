@@ -937,3 +937,37 @@ def test_an_update_as_it_runs_starts_no_dolfinx_and_runs_on_two_ranks(atlas, atl
     one, both = (json.loads((tmp_path / d / "update.json").read_text()) for d in ("one", "two"))
     assert both["residual_rms_mm"] == pytest.approx(one["residual_rms_mm"], rel=1e-9)
     assert (tmp_path / "two" / "surface_final.stl").is_file() == (tmp_path / "one" / "surface_final.stl").is_file()
+
+
+def test_pairs_whose_ras_numbers_are_declared_lps_are_warned_of_with_both_residuals(atlas, tmp_path, capsys):
+    """Markups holding RAS numbers but saying LPS were fitted (13.3 -> 9.55 mm, exit 0, no word):
+    read as declared, every point is mirrored in x and y. The update tries the other frame when
+    the prediction misses by more than the noise explains, and warns with both residuals; the
+    same points declared rightly raise no such warning."""
+    from fenics_brainshift.cli import main
+
+    _, truth = _operation(atlas)
+    points = atlas.points
+    top = _top(points)
+    picked = np.random.default_rng(4).choice(top, 12, replace=False)
+    labels = [f"P{i}" for i in range(12)]
+    pre, intra = points[picked] * 1e3, (points[picked] + truth[picked]) * 1e3
+    flip = np.array([-1.0, -1.0, 1.0])
+    for name, factor in (("right", 1.0), ("slipped", flip)):
+        write_markups(tmp_path / f"{name}_pre.mrk.json", labels, pre * factor)  # (slipped: the LPS file holds RAS)
+        write_markups(tmp_path / f"{name}_intra.mrk.json", labels, intra * factor)
+    said = {}
+    for name in ("right", "slipped"):
+        argv = ["update", str(tmp_path / "atlas"), "--target", str(tmp_path / f"{name}_intra.mrk.json"),
+                "--pre", str(tmp_path / f"{name}_pre.mrk.json"), "--noise", "0.5",
+                "--out", str(tmp_path / name)]  # fmt: skip
+        if not (tmp_path / "atlas").exists():
+            store.write(tmp_path / "atlas", atlas)
+        code = main(argv)
+        said[name] = (code, capsys.readouterr(), tmp_path / name / "update.json")
+    code, out, _ = said["right"]
+    assert code == 0 and "other frame" not in out.out + out.err
+    code, out, report = said["slipped"]
+    text = out.out + out.err
+    assert code == 0 and "fit the prediction far better in the other frame" in text and "coordinateSystem" in text
+    assert "other frame" in json.loads(report.read_text())["warning"]

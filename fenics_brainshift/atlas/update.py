@@ -40,6 +40,10 @@ MIN_SURFACE_POINTS = 5
 ROUNDS = 4  # of nearest points (point to surface) and of the skull's rows
 PAST_SKULL = 0.15e-3  # m: a node deeper past the skull after the last round is reported
 FAR_FROM_PREDICTION = 0.25  # of the body's diagonal: the median prior residual of another frame
+# the other frame (x, y negated) is tried when the prediction misses the points by this many
+# times the noise, and said to fit better when its residual RMS is below this share
+OTHER_FRAME_NOISE = 3.0
+OTHER_FRAME_BETTER = 0.5
 # the updated residuals' chi-square against the stated noise: below this probability the noise
 # cannot explain them (the atlas does not explain the data)
 UNEXPLAINED_P = 1e-3
@@ -261,6 +265,8 @@ def _update(atlas, target, noise: float, samples: int, keep_inside: bool) -> Upd
         prior_residual = np.abs(surface.distances(_prior_surface(atlas), target.measured))
         against = None
     _check_near(atlas, prior_residual, point_to_point)
+    mirrored = _other_frame(atlas, target, prior_residual, noise, None if point_to_point else surface)
+    against = "; ".join(w for w in (against, mirrored) if w) or None
 
     def data_rows(c):
         return fixed_rows if point_to_point else surface.rows(c, target.measured)[:3]
@@ -394,6 +400,34 @@ def boundary_triangles(points: np.ndarray, tetrahedra: np.ndarray) -> tuple[np.n
     faces[inward] = faces[inward][:, [0, 2, 1]]
     vertices, triangles = np.unique(faces, return_inverse=True)
     return vertices, triangles.reshape(-1, 3)
+
+
+def _other_frame(atlas, target, prior_residual: np.ndarray, noise: float, surface) -> str | None:
+    """A warning when the points fit the scene's prediction far better in the other frame (x and
+    y negated: RAS numbers declared LPS, or the reverse), with both residuals; None otherwise.
+    Asked only when the prediction misses the points by more than the noise explains."""
+    declared = float(np.sqrt(np.mean(prior_residual**2)))
+    if declared <= OTHER_FRAME_NOISE * noise:
+        return None
+    flip = np.array([-1.0, -1.0, 1.0])
+    try:
+        if target.pre is not None:
+            pairs = PointRows(locator(atlas), target.pre * flip, target.measured * flip, target.labels)
+            other = pairs.errors(atlas.prior_vertex)
+        else:
+            other = np.abs(
+                _surface(atlas, atlas.vertex_modes[:1]).distances(_prior_surface(atlas), target.measured * flip)
+            )
+    except InputError:  # (mirrored, the points leave the body: the declared frame stands)
+        return None
+    mirrored = float(np.sqrt(np.mean(other**2)))
+    if mirrored > OTHER_FRAME_BETTER * declared:
+        return None
+    return (
+        f"the points fit the prediction far better in the other frame, x and y negated (residual RMS "
+        f"{mirrored * 1e3:.3g} mm against {declared * 1e3:.3g} mm as declared): RAS numbers declared LPS, or the "
+        f"reverse? check the markups' coordinateSystem or --frame"
+    )
 
 
 def _check_near(atlas, prior_residual: np.ndarray, point_to_point: bool) -> None:
