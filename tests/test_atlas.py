@@ -535,8 +535,8 @@ def test_skull_rows_screened_by_the_distance_bound_are_those_of_every_node(skull
     deepest is past the skull, measuring the distance only where the Lipschitz bound from the
     first weights leaves doubt: the same nodes and depth as the distance at every node, at
     weights near and far from the first, inside the skull and well past it."""
+    from fenics_brainshift.atlas.prepared import skull_rows as _skull
     from fenics_brainshift.atlas.rows import SKULL_MARGIN, SkullRows
-    from fenics_brainshift.atlas.update import _skull
 
     cached = _skull(skull_atlas, skull_atlas.vertex_modes)
     modes = skull_atlas.vertex_modes[:, skull_atlas.surface_vertices].astype(float)
@@ -574,8 +574,8 @@ def test_skull_rows_are_the_room_linearised_at_the_weights(skull_atlas):
     room plus the slack, and at weights moved a little it follows the room measured by the
     skull to second order (the error falls 4x when the move halves); asked again at other
     weights (the rows keep the last weights' distances), the rows are those of the new weights."""
+    from fenics_brainshift.atlas.prepared import skull_rows as _skull
     from fenics_brainshift.atlas.rows import SKULL_SLACK, SkullRows
-    from fenics_brainshift.atlas.update import _skull
 
     cached = _skull(skull_atlas, skull_atlas.vertex_modes)
     modes = skull_atlas.vertex_modes[:, skull_atlas.surface_vertices].astype(float)
@@ -609,7 +609,7 @@ def test_with_a_skull_a_mode_is_the_full_models_contact_state(skull_atlas, atlas
     """Warm-started within a pose, mode 'level 40 mm, turned 8 degrees' equals the contact state
     of a scene built with them and solved from rest (the scene's 0.01 mm tolerance) to the
     modes' own (0.05 mm); every mode is inside the skull to it."""
-    from fenics_brainshift.atlas.update import _skull
+    from fenics_brainshift.atlas.prepared import skull_rows as _skull
 
     k = next(
         i

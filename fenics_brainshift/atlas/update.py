@@ -24,12 +24,27 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..errors import InputError
-from ..surfaces.skull import RigidSkull
 from . import posterior
-from .combine import Constraints, Problem, bootstrap, choose_alpha, leave_one_out, weight_constraints
-from .locate import MeshLocator
-from .rows import PointRows, SkullRows, SurfaceRows
+from .combine import Problem, bootstrap, choose_alpha, leave_one_out, weight_constraints
+from .prepared import (
+    boundary_triangles,
+    bounds,
+    combination,
+    family_sum,
+    locator,
+    prepare,
+    prior_surface,
+    prior_weights,
+    skull_at_prior,
+    skull_rows,
+    surface_rows,
+)
+from .rows import PointRows
 from .store import Atlas
+from .update_checks import PAST_SKULL, against_prediction, check_near, other_frame
+from .update_checks import warning as answer_warning
+
+__all__ = ["UpdateResult", "prepare", "update"]  # (prepare: made once per atlas, prepared.py)
 
 if TYPE_CHECKING:
     from ..images.targets import Target
@@ -38,15 +53,6 @@ LEAVE_OUT_MAX = 100  # points left out one by one (a scan's thousands: a sample 
 MIN_POINT_PAIRS = 3
 MIN_SURFACE_POINTS = 5
 ROUNDS = 4  # of nearest points (point to surface) and of the skull's rows
-PAST_SKULL = 0.15e-3  # m: a node deeper past the skull after the last round is reported
-FAR_FROM_PREDICTION = 0.25  # of the body's diagonal: the median prior residual of another frame
-# the other frame (x, y negated) is tried when the prediction misses the points by this many
-# times the noise, and said to fit better when its residual RMS is below this share
-OTHER_FRAME_NOISE = 3.0
-OTHER_FRAME_BETTER = 0.5
-# the updated residuals' chi-square against the stated noise: below this probability the noise
-# cannot explain them (the atlas does not explain the data)
-UNEXPLAINED_P = 1e-3
 OUTLIER = 5.0  # a point left out farther than this many times the noise's expected error...
 OUTLIER_MEDIAN = 3.0  # ...and this many times the median left-out error is set aside
 OUTLIERS_MAX = 0.25  # of the points: more than that is not a few slips, it is the model or the frame
@@ -103,81 +109,6 @@ class UpdateResult:
             if s["kind"] == "family" and c > smallest
         ]
         return sorted(out, key=lambda s: -s["weight"])
-
-
-def bounds(atlas) -> tuple[np.ndarray, np.ndarray]:
-    """The amplitude bounds of the swelling modes (their coefficient: (theta - prior) / step)."""
-    m = len(atlas.scenarios)
-    lower, upper = np.zeros(m), np.zeros(m)
-    for k, s in enumerate(atlas.scenarios):
-        if s["kind"] == "swelling":
-            a, b = (s["lower"] - s["prior"]) / s["step"], (s["upper"] - s["prior"]) / s["step"]
-            lower[k], upper[k] = min(a, b), max(a, b)
-    return lower, upper
-
-
-def family_sum(atlas) -> tuple[float, float]:
-    """The bounds of the family's weights' sum: G0/G over the atlas's range of G (a linear
-    body's shift from gravity and the fluid is proportional to 1/G; a swelling's is not)."""
-    s = atlas.info.get("stiffness")
-    return (s["G"] / s["upper"], s["G"] / s["lower"]) if s else (1.0, 1.0)
-
-
-def prior_weights(atlas) -> np.ndarray:
-    """The weights whose combination is nearest the scene's own prediction (least squares
-    over the nodes, within the constraints): where the update starts (once per atlas)."""
-    if "prior_weights" not in atlas.once:
-        atlas.once["prior_weights"] = _prior_weights(atlas)
-    return atlas.once["prior_weights"]
-
-
-def prepare(atlas: Atlas) -> float:
-    """What every update of this atlas needs, made once when it is loaded (as a navigation
-    system keeps it in memory): the prior's weights, the mesh's locator, the skull's distance
-    tree and rows over the boundary nodes, and the nodes near the skull at the prior's weights
-    with their rows (every update's first round). Returns the seconds it took."""
-    start = time.perf_counter()
-    prior_weights(atlas)
-    locator(atlas)
-    _skull_at_prior(atlas)
-    return time.perf_counter() - start
-
-
-def _skull_at_prior(atlas):
-    """(nodes, constraints): the boundary nodes near the skull at the prior's weights, and the
-    weights' constraints with those nodes' rows (combine.Constraints, what the solvers derive
-    from them made once); or None without a skull."""
-    if "skull_at_prior" not in atlas.once:
-        skull, c = _skull(atlas, atlas.vertex_modes), prior_weights(atlas)
-        if skull is None:
-            atlas.once["skull_at_prior"] = None
-        else:
-            nodes = skull.near(c)
-            constraints = Constraints(*weight_constraints(atlas.family, *bounds(atlas), family_sum(atlas)))
-            constraints = constraints.stacked(*skull.rows(c, nodes))
-            for derived in ("unit_rows", "partner", "bounds", "slack"):
-                getattr(constraints, derived)
-            atlas.once["skull_at_prior"] = (nodes, constraints)
-    return atlas.once["skull_at_prior"]
-
-
-def locator(atlas) -> MeshLocator:
-    if "locator" not in atlas.once:
-        atlas.once["locator"] = MeshLocator(atlas.points, atlas.tetrahedra)
-    return atlas.once["locator"]
-
-
-def _prior_weights(atlas) -> np.ndarray:
-    from .active_set import least_distance
-
-    lower, upper = bounds(atlas)
-    C, d = weight_constraints(atlas.family, lower, upper, (1.0, 1.0))  # at the scene's own G
-    H = atlas.gram.copy()
-    H[np.diag_indices_from(H)] += 1e-9 * np.trace(H) / len(H)
-    return least_distance(H, atlas.cross, C, d)
-
-
-AGAINST = -0.5  # cosine between the measured and the predicted shift below which the points look swapped
 
 
 def update(
@@ -237,7 +168,7 @@ def _errors(atlas, target, u: np.ndarray, surface_u) -> np.ndarray:
     surface (points on the surface), m."""
     if target.pre is not None:
         return PointRows(locator(atlas), target.pre, target.measured, target.labels).errors(u)
-    surface = _surface(atlas, atlas.vertex_modes)
+    surface = surface_rows(atlas, atlas.vertex_modes)
     shift = surface_u if atlas.surface_points is not None else u[boundary_triangles(atlas.points, atlas.tetrahedra)[0]]
     return np.abs(surface.distances(shift, target.measured))
 
@@ -259,19 +190,19 @@ def _update(atlas, target, noise: float, samples: int, keep_inside: bool) -> Upd
         pairs = PointRows(locator(atlas), target.pre, target.measured, target.labels)
         fixed_rows = pairs.rows(modes)
         prior_residual = pairs.errors(atlas.prior_vertex)
-        against = _against_prediction(pairs.measured - pairs.pre, pairs.at(atlas.prior_vertex), noise)
+        against = against_prediction(pairs.measured - pairs.pre, pairs.at(atlas.prior_vertex), noise)
     else:
-        surface = _surface(atlas, modes)
-        prior_residual = np.abs(surface.distances(_prior_surface(atlas), target.measured))
+        surface = surface_rows(atlas, modes)
+        prior_residual = np.abs(surface.distances(prior_surface(atlas), target.measured))
         against = None
-    _check_near(atlas, prior_residual, point_to_point)
-    mirrored = _other_frame(atlas, target, prior_residual, noise, None if point_to_point else surface)
+    check_near(atlas, prior_residual, point_to_point)
+    mirrored = other_frame(atlas, target, prior_residual, noise, None if point_to_point else surface)
     against = "; ".join(w for w in (against, mirrored) if w) or None
 
     def data_rows(c):
         return fixed_rows if point_to_point else surface.rows(c, target.measured)[:3]
 
-    skull = _skull(atlas, modes) if keep_inside else None
+    skull = skull_rows(atlas, modes) if keep_inside else None
     c = prior_weights(atlas)
     alpha, curve, cv_s, deepest = None, [], 0.0, 0.0
     nodes = np.zeros(0, dtype=np.int64)
@@ -279,7 +210,7 @@ def _update(atlas, target, noise: float, samples: int, keep_inside: bool) -> Upd
     for round_ in range(ROUNDS):
         problem = Problem(*data_rows(c), noise, atlas.gram, atlas.cross, C0, d0, anchor=prior_weights(atlas))
         if skull is not None and round_ == 0:  # (c: the prior's weights)
-            nodes, constraints = _skull_at_prior(atlas)
+            nodes, constraints = skull_at_prior(atlas)
             problem = problem.with_all(constraints)
         elif skull is not None:  # the nodes near the skull at these weights join those before
             nodes = np.union1d(nodes, skull.near(c))
@@ -318,19 +249,20 @@ def _update(atlas, target, noise: float, samples: int, keep_inside: bool) -> Upd
             "kept_inside": keep_inside,
             "nodes_with_rows": int(len(nodes)),
             "rounds": round_ + 1,
-            "deepest_past_mm": (deepest if skull is not None else _skull(atlas, modes).deepest(c)) * 1e3,
+            "deepest_past_mm": (deepest if skull is not None else skull_rows(atlas, modes).deepest(c)) * 1e3,
         }
     warning = (
         "; ".join(
             w
             for w in (
                 against,
-                _warning(
+                answer_warning(
                     residual,
                     noise,
                     3 if target.pre is not None else 1,
                     skull_report.get("deepest_past_mm", 0.0) * 1e-3,
                     keep_inside,
+                    ROUNDS,
                 ),
             )
             if w
@@ -362,138 +294,3 @@ def _update(atlas, target, noise: float, samples: int, keep_inside: bool) -> Upd
         warning,
         spread_from=spread_from,
     )
-
-
-def combination(c: np.ndarray, modes: np.ndarray) -> np.ndarray:
-    """sum_k c_k modes_k over the weights that are not 0 (in float64)."""
-    used = np.flatnonzero(c)
-    return np.tensordot(c[used], modes[used].astype(np.float64), axes=1)
-
-
-def _surface(atlas, modes: np.ndarray) -> SurfaceRows:
-    """The surface points are measured against: the fine surface, else the mesh's boundary."""
-    if atlas.surface_points is not None:
-        return SurfaceRows(atlas.surface_points, atlas.surface_triangles, atlas.surface_modes.astype(np.float64))
-    vertices, triangles = boundary_triangles(atlas.points, atlas.tetrahedra)
-    return SurfaceRows(atlas.points[vertices], triangles, modes[:, vertices, :])
-
-
-def _prior_surface(atlas) -> np.ndarray:
-    if atlas.surface_points is not None:
-        return atlas.prior_surface
-    return atlas.prior_vertex[boundary_triangles(atlas.points, atlas.tetrahedra)[0]]
-
-
-def boundary_triangles(points: np.ndarray, tetrahedra: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(vertices, triangles over them) of the mesh's boundary, each triangle ordered so that
-    its normal points out of its tetrahedron."""
-    faces = tetrahedra[:, [[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]]].reshape(-1, 3)
-    key = np.sort(faces, axis=1)
-    _, first, counts = np.unique(key, axis=0, return_index=True, return_counts=True)
-    faces = faces[first[counts == 1]]
-    opposite = tetrahedra[
-        np.repeat(np.arange(len(tetrahedra)), 4)[first[counts == 1]],
-        np.tile(np.arange(4), len(tetrahedra))[first[counts == 1]],
-    ]
-    a, b, c = (points[faces[:, i]] for i in range(3))
-    inward = np.einsum("ni,ni->n", np.cross(b - a, c - a), points[opposite] - a) > 0
-    faces[inward] = faces[inward][:, [0, 2, 1]]
-    vertices, triangles = np.unique(faces, return_inverse=True)
-    return vertices, triangles.reshape(-1, 3)
-
-
-def _other_frame(atlas, target, prior_residual: np.ndarray, noise: float, surface) -> str | None:
-    """A warning when the points fit the scene's prediction far better in the other frame (x and
-    y negated: RAS numbers declared LPS, or the reverse), with both residuals; None otherwise.
-    Asked only when the prediction misses the points by more than the noise explains."""
-    declared = float(np.sqrt(np.mean(prior_residual**2)))
-    if declared <= OTHER_FRAME_NOISE * noise:
-        return None
-    flip = np.array([-1.0, -1.0, 1.0])
-    try:
-        if target.pre is not None:
-            pairs = PointRows(locator(atlas), target.pre * flip, target.measured * flip, target.labels)
-            other = pairs.errors(atlas.prior_vertex)
-        else:
-            other = np.abs(
-                _surface(atlas, atlas.vertex_modes[:1]).distances(_prior_surface(atlas), target.measured * flip)
-            )
-    except InputError:  # (mirrored, the points leave the body: the declared frame stands)
-        return None
-    mirrored = float(np.sqrt(np.mean(other**2)))
-    if mirrored > OTHER_FRAME_BETTER * declared:
-        return None
-    return (
-        f"the points fit the prediction far better in the other frame, x and y negated (residual RMS "
-        f"{mirrored * 1e3:.3g} mm against {declared * 1e3:.3g} mm as declared): RAS numbers declared LPS, or the "
-        f"reverse? check the markups' coordinateSystem or --frame"
-    )
-
-
-def _check_near(atlas, prior_residual: np.ndarray, point_to_point: bool) -> None:
-    """Half the points farther from the prediction than a quarter of the body: another frame."""
-    body = float(np.linalg.norm(np.ptp(atlas.points, axis=0)))
-    median = float(np.median(prior_residual))
-    if median > FAR_FROM_PREDICTION * body:
-        what = "where --pre's points are predicted" if point_to_point else "the predicted brain surface"
-        raise InputError(
-            f"--target: half the points lie more than {median * 1e3:.3g} mm from {what} (the body is "
-            f"{body * 1e3:.3g} mm across): a frame or unit slip (RAS or LPS, mm; --frame for a CSV or "
-            f"an untagged surface), or points of another body"
-        )
-
-
-def _skull(atlas, modes: np.ndarray) -> SkullRows | None:
-    """The skull's rows over the mesh's boundary nodes, or None for an atlas without a skull
-    (made once per atlas: its distance tree and the nodes' modes)."""
-    if atlas.skull_triangles is None:
-        return None
-    if "skull_rows" not in atlas.once:
-        tri = atlas.skull_triangles
-        skull = RigidSkull(tri.reshape(-1, 3), np.arange(3 * len(tri)).reshape(-1, 3), gap=atlas.skull_gap)
-        nodes = atlas.surface_vertices
-        atlas.once["skull_rows"] = SkullRows(skull, atlas.points[nodes], modes[:, nodes, :])
-    return atlas.once["skull_rows"]
-
-
-def _against_prediction(measured_shift: np.ndarray, predicted_shift: np.ndarray, noise: float) -> str | None:
-    """The measured shift points against the scene's prediction (cosine of their sums over the
-    points below AGAINST), and is well past the noise: --pre and --target swapped, most likely.
-    Not refused: a swelling brain can rise out of the craniotomy; the fit then says how well
-    the atlas's swelling modes explain it."""
-    dot = float(np.sum(measured_shift * predicted_shift))
-    norms = float(np.sum(np.linalg.norm(measured_shift, axis=1) * np.linalg.norm(predicted_shift, axis=1)))
-    moved = float(np.sqrt(np.mean(np.sum(measured_shift**2, axis=1))))
-    if norms == 0 or dot / norms > AGAINST or moved < 2 * noise:
-        return None
-    return (
-        f"the measured points moved against the shift the scene predicts (mean cosine {dot / norms:+.2f}, "
-        f"{moved * 1e3:.3g} mm RMS): are --pre and --target swapped? (the brain sags with gravity; a swelling "
-        f"one may rise)"
-    )
-
-
-def _warning(residual: np.ndarray, noise: float, coordinates: int, deepest: float, keep_inside: bool) -> str | None:
-    """What the update's answer does not support: residuals the stated noise cannot explain
-    (their chi-square over ``coordinates`` a point: 3 for a pair's distance, 1 for a distance
-    to the surface), or a brain past the skull."""
-    from scipy.special import gammaincc
-
-    parts = []
-    rms = float(np.sqrt(np.mean(residual**2))) if len(residual) else 0.0
-    chi2 = float(np.sum((residual / noise) ** 2))
-    dof = coordinates * len(residual)
-    p = float(gammaincc(dof / 2, chi2 / 2)) if dof else 1.0  # (the chi-square's upper tail)
-    if p < UNEXPLAINED_P:
-        parts.append(
-            f"the atlas does not explain the data: the updated residual RMS {rms * 1e3:.3g} mm against a stated "
-            f"noise of {noise * 1e3:g} mm per coordinate (chi-square {chi2:.0f} for {dof} coordinates, p = "
-            f"{p:.1e}); usually a frame (RAS/LPS) or unit slip, points mismatched between --pre and --target, "
-            f"another patient's points, or an operation the atlas lacks (a resection; a wider --vary)"
-        )
-    if deepest > PAST_SKULL:
-        how = f"after {ROUNDS} rounds of its rows" if keep_inside else "the fit without the skull's rows"
-        parts.append(
-            f"the updated brain passes the skull by {deepest * 1e3:.2f} mm ({how}): not a physical state there"
-        )
-    return "; ".join(parts) or None

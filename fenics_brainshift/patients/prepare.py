@@ -4,18 +4,13 @@ The template's brain mask and the bundled scene's anatomy (anatomy.py) are carri
 patient's grid by one registration (registration.py); the inner skull is the brain's surface
 offset by the CSF gap; gravity and the CSF level come from the position on the table and the
 craniotomy (position.py). Everything is written into a temporary folder beside PATIENT and
-moved into place at the end: a failure leaves no half-written folder.
+moved into place at the end (folder.py): a failure leaves no half-written folder.
 """
 
 from __future__ import annotations
 
-import contextlib
 import datetime
-import json
 import logging
-import os
-import shutil
-import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,28 +23,22 @@ from .. import json_text
 from ..data.templates import largest_part, mni_brain_mask, mni_head, mni_t1
 from ..errors import InputError
 from ..images.frames import LPS_TO_RAS
-from ..surfaces.files import write_slicer_stl
-from .anatomy import BRAIN_SCENE, template_anatomy
+from .anatomy import template_anatomy
 from .carry import index_to_lps, labels_on_patient
 from .contrast import NAMES as CONTRAST_NAMES
 from .contrast import described_contrast, disagrees, measured_family
+from .folder import PREPARE_RECORD, SUPPORT, check_output, write_folder, written_in_place
 from .gate import fit_problem, hints
 from .overview import write_overview
 from .position import G, anatomical_gravity, craniotomy_levels, over_tumour_centre, patient_direction
 from .registration import fit_measures, register, shows_head, stripped_region
 from .series import read_t1, series_metadata
-from .skull import inner_skull
-from .slicer import write_segmentation
 from .tumour import read_tumour, tumour_report
 
 log = logging.getLogger(__name__)
 
 BRAIN, TUMOUR = 1, 2  # label values; the carried supports follow from 3
-PREPARE_RECORD = "prepare.json"
 DOWN_SIDE = 0.5  # a craniotomy centre below this share of the brain's height as the head lies: a warning
-SUPPORT = (
-    "brain_stem"  # the bundled scene's support that a patient scene fixes (the occipital pin gives way to the skull)
-)
 SUPPORT_REACH_MM = 20.0  # a support the brain lost is kept on the brain if it is this close to it,
 SUPPORT_BAND_MM = 10.0  # on the brain's voxels within this of the nearest
 SUPPORT_KEPT = 0.25  # a support with less than this share of its carried voxels in the brain is laid anew
@@ -110,8 +99,8 @@ def prepare(args) -> list[str]:
 
     t = time.perf_counter()
     present = {v: n for v, n in found.names.items() if np.any(found.labels == v)}
-    with _written_in_place(out) as tmp:
-        _write_folder(
+    with written_in_place(out) as tmp:
+        write_folder(
             tmp,
             patient,
             found.labels,
@@ -150,7 +139,7 @@ def _over_tumour(args) -> bool:
 def _checked_arguments(args) -> tuple[Path, np.ndarray, np.ndarray | None]:
     """(the output folder, the position's gravity, the craniotomy's centre or None) after the
     arguments' checks: nothing is read before they pass."""
-    _check_output(Path(args.output))
+    check_output(Path(args.output))
     out = Path(args.output).resolve()
     position = anatomical_gravity(args.position)
     if _over_tumour(args) and not args.tumour:
@@ -266,43 +255,6 @@ def _judged(args, out: Path, patient, template, registration, found: _Found, rep
     return litres, ratio
 
 
-@contextlib.contextmanager
-def _written_in_place(out: Path):
-    """A temporary folder beside OUT, moved into its place when the block ends well (an earlier
-    prepare's folder replaced: _check_output), removed otherwise: never half a folder."""
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.resolve().parent))
-    aside = tmp.with_name(tmp.name + ".earlier")
-    try:
-        tmp.chmod(0o755)  # mkdtemp's is the owner's alone; the folder is the user's to share
-        yield tmp
-        if out.exists():  # the earlier folder set aside, deleted only once the new one is in place
-            os.replace(out, aside)
-        try:
-            os.replace(tmp, out)
-        except OSError:
-            if aside.exists():
-                os.replace(aside, out)
-            raise
-    finally:
-        for left in (tmp, aside):
-            if left.exists():
-                shutil.rmtree(left)
-
-
-def _check_output(out: Path) -> None:
-    if out.is_symlink():
-        raise InputError(f"-o: '{out}' is a link; give the folder itself (or a new one)")
-    if Path.cwd().resolve().is_relative_to(out.resolve()):
-        raise InputError(
-            f"-o: '{out}' is the folder you are in (or holds it): it would be replaced; give a new "
-            f"folder beside it, or run from elsewhere"
-        )
-    if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not (out / PREPARE_RECORD).is_file())):
-        raise InputError(f"-o: '{out}' exists and is not a folder `brainshift prepare` made; give a new folder")
-    if not out.resolve().parent.is_dir():
-        raise InputError(f"-o: the folder '{out.resolve().parent}' does not exist")
-
-
 def _point(text: str, what: str) -> np.ndarray:
     try:
         values = [float(v) for v in str(text).split(",")]
@@ -341,7 +293,7 @@ def _keep_supports(
 def _refuse(out: Path, patient, labels, present, args, report: dict, problem: str) -> None:
     """The folder gets the picture of what was found and prepare.json (status "refused"), no
     scene; then the one line that says what to try."""
-    with _written_in_place(out) as tmp:
+    with written_in_place(out) as tmp:
         write_overview(
             tmp / "overview.png",
             patient,
@@ -374,137 +326,9 @@ def _surface(mask: np.ndarray, grid: sitk.Image, step: int):
     return index_to_lps(grid, ijk) @ LPS_TO_RAS, triangles.astype(np.int64)
 
 
-def _write_folder(
-    folder: Path,
-    patient,
-    labels,
-    present,
-    brain,
-    anatomy,
-    registration,
-    args,
-    gravity,
-    levels,
-    tumour,
-    forced: str | None,
-) -> None:
-    sitk.WriteImage(_stored(patient), str(folder / "t1.nii.gz"))
-    label_image = sitk.GetImageFromArray(labels)
-    label_image.CopyInformation(patient)
-    sitk.WriteImage(label_image, str(folder / "labels.nii.gz"))
-    write_segmentation(folder / "anatomy.seg.nrrd", labels, patient, present)
-    sitk.WriteTransform(registration.transform, str(folder / "patient_to_template.h5"))
-    skull, triangles = inner_skull(
-        folder / "anatomy.seg.nrrd", list(present.values()), brain, patient, args.voxel, args.gap
-    )
-    write_slicer_stl(folder / "skull.stl", skull, triangles)
-    septa = {}
-    for name, (points_lps, tri) in anatomy.septa.items():
-        if len(tri) == 0:
-            continue
-        points = registration.to_patient(points_lps) @ LPS_TO_RAS
-        write_slicer_stl(folder / f"{name}.stl", points, tri)
-        septa[name] = f"{name}.stl"
-    probes = {name: registration.to_patient(p[None, :])[0] @ LPS_TO_RAS for name, p in anatomy.probes.items()}
-    probes["craniotomy"] = np.asarray(levels["centre_mm"])
-    (folder / "scene.toml").write_text(scene_text(args, present, gravity, levels, septa, probes, forced))
-    write_overview(
-        folder / "overview.png",
-        patient,
-        labels,
-        present,
-        f"{Path(args.t1).name}: the brain found and the carried labels",
-    )
-
-
-def _stored(image: sitk.Image) -> sitk.Image:
-    """The T1 as int16 when its values are (a scanner's), else float32: half the file, faster."""
-    values = sitk.GetArrayViewFromImage(image)
-    if np.all(values == np.rint(values)) and values.min() >= -32768 and values.max() <= 32767:
-        return sitk.Cast(image, sitk.sitkInt16)
-    return image
-
-
 def _grid(image: sitk.Image) -> dict:
     return {
         "size": list(image.GetSize()),
         "spacing_mm": [round(s, 4) for s in image.GetSpacing()],
         "direction": [round(d, 6) for d in image.GetDirection()],
     }
-
-
-def scene_text(args, present: dict, gravity, levels: dict, septa: dict, probes: dict, forced: str | None = None) -> str:
-    """scene.toml, with the reasons beside the values."""
-    import tomllib
-
-    bundled = tomllib.loads(BRAIN_SCENE.read_text())
-    material = bundled["material"]
-    supports = [n for n in present.values() if n == SUPPORT]
-    q = json.dumps
-    vec = lambda v: "[" + ", ".join(f"{float(x):.6g}" for x in v) + "]"  # noqa: E731
-    lines = [
-        f"# A patient scene made by `brainshift prepare` from {q(Path(args.t1).name)} "
-        f"({datetime.date.today().isoformat()}).",
-        "# Frame: the T1's RAS (x right, y anterior, z superior), metres; the files are in mm. See",
-        "# docs/patients.md; prepare.json says how the registration went.",
-    ]
-    if forced:
-        lines += [f"# WARNING: made with --force: {forced}"]
-    lines += [
-        'name = "patient"',
-        "",
-        "[mesh]",
-        'file = "anatomy.seg.nrrd"   # brain, tumour and supports, carried from the ICBM152 template',
-        'unit = "mm"',
-        f"voxel = {args.voxel * 1e-3:g}       # m: the embedding mesh's voxel",
-        "fill = 0.5",
-        f"labels = [{', '.join(q(n) for n in present.values())}]",
-        "",
-        "[material]          # the bundled brain's (the paper's Table II)",
-        f"G = {material['G']}",
-        f"nu = {material['nu']}",
-        f"density = {material['density']}",
-        "",
-        f"[gravity]           # {args.position}, along the head's anatomy",
-        f"vector = {vec(gravity)}",
-        "",
-        "[fluid]             # CSF from above the brain down to the craniotomy rim's lowest point",
-        f"# levels: m along up in the T1's frame; the start {levels['start_above_rim_mm']:.0f} mm above the rim's "
-        f"lowest point, drained at it (the brain spans {levels['brain_bottom_above_rim_mm']:.0f} to "
-        f"{levels['brain_top_above_rim_mm']:.0f} mm about it)",
-        "density = 1000.0",
-        f"level = [[0.0, {levels['start_level_m']:.5f}], [10.0, {levels['rim_level_m']:.5f}]]",
-        'rule = "consistent"',
-        "follower = true",
-        "",
-    ]
-    for name in supports:
-        lines += ["[[fixed]]", f'name = "{name}"', f'label = "{name}"   # carried from the bundled scene', ""]
-    lines += [
-        f"[skull]             # the inner skull: the brain's surface {args.gap:g} mm out (the CSF layer)",
-        'file = "skull.stl"',
-        "tolerance = 0.0001   # m: 0.1 mm past the skull is settled (the default 0.01 mm stalled Newton on a",
-        "                     # coarse voxel mesh's corners)",
-        "",
-    ]
-    for name, file in septa.items():
-        lines += ["[[septum]]", f'name = "{name}"', f'file = "{file}"   # the bundled scene\'s plane, carried', ""]
-    lines += [
-        "[time]",
-        'mode = "quasi-static"   # the settled states after the drain',
-        "",
-        "[solver]",
-        'kind = "cholesky"',
-        "",
-        "[probes]              # m, RAS: the bundled scene's, carried, and the craniotomy's centre",
-    ]
-    lines += [f"{name} = {vec(np.asarray(p) * 1e-3)}" for name, p in probes.items()]
-    # relative to where the command runs, as every scene's: PATIENT/run from where prepare ran
-    lines += [
-        "",
-        "[output]",
-        f"folder = {q((Path(args.output) / 'run').as_posix())}",
-        'fields = ["displacement", "von_mises"]',
-        "",
-    ]
-    return "\n".join(lines)

@@ -1,0 +1,138 @@
+"""The atlas as every update sees it, made once when it is loaded (as a navigation system keeps
+it in memory): the weights' bounds and the prior's weights, the mesh's locator, the surface the
+points are measured against, and the skull's rows near the prior's state."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..surfaces.skull import RigidSkull
+from .combine import Constraints, weight_constraints
+from .locate import MeshLocator
+from .rows import SkullRows, SurfaceRows
+from .store import Atlas
+
+
+def bounds(atlas) -> tuple[np.ndarray, np.ndarray]:
+    """The amplitude bounds of the swelling modes (their coefficient: (theta - prior) / step)."""
+    m = len(atlas.scenarios)
+    lower, upper = np.zeros(m), np.zeros(m)
+    for k, s in enumerate(atlas.scenarios):
+        if s["kind"] == "swelling":
+            a, b = (s["lower"] - s["prior"]) / s["step"], (s["upper"] - s["prior"]) / s["step"]
+            lower[k], upper[k] = min(a, b), max(a, b)
+    return lower, upper
+
+
+def family_sum(atlas) -> tuple[float, float]:
+    """The bounds of the family's weights' sum: G0/G over the atlas's range of G (a linear
+    body's shift from gravity and the fluid is proportional to 1/G; a swelling's is not)."""
+    s = atlas.info.get("stiffness")
+    return (s["G"] / s["upper"], s["G"] / s["lower"]) if s else (1.0, 1.0)
+
+
+def prior_weights(atlas) -> np.ndarray:
+    """The weights whose combination is nearest the scene's own prediction (least squares
+    over the nodes, within the constraints): where the update starts (once per atlas)."""
+    if "prior_weights" not in atlas.once:
+        atlas.once["prior_weights"] = _prior_weights(atlas)
+    return atlas.once["prior_weights"]
+
+
+def prepare(atlas: Atlas) -> float:
+    """What every update of this atlas needs, made once when it is loaded (as a navigation
+    system keeps it in memory): the prior's weights, the mesh's locator, the skull's distance
+    tree and rows over the boundary nodes, and the nodes near the skull at the prior's weights
+    with their rows (every update's first round). Returns the seconds it took."""
+    start = time.perf_counter()
+    prior_weights(atlas)
+    locator(atlas)
+    skull_at_prior(atlas)
+    return time.perf_counter() - start
+
+
+def skull_at_prior(atlas):
+    """(nodes, constraints): the boundary nodes near the skull at the prior's weights, and the
+    weights' constraints with those nodes' rows (combine.Constraints, what the solvers derive
+    from them made once); or None without a skull."""
+    if "skull_at_prior" not in atlas.once:
+        skull, c = skull_rows(atlas, atlas.vertex_modes), prior_weights(atlas)
+        if skull is None:
+            atlas.once["skull_at_prior"] = None
+        else:
+            nodes = skull.near(c)
+            constraints = Constraints(*weight_constraints(atlas.family, *bounds(atlas), family_sum(atlas)))
+            constraints = constraints.stacked(*skull.rows(c, nodes))
+            for derived in ("unit_rows", "partner", "bounds", "slack"):
+                getattr(constraints, derived)
+            atlas.once["skull_at_prior"] = (nodes, constraints)
+    return atlas.once["skull_at_prior"]
+
+
+def locator(atlas) -> MeshLocator:
+    if "locator" not in atlas.once:
+        atlas.once["locator"] = MeshLocator(atlas.points, atlas.tetrahedra)
+    return atlas.once["locator"]
+
+
+def _prior_weights(atlas) -> np.ndarray:
+    from .active_set import least_distance
+
+    lower, upper = bounds(atlas)
+    C, d = weight_constraints(atlas.family, lower, upper, (1.0, 1.0))  # at the scene's own G
+    H = atlas.gram.copy()
+    H[np.diag_indices_from(H)] += 1e-9 * np.trace(H) / len(H)
+    return least_distance(H, atlas.cross, C, d)
+
+
+def combination(c: np.ndarray, modes: np.ndarray) -> np.ndarray:
+    """sum_k c_k modes_k over the weights that are not 0 (in float64)."""
+    used = np.flatnonzero(c)
+    return np.tensordot(c[used], modes[used].astype(np.float64), axes=1)
+
+
+def surface_rows(atlas, modes: np.ndarray) -> SurfaceRows:
+    """The surface points are measured against: the fine surface, else the mesh's boundary."""
+    if atlas.surface_points is not None:
+        return SurfaceRows(atlas.surface_points, atlas.surface_triangles, atlas.surface_modes.astype(np.float64))
+    vertices, triangles = boundary_triangles(atlas.points, atlas.tetrahedra)
+    return SurfaceRows(atlas.points[vertices], triangles, modes[:, vertices, :])
+
+
+def prior_surface(atlas) -> np.ndarray:
+    if atlas.surface_points is not None:
+        return atlas.prior_surface
+    return atlas.prior_vertex[boundary_triangles(atlas.points, atlas.tetrahedra)[0]]
+
+
+def boundary_triangles(points: np.ndarray, tetrahedra: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices, triangles over them) of the mesh's boundary, each triangle ordered so that
+    its normal points out of its tetrahedron."""
+    faces = tetrahedra[:, [[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]]].reshape(-1, 3)
+    key = np.sort(faces, axis=1)
+    _, first, counts = np.unique(key, axis=0, return_index=True, return_counts=True)
+    faces = faces[first[counts == 1]]
+    opposite = tetrahedra[
+        np.repeat(np.arange(len(tetrahedra)), 4)[first[counts == 1]],
+        np.tile(np.arange(4), len(tetrahedra))[first[counts == 1]],
+    ]
+    a, b, c = (points[faces[:, i]] for i in range(3))
+    inward = np.einsum("ni,ni->n", np.cross(b - a, c - a), points[opposite] - a) > 0
+    faces[inward] = faces[inward][:, [0, 2, 1]]
+    vertices, triangles = np.unique(faces, return_inverse=True)
+    return vertices, triangles.reshape(-1, 3)
+
+
+def skull_rows(atlas, modes: np.ndarray) -> SkullRows | None:
+    """The skull's rows over the mesh's boundary nodes, or None for an atlas without a skull
+    (made once per atlas: its distance tree and the nodes' modes)."""
+    if atlas.skull_triangles is None:
+        return None
+    if "skull_rows" not in atlas.once:
+        tri = atlas.skull_triangles
+        skull = RigidSkull(tri.reshape(-1, 3), np.arange(3 * len(tri)).reshape(-1, 3), gap=atlas.skull_gap)
+        nodes = atlas.surface_vertices
+        atlas.once["skull_rows"] = SkullRows(skull, atlas.points[nodes], modes[:, nodes, :])
+    return atlas.once["skull_rows"]
