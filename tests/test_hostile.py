@@ -162,3 +162,42 @@ def test_two_atlas_builds_into_one_folder_are_one_at_a_time(tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 2 and "another brainshift process" in err and "-o" in err, err
     assert not (out / "atlas.h5").exists()
+
+
+def _nifti(path, shape, srow_x=(1.0, 0.0, 0.0, 0.0), data: bool = True):
+    """A NIfTI-1 file written field by field (nibabel refuses to make a NaN affine itself)."""
+    import nibabel as nib
+
+    header = nib.Nifti1Header()
+    header.set_data_shape(shape)
+    header.set_data_dtype(np.float32)
+    header["sform_code"], header["qform_code"] = 1, 0
+    header["srow_x"], header["srow_y"], header["srow_z"] = srow_x, (0, 1, 0, 0), (0, 0, 1, 0)
+    header["pixdim"][1:4] = 1.0
+    header["vox_offset"] = 352
+    voxels = np.random.default_rng(0).uniform(0, 100, shape).astype(np.float32) if data else np.zeros(10)
+    path.write_bytes(header.binaryblock + b"\0" * 4 + voxels.tobytes(order="F"))
+    return path
+
+
+@pytest.mark.parametrize(
+    "case, words",
+    [
+        ("nan affine", "has an affine (voxel size, origin or orientation) that is not a finite number"),
+        ("huge grid", "claims 4000 x 4000 x 4000 voxels (256 GB as float)"),
+    ],
+)
+def test_a_scan_whose_header_is_damaged_is_refused_before_its_voxels_are_read(tmp_path, capsys, case, words):
+    """A NaN in the affine ran the registration past 300 s; a header claiming 4000^3 voxels was
+    allocated before it was judged ("Failed to allocate memory for image")."""
+    from fenics_brainshift.cli import main
+
+    if case == "nan affine":
+        scan = _nifti(tmp_path / "t1.nii", (40, 40, 40), srow_x=(np.nan, 0.0, 0.0, 0.0))
+    else:
+        scan = _nifti(tmp_path / "t1.nii", (4000, 4000, 4000), data=False)
+    start = time.perf_counter()
+    code = main(["prepare", str(scan), "-o", str(tmp_path / "P")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and words in err[0], err
+    assert time.perf_counter() - start < 10.0 and not (tmp_path / "P").exists()

@@ -16,6 +16,7 @@ from ..images.volumes import is_volume
 log = logging.getLogger(__name__)
 
 MIN_SIZE = 16  # voxels along each axis: fewer is a localiser or a slab, not a head
+MAX_VOXELS = 500e6  # a whole head at 0.4 mm is 100 million
 MAX_LABELS = 16  # a T1 has thousands of grey values; this few is a segmentation
 GAP_FACTOR = 1.5  # a step between slice positions this many times the usual one: a missing slice
 
@@ -28,6 +29,7 @@ def read_t1(path: str | Path, what: str = "T1") -> sitk.Image:
     elif not path.is_file():
         raise InputError(f"{what}: no file or folder '{path}'")
     elif is_volume(path) or path.name.lower().endswith(".dcm"):
+        _check_header(path, what)
         try:
             image = sitk.ReadImage(str(path))
         except RuntimeError as exc:
@@ -39,8 +41,60 @@ def read_t1(path: str | Path, what: str = "T1") -> sitk.Image:
     return _checked(image, path, what)
 
 
+def _check_header(path: Path, what: str) -> None:
+    """The grid a file's header claims, judged before its voxels are read: a size past
+    MAX_VOXELS was allocated first (and failed), a NaN in the affine stalled the registration."""
+    if path.name.lower().endswith((".nii", ".nii.gz")):  # (ITK's SVD of a NaN affine prints a page first)
+        _check_nifti_affine(path, what)
+    reader = sitk.ImageFileReader()
+    reader.SetFileName(str(path))
+    try:
+        reader.ReadImageInformation()
+    except RuntimeError as exc:
+        raise InputError(f"{what}: '{path.name}' could not be read ({_first_line(exc)})") from None
+    voxels = float(np.prod(reader.GetSize(), dtype=float))
+    if voxels > MAX_VOXELS:
+        raise InputError(
+            f"{what}: '{path.name}' claims {' x '.join(map(str, reader.GetSize()))} voxels ({voxels * 4 / 1e9:.0f} GB "
+            f"as float): not the grid of a head MRI (a damaged header?); export the scan again"
+        )
+    _check_geometry(reader.GetSpacing(), reader.GetOrigin(), reader.GetDirection(), path.name, what)
+
+
+def _check_nifti_affine(path: Path, what: str) -> None:
+    import nibabel as nib
+
+    try:
+        header = nib.load(str(path)).header
+        with np.errstate(invalid="ignore"):
+            matrices = [header.get_zooms()[:3]]
+            if header["sform_code"] > 0:
+                matrices.append(header.get_sform())
+            if header["qform_code"] > 0:
+                matrices.append(header.get_qform())
+    except Exception:  # (a header nibabel cannot read: ITK says why below)
+        return
+    if not all(np.isfinite(np.asarray(m, dtype=float)).all() for m in matrices):
+        raise InputError(
+            f"{what}: '{path.name}' has an affine (voxel size, origin or orientation) that is not a finite "
+            f"number: its header is damaged; export the scan again"
+        )
+
+
+def _check_geometry(spacing, origin, direction, name: str, what: str) -> None:
+    geometry = np.concatenate([spacing, origin, direction]).astype(float)
+    if not np.isfinite(geometry).all() or min(spacing) <= 0:
+        raise InputError(
+            f"{what}: '{name}' has a voxel size, origin or orientation that is not a finite number (spacing "
+            f"{tuple(round(v, 4) for v in spacing)}): its header is damaged; export the scan again"
+        )
+    if abs(np.linalg.det(np.reshape(direction, (len(spacing), len(spacing))))) < 1e-3:
+        raise InputError(f"{what}: '{name}' has a singular orientation in its header; export the scan again")
+
+
 def _checked(image: sitk.Image, path: Path, what: str) -> sitk.Image:
     name = path.name
+    _check_geometry(image.GetSpacing(), image.GetOrigin(), image.GetDirection(), name, what)
     if image.GetNumberOfComponentsPerPixel() != 1:
         raise InputError(
             f"{what}: '{name}' has {image.GetNumberOfComponentsPerPixel()} components per voxel "
