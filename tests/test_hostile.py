@@ -201,3 +201,47 @@ def test_a_scan_whose_header_is_damaged_is_refused_before_its_voxels_are_read(tm
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and words in err[0], err
     assert time.perf_counter() - start < 10.0 and not (tmp_path / "P").exists()
+
+
+def _box(lo, hi, offset: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """A box's 8 corners and its 12 triangles, normals outward."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    triangles = [t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))]
+    return corners, np.array(triangles) + offset
+
+
+def test_a_skull_of_two_shells_or_turned_triangles_is_refused_naming_that(tmp_path):
+    """A skull file holding an inner and an outer shell was accepted (its distance field then
+    wrong inside); one with a triangle turned the wrong way was refused as a unit or frame slip."""
+    from mpi4py import MPI
+
+    from fenics_brainshift import Simulation, scene_from_dict
+    from fenics_brainshift.surfaces.triangles import closed_surface_problem, shell_problem
+
+    outer, outer_t = _box([-0.01] * 3, [0.03] * 3)
+    inner, inner_t = _box([-0.005] * 3, [0.025] * 3, offset=8)
+    one = (outer, outer_t)
+    two = (np.vstack([outer, inner]), np.vstack([outer_t, inner_t]))
+    turned = outer_t.copy()
+    turned[3] = turned[3, ::-1]
+    assert closed_surface_problem(one[1]) is None and shell_problem(one[1]) is None
+    assert closed_surface_problem(two[1]) is None and "2 separate closed surfaces" in shell_problem(two[1])
+    assert closed_surface_problem(turned) is None and "not consistently oriented" in shell_problem(turned)
+    for name, (points, triangles), words in (
+        ("two.obj", two, "2 separate closed surfaces"),
+        ("turned.obj", (outer, turned), "not consistently oriented"),
+    ):
+        lines = [f"v {x} {y} {z}" for x, y, z in points]  # (m, as the box scene)
+        lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in triangles]
+        (tmp_path / name).write_text("\n".join(lines) + "\n")
+        data = {
+            "mesh": {"shape": "box", "size": [0.02, 0.02, 0.02], "cells": [2, 2, 2]},
+            "material": {"E": 1e4, "nu": 0.3},
+            "fixed": [{"where": "z < 1e-9"}],
+            "time": {"mode": "quasi-static"},
+            "skull": {"file": str(tmp_path / name)},
+        }
+        with pytest.raises(InputError, match=re.escape(f"[skull] file '{name}': ") + ".*" + words):
+            Simulation(scene_from_dict(data), MPI.COMM_SELF)

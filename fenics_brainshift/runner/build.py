@@ -27,7 +27,7 @@ from ..scene import Scene
 from ..stepping import TimeIntegrator
 from ..surfaces.files import SurfaceFileError, read_surface
 from ..surfaces.skull import RigidSkull
-from ..surfaces.triangles import closed_surface_problem, outward
+from ..surfaces.triangles import closed_surface_problem, outward, shell_problem
 from ..units import LENGTH_UNITS
 from .load_checks import check_loads
 
@@ -100,6 +100,9 @@ def skull_contact(scene: Scene, model):
                 f"[skull] file '{Path(spec.file).name}' is not a closed surface: {problem}; close it "
                 f"(e.g. fill holes in 3D Slicer or MeshLab) or use gap = ... instead"
             )
+        problem = shell_problem(triangles)
+        if problem:
+            raise InputError(f"[skull] file '{Path(spec.file).name}': {problem}")
         skull = RigidSkull(points, outward(points, triangles))
     contact = SkullContact(model.V, facets, skull, scene.material.E, spec.tolerance, model.constraints)
     clearance = contact.clearance(fem.Function(model.V))  # at rest

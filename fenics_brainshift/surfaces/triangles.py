@@ -50,6 +50,35 @@ def closed_surface_problem(triangles: np.ndarray) -> str | None:
     return None
 
 
+def shell_problem(triangles: np.ndarray) -> str | None:
+    """Why a closed surface is not one consistently oriented shell (a skull must be: a second
+    shell inside it, or a triangle turned the wrong way, makes its distance field wrong), or
+    None."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    t = np.asarray(triangles)
+    directed = np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]])
+    _, counts = np.unique(directed, axis=0, return_counts=True)
+    if np.any(counts > 1):  # (an edge run the same way by both its triangles: one of them turned)
+        return (
+            f"its triangles are not consistently oriented ({int(np.sum(counts > 1))} edge(s) run the same way in "
+            f"both their triangles); re-orient them (MeshLab: Re-Orient all faces coherently)"
+        )
+    n = int(t.max(initial=-1)) + 1
+    adjacency = coo_matrix((np.ones(len(directed)), (directed[:, 0], directed[:, 1])), shape=(n, n))
+    used = np.zeros(n, dtype=bool)
+    used[t.ravel()] = True
+    _, label = connected_components(adjacency, directed=False)
+    shells = len(np.unique(label[used]))
+    if shells > 1:
+        return (
+            f"it is {shells} separate closed surfaces (an inner and an outer table?); give the inner skull's "
+            f"surface alone (3D Slicer: Segment Editor, Islands, keep the largest or the selected island)"
+        )
+    return None
+
+
 def outward(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     """The triangles of a closed surface ordered so that their normals point out (flipped all
     together when the enclosed volume comes out negative)."""
