@@ -12,6 +12,7 @@ from .checks import choice, integer, non_negative, number, positive, vector3
 from .predicates import Predicate, PredicateError, parse_predicate
 from .schedule import Schedule
 
+NU_MAX = 0.4999  # nearer 1/2 the displacement formulation locks (P1) or stalls (Newton)
 SHAPES = ("box", "ellipsoid")
 
 
@@ -116,9 +117,10 @@ class Material:
             raise InputError("[material] give exactly one of E (Young's modulus, Pa) or G (shear modulus, Pa)")
         choice("[material] model", self.model, MATERIAL_MODELS)
         self.nu = number("[material] nu", self.nu)
-        if not -1.0 < self.nu < 0.5:
+        if not -1.0 < self.nu <= NU_MAX:
             raise InputError(
-                f"[material] nu must be in (-1, 0.5) (got {self.nu:g}); 0.5 is incompressible, use 0.4999 at most"
+                f"[material] nu must be in (-1, {NU_MAX:g}] (got {self.nu:.10g}); 0.5 is incompressible, which "
+                f"this displacement formulation cannot hold (P1 locks, Newton stalls)"
             )
         self.density = positive("[material] density", self.density)
         if self.G is not None:
