@@ -245,3 +245,26 @@ def test_a_skull_of_two_shells_or_turned_triangles_is_refused_naming_that(tmp_pa
         }
         with pytest.raises(InputError, match=re.escape(f"[skull] file '{name}': ") + ".*" + words):
             Simulation(scene_from_dict(data), MPI.COMM_SELF)
+
+
+def test_a_volume_with_nan_voxels_is_read_with_them_as_zero_and_says_so(tmp_path, caplog):
+    """A NaN voxel of a warped image spread to 9 voxels of the output without a word."""
+    import logging
+
+    import nibabel as nib
+
+    from fenics_brainshift.images.volumes import read_volume
+
+    data = np.random.default_rng(0).uniform(0, 100, (20, 20, 20)).astype(np.float32)
+    data[3, 4, 5], data[6, 7, 8] = np.nan, np.inf
+    nib.save(nib.Nifti1Image(data, np.eye(4)), tmp_path / "t1.nii.gz")
+    logger = logging.getLogger("fenics_brainshift")
+    logger.addHandler(caplog.handler)
+    try:
+        with caplog.at_level(logging.WARNING, logger="fenics_brainshift"):
+            volume = read_volume(tmp_path / "t1.nii.gz")
+    finally:
+        logger.removeHandler(caplog.handler)
+    assert np.isfinite(volume.data).all() and volume.data[3, 4, 5] == 0 and volume.data[6, 7, 8] == 0
+    assert volume.data[0, 0, 0] == data[0, 0, 0]
+    assert any("holds 2 voxels that are not finite" in r.getMessage() for r in caplog.records)

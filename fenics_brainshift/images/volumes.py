@@ -17,7 +17,10 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from ..logs import get_logger
 from .frames import LPS_TO_RAS
+
+log = get_logger("images")
 
 NIFTI_SUFFIXES = (".nii", ".nii.gz")
 NRRD_SUFFIXES = (".nrrd", ".nhdr")  # .seg.nrrd included
@@ -96,6 +99,11 @@ def read_volume(path: str | Path, what: str = "--image", layered: bool = False) 
         data = data[0]
     if data.ndim != 3:
         raise InputError(f"{what}: '{path.name}' has {data.ndim} dimensions {data.shape}; a 3D volume is needed")
+    if np.issubdtype(data.dtype, np.floating) and not np.isfinite(data).all():
+        # (a processed image's background is often NaN: sampled, a NaN spreads to its neighbours)
+        bad = int(data.size - np.count_nonzero(np.isfinite(data)))
+        log.warning("%s: '%s' holds %d voxels that are not finite (NaN or infinite): read as 0", what, path.name, bad)
+        data = np.where(np.isfinite(data), data, 0.0).astype(data.dtype)
     volume.data = data
     return volume
 
