@@ -249,6 +249,9 @@ def test_an_atlas_survives_its_files_and_refuses_another_mesh(atlas, tmp_path):
         ("a mode changed", "the regulariser's diagonal and the modes disagree"),
         ("a cross term changed", "cross terms and the modes disagree"),
         ("a NaN stiffness", "stiffness"),
+        ("an off-diagonal changed", "the regulariser and the modes disagree"),
+        ("an infinite prior square", "prior square hold 1 numbers"),
+        ("a NaN on the fine surface", "the fine surface hold 1 numbers"),
     ],
 )
 def test_a_damaged_atlas_is_named_damaged_in_one_line(atlas, tmp_path, capsys, damage, words):
@@ -268,6 +271,15 @@ def test_a_damaged_atlas_is_named_damaged_in_one_line(atlas, tmp_path, capsys, d
             f["modes/vertex"][3, 7, 2] += 0.01
         elif damage == "a cross term changed":
             f["regulariser/cross"][4] *= 1.01
+        elif damage == "an off-diagonal changed":
+            gram = f["regulariser/gram"][...]
+            gram[1, 3] *= 10.0
+            gram[3, 1] = gram[1, 3]  # (symmetric: only the modes can tell)
+            f["regulariser/gram"][...] = gram
+        elif damage == "an infinite prior square":
+            f["regulariser"].attrs["prior_square"] = np.inf
+        elif damage == "a NaN on the fine surface":
+            f["surface/points"][2, 0] = np.nan
     if damage == "a NaN stiffness":
         index = json.loads((tmp_path / "a" / "atlas.json").read_text())
         index["stiffness"]["G"] = float("nan")
@@ -971,3 +983,18 @@ def test_pairs_whose_ras_numbers_are_declared_lps_are_warned_of_with_both_residu
     text = out.out + out.err
     assert code == 0 and "fit the prediction far better in the other frame" in text and "coordinateSystem" in text
     assert "other frame" in json.loads(report.read_text())["warning"]
+
+
+def test_an_update_interrupted_before_its_record_can_be_made_again_in_its_folder(atlas, atlas_folder, tmp_path):
+    """An update killed between its displacement and its update.json left a folder every later
+    update refused as a run's; its summary says it was an update's, and a new one goes in."""
+    from fenics_brainshift.cli import main
+
+    _markups(tmp_path, atlas)
+    argv = ["update", str(atlas_folder), "--target", str(tmp_path / "intra.mrk.json"), "--pre",
+            str(tmp_path / "pre.mrk.json"), "--out", str(tmp_path / "u")]  # fmt: skip
+    assert main(argv) == 0
+    (tmp_path / "u" / "update.json").unlink()  # (as a kill left it: the run's files, the summary running)
+    summary = json.loads((tmp_path / "u" / "summary.json").read_text())
+    (tmp_path / "u" / "summary.json").write_text(json.dumps({**summary, "status": "running", "kind": "update"}))
+    assert main(argv) == 0 and (tmp_path / "u" / "update.json").is_file()

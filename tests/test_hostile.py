@@ -164,7 +164,7 @@ def test_two_atlas_builds_into_one_folder_are_one_at_a_time(tmp_path, capsys):
     assert not (out / "atlas.h5").exists()
 
 
-def _nifti(path, shape, srow_x=(1.0, 0.0, 0.0, 0.0), data: bool = True):
+def _nifti(path, shape, srow_x=(1.0, 0.0, 0.0, 0.0), data: bool = True, pixdim_x: float = 1.0):
     """A NIfTI-1 file written field by field (nibabel refuses to make a NaN affine itself)."""
     import nibabel as nib
 
@@ -173,7 +173,7 @@ def _nifti(path, shape, srow_x=(1.0, 0.0, 0.0, 0.0), data: bool = True):
     header.set_data_dtype(np.float32)
     header["sform_code"], header["qform_code"] = 1, 0
     header["srow_x"], header["srow_y"], header["srow_z"] = srow_x, (0, 1, 0, 0), (0, 0, 1, 0)
-    header["pixdim"][1:4] = 1.0
+    header["pixdim"][1:4] = (pixdim_x, 1.0, 1.0)
     header["vox_offset"] = 352
     voxels = np.random.default_rng(0).uniform(0, 100, shape).astype(np.float32) if data else np.zeros(10)
     path.write_bytes(header.binaryblock + b"\0" * 4 + voxels.tobytes(order="F"))
@@ -268,3 +268,23 @@ def test_a_volume_with_nan_voxels_is_read_with_them_as_zero_and_says_so(tmp_path
     assert np.isfinite(volume.data).all() and volume.data[3, 4, 5] == 0 and volume.data[6, 7, 8] == 0
     assert volume.data[0, 0, 0] == data[0, 0, 0]
     assert any("holds 2 voxels that are not finite" in r.getMessage() for r in caplog.records)
+
+
+def test_a_scan_header_flipped_by_a_negative_voxel_size_is_read_and_absurd_voxel_sizes_are_not(tmp_path):
+    """A negative pixdim is a flip (ITK takes it into the direction): it was refused as not finite.
+    Voxels of 1e-6 mm or 1e6 mm passed the header and ended in ITK tracebacks."""
+    from fenics_brainshift.patients.series import read_t1
+
+    flipped = _nifti(tmp_path / "flipped.nii", (40, 40, 40), srow_x=(-1.0, 0.0, 0.0, 0.0), pixdim_x=-1.0)
+    assert read_t1(flipped).GetSize() == (40, 40, 40)
+    for size, name in ((1e-6, "tiny.nii"), (1e6, "huge_voxels.nii")):
+        scan = _nifti(tmp_path / name, (40, 40, 40), srow_x=(size, 0.0, 0.0, 0.0), pixdim_x=size)
+        with pytest.raises(InputError, match="a head MRI's are 0.05-30 mm"):
+            read_t1(scan)
+
+
+def test_a_condition_with_a_nul_character_is_one_line():
+    from fenics_brainshift.scene.predicates import parse_predicate
+
+    with pytest.raises(InputError, match="NUL character"):
+        parse_predicate("z < 1e-6\x00")

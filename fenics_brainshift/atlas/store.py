@@ -185,16 +185,20 @@ def read(folder: str | Path) -> Atlas:
 
 def damage(atlas: Atlas) -> str | None:
     """What in an atlas's arrays is not what its build wrote, or None: every number finite, the
-    stiffness's bounds ordered and positive, and the regulariser's Gram diagonal and cross terms
-    equal to what the modes give (O(modes x nodes): a damaged mode or Gram entry is found without
-    the O(modes^2 x nodes) Gram itself)."""
+    stiffness's bounds ordered and positive, and the regulariser (its Gram matrix, cross terms
+    and prior square) equal to what the modes and the prior give, checked in O(modes x nodes):
+    the diagonal, the cross terms, and the Gram's action on two random weight vectors (a changed
+    entry anywhere moves w.G.w), without the O(modes^2 x nodes) Gram itself."""
     arrays = {
         "the modes": atlas.vertex_modes,
         "the prior": atlas.prior_vertex,
         "the regulariser": atlas.gram,
         "the regulariser's cross terms": atlas.cross,
+        "the regulariser's prior square": np.array([atlas.prior_square]),
         "the mesh's points": atlas.points,
+        "the fine surface": atlas.surface_points,
         "the fine surface's modes": atlas.surface_modes,
+        "the fine surface's prior": atlas.prior_surface,
         "the skull": atlas.skull_triangles,
     }
     for name, values in arrays.items():
@@ -209,13 +213,24 @@ def damage(atlas: Atlas) -> str | None:
         and numbers == sorted(numbers)
     ):
         return f"atlas.json's stiffness {stiffness} is not 0 < lower <= G <= upper"
-    n = len(atlas.points)
-    flat = atlas.vertex_modes.reshape(len(atlas.vertex_modes), -1).astype(float)
-    squares = np.einsum("ij,ij->i", flat, flat) / n
-    cross = flat @ atlas.prior_vertex.ravel() / n
-    scale = max(float(squares.max(initial=0.0)), float(atlas.prior_square), 1e-300)
+    n, m = len(atlas.points), len(atlas.vertex_modes)
+    prior = atlas.prior_vertex.ravel().astype(np.float64)
+    if atlas.gram.shape != (m, m) or not np.array_equal(atlas.gram, atlas.gram.T):
+        return "the regulariser is not a symmetric matrix of one row a mode"
+    weights = np.random.default_rng(0).standard_normal((2, m))
+    squares, cross, combined = np.empty(m), np.empty(m), np.zeros((2, prior.size))
+    for k in range(m):  # (a mode at a time in float64: no float64 copy of every mode)
+        mode = atlas.vertex_modes[k].ravel().astype(np.float64)
+        squares[k], cross[k] = mode @ mode / n, mode @ prior / n
+        combined += weights[:, k : k + 1] * mode
+    scale = max(float(squares.max(initial=0.0)), float(prior @ prior / n), 1e-300)
+    if abs(atlas.prior_square - prior @ prior / n) > 1e-6 * scale:
+        return "the regulariser's prior square and the prior disagree"
     if np.abs(np.diag(atlas.gram) - squares).max(initial=0.0) > 1e-6 * scale:
         return "the regulariser's diagonal and the modes disagree"
     if np.abs(atlas.cross - cross).max(initial=0.0) > 1e-6 * scale:
         return "the regulariser's cross terms and the modes disagree"
+    actions = np.einsum("bi,ij,bj->b", weights, atlas.gram, weights)
+    if np.abs(actions - np.einsum("bi,bi->b", combined, combined) / n).max() > 1e-6 * scale * m:
+        return "the regulariser and the modes disagree"
     return None

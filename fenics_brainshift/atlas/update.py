@@ -197,7 +197,13 @@ def _update(atlas, target, noise: float, samples: int, keep_inside: bool) -> Upd
         against = None
     check_near(atlas, prior_residual, point_to_point)
     mirrored = other_frame(atlas, target, prior_residual, noise, None if point_to_point else surface)
-    against = "; ".join(w for w in (against, mirrored) if w) or None
+    if against and mirrored:  # (gravity across x and y: negating them reverses the shift too; one note)
+        against = (
+            f"{against}; or {mirrored.removeprefix('the points ')} (pairs cannot tell the two apart when gravity "
+            f"lies across x and y)"
+        )
+    else:
+        against = against or mirrored
 
     def data_rows(c):
         return fixed_rows if point_to_point else surface.rows(c, target.measured)[:3]

@@ -14,7 +14,7 @@ from ..atlas import store
 from ..atlas.update import prepare, update
 from ..errors import InputError
 from ..images.targets import check_noise, read_target
-from ..outputs.files import RunLock, check_writable, clear_run, write_json
+from ..outputs.files import RunLock, check_writable, clear_run, runs_results, write_json
 from .help_format import Defaults
 
 DEFAULT_NOISE_MM = 1.0  # a tracked pointer's error on the cortex
@@ -146,6 +146,10 @@ def _check_no_earlier_update(out: Path, replace: bool, comm) -> None:
             earlier = f"{made.get('points', '?')} points, {made.get('target', '?')}"
         except (OSError, ValueError):
             earlier = "its update.json unreadable"
+    problem = runs_results(out) if comm.rank == 0 else None  # (before the fit, not after it)
+    problem = comm.bcast(problem, root=0)
+    if problem:
+        raise InputError(problem)
     earlier = comm.bcast(earlier, root=0)
     if earlier is not None and not replace:
         raise InputError(

@@ -39,7 +39,7 @@ def check_noise(noise_mm: float, flag: str = "--noise") -> None:
     low, high = NOISE_MM
     if not low <= noise_mm <= high:
         raise InputError(
-            f"{flag}: {noise_mm:g} mm; a point's measurement noise is {low:g}-{high:g} mm per coordinate "
+            f"{flag}: {noise_mm:.10g} mm; a point's measurement noise is {low:g}-{high:g} mm per coordinate "
             f"(a tracked pointer about 1 mm; in mm, not m)"
         )
 

@@ -3,6 +3,7 @@ that an output folder can be written, made before any work."""
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 
@@ -131,14 +132,8 @@ def clear_run(out: Path, comm, scene_name: str, keep=(), kind: str = "run") -> N
             problem = f"--out '{out}' holds a {other} ({names[0]}): " + (
                 "run its fitted.toml there, or choose another --out" if other == "fit" else "choose another --out"
             )
-        own = (out / RECORDS["update"][0]).is_file()
-        if problem is None and kind == "update" and not own and (out / "displacement.xdmf").is_file():
-            # a run's results, which the update would replace (a fit clears its folder's run on
-            # purpose: the fitted scene's run takes its place)
-            problem = (
-                f"--out '{out}' holds a run's results (summary.json, displacement.xdmf) that the update would "
-                f"replace: choose another --out"
-            )
+        if problem is None and kind == "update":
+            problem = runs_results(out)
     problem = comm.bcast(problem, root=0)
     if problem:
         raise InputError(problem)
@@ -147,7 +142,26 @@ def clear_run(out: Path, comm, scene_name: str, keep=(), kind: str = "run") -> N
         for path in [out / name for name in names] + [p for pattern in RUN_SERIES for p in out.glob(pattern)]:
             if path.is_file() and path.resolve() not in kept:
                 path.unlink()
-    write_json(out / "summary.json", {"scene": scene_name, "status": "running"}, comm)
+    running = {"scene": scene_name, "status": "running"} | ({"kind": kind} if kind != "run" else {})
+    write_json(out / "summary.json", running, comm)
+
+
+def runs_results(out: Path) -> str | None:
+    """Why an update may not write into ``out``: it holds a run's results, which the update would
+    replace (a fit clears its folder's run on purpose: the fitted scene's run takes its place);
+    an update's own folder, even one interrupted before its update.json, is not refused."""
+    if not (out / "displacement.xdmf").is_file() or (out / RECORDS["update"][0]).is_file():
+        return None
+    try:
+        kind = json.loads((out / "summary.json").read_text()).get("kind")
+    except (OSError, ValueError, AttributeError):
+        kind = None
+    if kind == "update":
+        return None
+    return (
+        f"--out '{out}' holds a run's results (summary.json, displacement.xdmf) that the update would "
+        f"replace: choose another --out"
+    )
 
 
 def write_json(path: Path, data: dict, comm) -> None:

@@ -16,6 +16,7 @@ from ..images.volumes import is_volume
 log = logging.getLogger(__name__)
 
 MIN_SIZE = 16  # voxels along each axis: fewer is a localiser or a slab, not a head
+VOXEL_MM = (0.05, 30.0)  # a head MRI's voxel sizes (0.2-1 mm 3-D, slabs up to 7 mm) with room
 MAX_VOXELS = 500e6  # a whole head at 0.4 mm is 100 million
 MAX_LABELS = 16  # a T1 has thousands of grey values; this few is a segmentation
 GAP_FACTOR = 1.5  # a step between slice positions this many times the usual one: a missing slice
@@ -83,10 +84,16 @@ def _check_nifti_affine(path: Path, what: str) -> None:
 
 def _check_geometry(spacing, origin, direction, name: str, what: str) -> None:
     geometry = np.concatenate([spacing, origin, direction]).astype(float)
-    if not np.isfinite(geometry).all() or min(spacing) <= 0:
+    if not np.isfinite(geometry).all():
         raise InputError(
-            f"{what}: '{name}' has a voxel size, origin or orientation that is not a finite number (spacing "
-            f"{tuple(round(v, 4) for v in spacing)}): its header is damaged; export the scan again"
+            f"{what}: '{name}' has a voxel size, origin or orientation that is not a finite number: its header "
+            f"is damaged; export the scan again"
+        )
+    size = np.abs(np.asarray(spacing, dtype=float))  # (a negative pixdim is a flip ITK takes into the direction)
+    if not (VOXEL_MM[0] <= size.min() and size.max() <= VOXEL_MM[1]):
+        raise InputError(
+            f"{what}: '{name}' has voxels of {' x '.join(f'{v:.3g}' for v in size)} mm; a head MRI's are "
+            f"{VOXEL_MM[0]:g}-{VOXEL_MM[1]:g} mm (a header in another unit, or damaged?); export the scan again"
         )
     if abs(np.linalg.det(np.reshape(direction, (len(spacing), len(spacing))))) < 1e-3:
         raise InputError(f"{what}: '{name}' has a singular orientation in its header; export the scan again")

@@ -82,6 +82,8 @@ def parse_predicate(text: str) -> Predicate:
         tree = ast.parse(text.strip(), mode="eval").body
     except SyntaxError as exc:
         raise PredicateError(f"cannot parse '{short}': {exc.msg}") from None
+    except ValueError:  # (a NUL character: Python's parser refuses it before parsing)
+        raise PredicateError(f"'{short.encode('unicode_escape').decode()}' holds a NUL character; remove it") from None
     except (RecursionError, MemoryError):  # (ast's own recursion, before the depth can be measured)
         raise PredicateError(f"'{short}' is nested too deep (at most {MAX_DEPTH} levels); simplify it") from None
     if (depth := _depth(tree)) > MAX_DEPTH:
@@ -93,12 +95,13 @@ def parse_predicate(text: str) -> Predicate:
 
 
 def _depth(tree: ast.AST) -> int:
-    """The tree's depth, measured without recursion."""
+    """The depth of the tree's expressions (operators and contexts not counted), measured
+    without recursion."""
     deepest, stack = 0, [(tree, 1)]
     while stack:
         node, level = stack.pop()
         deepest = max(deepest, level)
-        stack.extend((child, level + 1) for child in ast.iter_child_nodes(node))
+        stack.extend((child, level + isinstance(child, ast.expr)) for child in ast.iter_child_nodes(node))
     return deepest
 
 
