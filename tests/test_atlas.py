@@ -134,7 +134,7 @@ def test_an_operation_inside_the_span_is_recovered_to_the_noise_from_20_cortex_p
     sampled = update(atlas, Target(measured, points[picked], [f"p{i}" for i in range(20)]), noise, samples=30)
     assert sampled.spread_from.startswith("bootstrap") and np.allclose(sampled.displacement, result.displacement)
     assert 0 < sampled.spread.mean() < noise and np.mean(error < 2 * sampled.spread) > 0.9
-    assert result.seconds["total_ms"] < 100  # (the whole update: about 15 ms here)
+    assert result.seconds["total_ms"] < 100  # (the whole update: 44 ms in this order on an idle 2-core machine)
 
 
 def _cortex_points_one_slipped(atlas, slipped: int):
