@@ -107,12 +107,13 @@ def brainshift(argv: list[str], log: Path) -> tuple[int, float]:
 
 
 def gate_when_moved(folder: Path) -> list[dict]:
-    """The gate's correlation ratio (registration.fit_measures: the deep brain) with the found
+    """The gate's correlation ratio (fit_measures.fit_measures: the deep brain) with the found
     registration moved (MOVES), and as found."""
     import SimpleITK as sitk
 
     from fenics_brainshift.data.templates import mni_t1
-    from fenics_brainshift.patients.registration import Registration, fit_measures
+    from fenics_brainshift.patients.fit_measures import fit_measures
+    from fenics_brainshift.patients.registration import Registration
 
     patient = sitk.ReadImage(str(folder / "t1.nii.gz"), sitk.sitkFloat32)
     template = sitk.ReadImage(str(mni_t1()), sitk.sitkFloat32)

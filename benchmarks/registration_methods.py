@@ -22,7 +22,7 @@ Methods (both register the template, moving, to the patient, fixed, on one threa
 
 Both brains then go through prepare's own clean-up (the largest face-connected part, holes
 filled), and are judged by prepare's gate, the same function on each method's transform
-(registration.py ``fit_measures``; for ANTs its forward composite transform, written as ITK
+(fit_measures.py ``fit_measures``; for ANTs its forward composite transform, written as ITK
 HDF5, read by SimpleITK: patient LPS mm -> template LPS mm): success = brain 1.0-1.7 l and
 ratio >= 0.1 and ratio - ratio_moved >= 0.05. Per case: brain volume, Dice of the two methods'
 brains, wall time of the registration (one process, one thread: ITK_GLOBAL_DEFAULT_NUMBER_OF_THREADS=1,
@@ -72,8 +72,9 @@ sys.path.insert(0, str(ROOT))
 from fenics_brainshift.bench import machine_line  # noqa: E402
 from fenics_brainshift.data.templates import largest_part, mni_brain_mask, mni_head, mni_t1  # noqa: E402
 from fenics_brainshift.patients.carry import labels_on_patient  # noqa: E402
+from fenics_brainshift.patients.fit_measures import fit_measures  # noqa: E402
 from fenics_brainshift.patients.gate import MIN_PEAK, MIN_RATIO, PLAUSIBLE  # noqa: E402
-from fenics_brainshift.patients.registration import coarsened, fit_measures, normalised, register, shows_head  # noqa: E402
+from fenics_brainshift.patients.registration import coarsened, normalised, register, shows_head  # noqa: E402
 from fenics_brainshift.patients.series import read_t1  # noqa: E402
 from fenics_brainshift.patients.synthetic import synthetic_patient, with_head  # noqa: E402
 

@@ -15,7 +15,7 @@ VOLUME_RANGE = (0.6, 2.6)  # litres: a brain found outside this is a failed regi
 PLAUSIBLE = (1.0, 1.7)  # litres: an adult brain; outside it, a warning
 # The gate, whatever the contrast: the template's anatomy must explain at least MIN_RATIO of the
 # scan's variance in the brain found (the correlation ratio, in its part deeper than 10 mm), and
-# MIN_PEAK more than with the registration moved 10 mm along any axis (registration.fit_measures).
+# MIN_PEAK more than with the registration moved 10 mm along any axis (fit_measures.py).
 # Measured (benchmarks/results/prepare_cases.md): an absolute threshold alone cannot judge (right
 # registrations by their pictures 0.16-0.65 by contrast and sharpness, a T1's moved 10 mm 0.23);
 # the peak is what a right one has: 0.085 (a 2 mm T1) to 0.42 above its surroundings, a 6.5 mm

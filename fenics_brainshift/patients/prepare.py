@@ -27,11 +27,12 @@ from .anatomy import template_anatomy
 from .carry import index_to_lps, labels_on_patient
 from .contrast import NAMES as CONTRAST_NAMES
 from .contrast import described_contrast, disagrees, measured_family
+from .fit_measures import fit_measures
 from .folder import PREPARE_RECORD, SUPPORT, check_output, write_folder, written_in_place
 from .gate import fit_problem, hints
 from .overview import write_overview
 from .position import G, anatomical_gravity, craniotomy_levels, over_tumour_centre, patient_direction
-from .registration import fit_measures, register, shows_head, stripped_region
+from .registration import register, shows_head, stripped_region
 from .series import read_t1, series_metadata
 from .tumour import read_tumour, tumour_report
 
