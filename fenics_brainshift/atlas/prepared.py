@@ -11,8 +11,9 @@ import numpy as np
 from ..surfaces.skull import RigidSkull
 from .combine import Constraints, weight_constraints
 from .locate import MeshLocator
-from .rows import SkullRows, SurfaceRows
+from .rows import SkullRows
 from .store import Atlas
+from .surface_patch import MovingSurface
 
 
 def bounds(atlas) -> tuple[np.ndarray, np.ndarray]:
@@ -43,12 +44,14 @@ def prior_weights(atlas) -> np.ndarray:
 
 def prepare(atlas: Atlas) -> float:
     """What every update of this atlas needs, made once when it is loaded (as a navigation
-    system keeps it in memory): the prior's weights, the mesh's locator, the skull's distance
-    tree and rows over the boundary nodes, and the nodes near the skull at the prior's weights
-    with their rows (every update's first round). Returns the seconds it took."""
+    system keeps it in memory): the prior's weights, the mesh's locator, the surface points are
+    measured against, the skull's distance tree and rows over the boundary nodes, and the nodes
+    near the skull at the prior's weights with their rows (every update's first round). Returns
+    the seconds it took."""
     start = time.perf_counter()
     prior_weights(atlas)
     locator(atlas)
+    moving_surface(atlas)
     skull_at_prior(atlas)
     return time.perf_counter() - start
 
@@ -93,18 +96,21 @@ def combination(c: np.ndarray, modes: np.ndarray) -> np.ndarray:
     return np.tensordot(c[used], modes[used].astype(np.float64), axes=1)
 
 
-def surface_rows(atlas, modes: np.ndarray) -> SurfaceRows:
-    """The surface points are measured against: the fine surface, else the mesh's boundary."""
-    if atlas.surface_points is not None:
-        return SurfaceRows(atlas.surface_points, atlas.surface_triangles, atlas.surface_modes.astype(np.float64))
-    vertices, triangles = boundary_triangles(atlas.points, atlas.tetrahedra)
-    return SurfaceRows(atlas.points[vertices], triangles, modes[:, vertices, :])
-
-
-def prior_surface(atlas) -> np.ndarray:
-    if atlas.surface_points is not None:
-        return atlas.prior_surface
-    return atlas.prior_vertex[boundary_triangles(atlas.points, atlas.tetrahedra)[0]]
+def moving_surface(atlas) -> MovingSurface:
+    """The surface points are measured against (the fine surface, else the mesh's boundary) at
+    the prior's state, made once per atlas."""
+    if "moving_surface" not in atlas.once:
+        if atlas.surface_points is not None:
+            surface = MovingSurface(
+                atlas.surface_points, atlas.surface_triangles, atlas.surface_modes, atlas.prior_surface
+            )
+        else:
+            vertices, triangles = boundary_triangles(atlas.points, atlas.tetrahedra)
+            surface = MovingSurface(
+                atlas.points[vertices], triangles, atlas.vertex_modes[:, vertices, :], atlas.prior_vertex[vertices]
+            )
+        atlas.once["moving_surface"] = surface
+    return atlas.once["moving_surface"]
 
 
 def boundary_triangles(points: np.ndarray, tetrahedra: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

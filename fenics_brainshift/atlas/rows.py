@@ -55,25 +55,22 @@ class PointRows:
 
 
 class SurfaceRows:
-    """Point-to-surface rows against a triangulated surface that the modes move."""
+    """Point-to-surface rows against a triangulated surface that the modes move; its modes by
+    vertex (S, 3, M): a vertex's are one contiguous block."""
 
     def __init__(self, points: np.ndarray, triangles: np.ndarray, modes: np.ndarray):
-        self.points, self.triangles, self.modes = points, np.asarray(triangles), modes  # modes (M, S, 3)
+        self.points, self.triangles, self.modes = points, np.asarray(triangles), modes
         self.locator = SurfaceLocator(points, self.triangles)
 
     def moved(self, c: np.ndarray) -> np.ndarray:
-        return self.points + np.tensordot(c, self.modes, axes=1)
-
-    def distances(self, displacement: np.ndarray, measured: np.ndarray) -> np.ndarray:
-        """Signed distances (+ outside) of points to the surface moved by a displacement (S, 3)."""
-        return self.locator.nearest(self.points + displacement, measured)[3]
+        return self.points + (self.modes.reshape(-1, self.modes.shape[2]) @ c).reshape(-1, 3)
 
     def rows(self, c: np.ndarray, measured: np.ndarray):
         """(A (n, M), b (n,), groups, signed distances (n,) at c)."""
         triangle, bary, normal, distance = self.locator.nearest(self.moved(c), measured)
         corners = self.triangles[triangle]  # (n, 3)
-        at = np.einsum("nj,mnjd->nmd", bary, self.modes[:, corners, :])  # u_q per unit weight (n, M, 3)
-        A = np.einsum("nmd,nd->nm", at, normal)
+        at = np.einsum("nj,njdm->ndm", bary, self.modes[corners])  # u_q per unit weight (n, 3, M)
+        A = np.einsum("ndm,nd->nm", at, normal)
         return A, distance + A @ c, np.arange(len(measured)), distance
 
 

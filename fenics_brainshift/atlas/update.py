@@ -32,15 +32,15 @@ from .prepared import (
     combination,
     family_sum,
     locator,
+    moving_surface,
     prepare,
-    prior_surface,
     prior_weights,
     skull_at_prior,
     skull_rows,
-    surface_rows,
 )
 from .rows import PointRows
 from .store import Atlas
+from .surface_patch import PATCH_MARGIN, PATCH_TRIES
 from .update_checks import PAST_SKULL, against_prediction, check_near, other_frame
 from .update_checks import warning as answer_warning
 
@@ -168,53 +168,33 @@ def _errors(atlas, target, u: np.ndarray, surface_u) -> np.ndarray:
     surface (points on the surface), m."""
     if target.pre is not None:
         return PointRows(locator(atlas), target.pre, target.measured, target.labels).errors(u)
-    surface = surface_rows(atlas, atlas.vertex_modes)
     shift = surface_u if atlas.surface_points is not None else u[boundary_triangles(atlas.points, atlas.tetrahedra)[0]]
-    return np.abs(surface.distances(shift, target.measured))
+    return np.abs(moving_surface(atlas).distances(shift, target.measured))
 
 
-def _update(atlas, target, noise: float, samples: int, keep_inside: bool) -> UpdateResult:
-    start = time.perf_counter()
-    n_points = len(target.measured)
-    point_to_point = target.pre is not None
-    need = MIN_POINT_PAIRS if point_to_point else MIN_SURFACE_POINTS
-    if n_points < need:
-        raise InputError(
-            f"--target: {n_points} point(s) are too few for the update: give at least {need} "
-            f"{'point pairs' if point_to_point else 'points on the surface'}"
-        )
-    modes = atlas.vertex_modes  # float32; the rows and sums take float64 slices of it
-    lower, upper = bounds(atlas)
-    C0, d0 = weight_constraints(atlas.family, lower, upper, family_sum(atlas))
-    if point_to_point:
-        pairs = PointRows(locator(atlas), target.pre, target.measured, target.labels)
-        fixed_rows = pairs.rows(modes)
-        prior_residual = pairs.errors(atlas.prior_vertex)
-        against = against_prediction(pairs.measured - pairs.pre, pairs.at(atlas.prior_vertex), noise)
-    else:
-        surface = surface_rows(atlas, modes)
-        prior_residual = np.abs(surface.distances(prior_surface(atlas), target.measured))
-        against = None
-    check_near(atlas, prior_residual, point_to_point)
-    mirrored = other_frame(atlas, target, prior_residual, noise, None if point_to_point else surface)
-    if against and mirrored:  # (gravity across x and y: negating them reverses the shift too; one note)
-        against = (
-            f"{against}; or {mirrored.removeprefix('the points ')} (pairs cannot tell the two apart when gravity "
-            f"lies across x and y)"
-        )
-    else:
-        against = against or mirrored
+@dataclass
+class _Fit:
+    """The weights the rounds reached, with what they were found by."""
 
-    def data_rows(c):
-        return fixed_rows if point_to_point else surface.rows(c, target.measured)[:3]
+    c: np.ndarray
+    alpha: float
+    curve: list
+    problem: Problem
+    residual: np.ndarray  # each point's error at c (point to surface: signed)
+    nodes: np.ndarray  # the boundary nodes with skull rows
+    deepest: float
+    rounds: int
+    cv_s: float
 
-    skull = skull_rows(atlas, modes) if keep_inside else None
+
+def _rounds(atlas, data_rows, noise: float, skull, point_to_point: bool, C0, d0) -> _Fit:
+    """Step 2-3 of the update: alpha and the fit, the rows taken again at the new weights."""
     c = prior_weights(atlas)
     alpha, curve, cv_s, deepest = None, [], 0.0, 0.0
     nodes = np.zeros(0, dtype=np.int64)
-    setup_s = time.perf_counter() - start
     for round_ in range(ROUNDS):
-        problem = Problem(*data_rows(c), noise, atlas.gram, atlas.cross, C0, d0, anchor=prior_weights(atlas))
+        A, b, groups, residual = data_rows(c)
+        problem = Problem(A, b, groups, noise, atlas.gram, atlas.cross, C0, d0, anchor=prior_weights(atlas))
         if skull is not None and round_ == 0:  # (c: the prior's weights)
             nodes, constraints = skull_at_prior(atlas)
             problem = problem.with_all(constraints)
@@ -231,11 +211,60 @@ def _update(atlas, target, noise: float, samples: int, keep_inside: bool) -> Upd
         deepest = skull.deepest(c) if skull is not None else 0.0
         if (point_to_point or change < 1e-6) and deepest <= PAST_SKULL:
             break
-    fit_s = time.perf_counter() - start - setup_s - cv_s
+    residual = problem.misfit(c) if point_to_point else data_rows(c)[3]
+    return _Fit(c, alpha, curve, problem, residual, nodes, deepest, round_ + 1, cv_s)
+
+
+def _update(atlas, target, noise: float, samples: int, keep_inside: bool) -> UpdateResult:
+    start = time.perf_counter()
+    n_points = len(target.measured)
+    point_to_point = target.pre is not None
+    need = MIN_POINT_PAIRS if point_to_point else MIN_SURFACE_POINTS
+    if n_points < need:
+        raise InputError(
+            f"--target: {n_points} point(s) are too few for the update: give at least {need} "
+            f"{'point pairs' if point_to_point else 'points on the surface'}"
+        )
+    modes = atlas.vertex_modes  # float32; the rows and sums take float64 slices of it
+    lower, upper = bounds(atlas)
+    C0, d0 = weight_constraints(atlas.family, lower, upper, family_sum(atlas))
+    surface = None if point_to_point else moving_surface(atlas)
     if point_to_point:
-        residual = problem.misfit(c)
+        pairs = PointRows(locator(atlas), target.pre, target.measured, target.labels)
+        fixed = pairs.rows(modes)
+        prior_residual = pairs.errors(atlas.prior_vertex)
+        against = against_prediction(pairs.measured - pairs.pre, pairs.at(atlas.prior_vertex), noise)
     else:
-        residual = np.abs(surface.rows(c, target.measured)[3])
+        prior_signed = surface.prior_distances(target.measured)
+        prior_residual = np.abs(prior_signed)
+        against = None
+    check_near(atlas, prior_residual, point_to_point)
+    mirrored = other_frame(atlas, target, prior_residual, noise, surface)
+    if against and mirrored:  # (gravity across x and y: negating them reverses the shift too; one note)
+        against = (
+            f"{against}; or {mirrored.removeprefix('the points ')} (pairs cannot tell the two apart when gravity "
+            f"lies across x and y)"
+        )
+    else:
+        against = against or mirrored
+    skull = skull_rows(atlas, modes) if keep_inside else None
+    whole = None  # (point to surface: the whole surface's displacement at the fit, as its patch was checked)
+    setup_s = time.perf_counter() - start
+    if point_to_point:
+        fit = _rounds(atlas, lambda c: (*fixed, None), noise, skull, True, C0, d0)
+    else:  # on the triangles near the points, wider until none left out could be nearer (surface_patch.py)
+        radius = prior_residual + PATCH_MARGIN
+        for attempt in range(PATCH_TRIES + 1):
+            patch = surface.patch(target.measured, radius if attempt < PATCH_TRIES else np.full(n_points, np.inf))
+            fit = _rounds(atlas, lambda c, rows=patch.rows: rows.rows(c, target.measured), noise, skull, False, C0, d0)
+            whole = surface.fits(patch, fit.c, target.measured, fit.residual)
+            if whole is not None or attempt == PATCH_TRIES:
+                break
+            radius = 2 * radius
+    c, alpha, curve, problem, cv_s = fit.c, fit.alpha, fit.curve, fit.problem, fit.cv_s
+    nodes, deepest, round_ = fit.nodes, fit.deepest, fit.rounds - 1
+    residual = np.abs(fit.residual)
+    fit_s = time.perf_counter() - start - setup_s - cv_s
     t = time.perf_counter()
     loo = leave_one_out(problem, alpha, LEAVE_OUT_MAX, near=c)
     u = combination(c, modes)
@@ -248,7 +277,9 @@ def _update(atlas, target, noise: float, samples: int, keep_inside: bool) -> Upd
     else:
         spread, spread_from = posterior.spread(problem, alpha, c, modes), "posterior"
     spread_s = time.perf_counter() - t
-    surface_u = None if atlas.surface_modes is None else combination(c, atlas.surface_modes)
+    surface_u = None
+    if atlas.surface_modes is not None:  # (a fit to the surface has it: the patch was checked on it)
+        surface_u = whole if whole is not None else moving_surface(atlas).displacement(c)
     skull_report = {}
     if atlas.skull_triangles is not None:
         skull_report = {

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InputError
-from .prepared import locator, prior_surface
+from .prepared import locator
 from .rows import PointRows
 
 PAST_SKULL = 0.15e-3  # m: a node deeper past the skull after the last round is reported
@@ -39,7 +39,7 @@ def other_frame(atlas, target, prior_residual: np.ndarray, noise: float, surface
             pairs = PointRows(locator(atlas), target.pre * flip, target.measured * flip, target.labels)
             other = pairs.errors(atlas.prior_vertex)
         else:
-            other = np.abs(surface.distances(prior_surface(atlas), target.measured * flip))
+            other = np.abs(surface.prior_distances(target.measured * flip))
     except InputError:  # (mirrored, the points leave the body: the declared frame stands)
         return None
     mirrored = float(np.sqrt(np.mean(other**2)))
