@@ -4,6 +4,7 @@ noisy points; the update's run folder is one that warp takes; bad input is one l
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import subprocess
 import sys
@@ -21,11 +22,12 @@ from fenics_brainshift.atlas.scenarios import parse_vary
 from fenics_brainshift.atlas.update import update
 from fenics_brainshift.atlas.vertices import GlobalVertices
 from fenics_brainshift.data import scene_path
-from fenics_brainshift.errors import SolverError
+from fenics_brainshift.errors import InputError, SolverError
 from fenics_brainshift.fit.parameters import rotated_gravity
 from fenics_brainshift.images import write_markups
 from fenics_brainshift.images.targets import Target
 from fenics_brainshift.runner import Simulation
+from fenics_brainshift.surfaces.triangles import closest_points_on_triangles
 
 from conftest import mpirun, subprocess_env
 
@@ -226,6 +228,40 @@ def test_points_on_the_moved_cortex_alone_recover_the_state(atlas):
     assert np.abs(result.residual).max() < 1e-5
     assert result.prior_residual.mean() > 5e-4
     assert np.linalg.norm(result.displacement - truth, axis=1).mean() < 0.1e-3
+
+
+def test_landmark_pairs_and_cortex_touches_are_fitted_together(atlas):
+    """Two pairs and six touches of the moved cortex (too few of either kind alone): each
+    point's residual is its own kind's, and together they recover the state."""
+    from fenics_brainshift.atlas.locate import MeshLocator
+
+    c, truth = _operation(atlas)
+    moved = atlas.surface_points + np.tensordot(c, atlas.surface_modes.astype(float), axes=1)
+    rng = np.random.default_rng(3)
+    touched = rng.choice(np.flatnonzero(moved[:, 1] > np.percentile(moved[:, 1], 85)), 6, replace=False)
+    top = _top(atlas.points)
+    paired = rng.choice(top, 2, replace=False)
+    pre = np.vstack([atlas.points[paired], np.full((6, 3), np.nan)])
+    measured = np.vstack([atlas.points[paired] + truth[paired], moved[touched]])
+    target = Target(measured, pre, ["a", "b"] + [f"s{i}" for i in range(6)])
+    assert target.kind == "point-to-point and point-to-surface" and list(target.pairs) == [0, 1]
+    for alone in (target.subset([0, 1]), dataclasses.replace(target.subset(range(2, 6)), pre=None)):
+        with pytest.raises(InputError, match="too few"):
+            update(atlas, alone, 0.5e-3)
+    result = update(atlas, target, 0.5e-3)
+    # independently of the update's rows: the pairs' error where the displacement takes them, the
+    # touches' distance to the whole moved fine surface by brute force over its triangles
+    index, weight, _ = MeshLocator(atlas.points, atlas.tetrahedra).weights(pre[:2])
+    at = pre[:2] + np.einsum("nj,njd->nd", weight, result.displacement[index])
+    assert np.allclose(result.residual[:2], np.linalg.norm(at - measured[:2], axis=1), atol=1e-9)
+    surface = atlas.surface_points + result.surface_displacement
+    tri = atlas.surface_triangles
+    for k in range(6):
+        y = measured[2 + k]
+        q = closest_points_on_triangles(np.broadcast_to(y, (len(tri), 3)), *(surface[tri[:, i]] for i in range(3)))
+        assert result.residual[2 + k] == pytest.approx(np.linalg.norm(q - y, axis=1).min(), abs=1e-9)
+    assert result.prior_residual.max() > 1e-3 and result.residual.max() < 0.1e-3
+    assert np.linalg.norm(result.displacement - truth, axis=1).mean() < 0.2e-3
 
 
 def test_an_atlas_survives_its_files_and_refuses_another_mesh(atlas, tmp_path):

@@ -124,20 +124,17 @@ def update(
     result = _update(atlas, target, noise, samples, keep_inside)
     if not set_aside:
         return result
-    dims = 3 if target.pre is not None else 1
+    dims = _coordinates(target)
     loo = result.leave_one_out
-    limit = max(OUTLIER * noise * np.sqrt(dims), OUTLIER_MEDIAN * float(np.nanmedian(loo)))
+    limit = np.maximum(OUTLIER * noise * np.sqrt(dims), OUTLIER_MEDIAN * float(np.nanmedian(loo)))
     # a point not left out (a scan's thousands: a sample is) is judged by its error at the
     # fit, which its own weight in the fit can only have made smaller than its left-out one
     judged = np.where(np.isfinite(loo), loo, result.residual)
     far = np.flatnonzero(judged > limit)
-    need = MIN_POINT_PAIRS if target.pre is not None else MIN_SURFACE_POINTS
-    if not len(far) or len(far) > OUTLIERS_MAX * len(loo) or len(loo) - len(far) < need:
-        return result
     keep = np.setdiff1d(np.arange(len(loo)), far)
-    kept = type(target)(
-        target.measured[keep], None if target.pre is None else target.pre[keep], [target.labels[i] for i in keep]
-    )
+    if not len(far) or len(far) > OUTLIERS_MAX * len(loo) or _too_few(target.subset(keep)):
+        return result
+    kept = target.subset(keep)
     again = _update(atlas, kept, noise, samples, keep_inside)
     # every point's errors at the new fit (the set-aside ones' "left out" is their error now)
     residual = np.zeros(len(loo))
@@ -148,7 +145,7 @@ def update(
     names = ", ".join(f"{target.labels[i]} ({judged[i] * 1e3:.3g} mm)" for i in far[:5])
     note = (
         f"{len(far)} point(s) set aside as outliers, their error when left out far past the noise and "
-        f"the others' ({names}; limit {limit * 1e3:.3g} mm; --keep-all fits them): a pointer slip, a landmark"
+        f"the others' ({names}; limit {limit.min() * 1e3:.3g} mm; --keep-all fits them): a pointer slip, a landmark"
         f" on another structure, or points mismatched between --pre and --target"
     )
     seconds = {k: v + result.seconds.get(k, 0.0) for k, v in again.seconds.items()}
@@ -166,10 +163,37 @@ def update(
 def _errors(atlas, target, u: np.ndarray, surface_u) -> np.ndarray:
     """Each point's distance from where the displacement puts it (pairs) or from the moved
     surface (points on the surface), m."""
-    if target.pre is not None:
-        return PointRows(locator(atlas), target.pre, target.measured, target.labels).errors(u)
-    shift = surface_u if atlas.surface_points is not None else u[boundary_triangles(atlas.points, atlas.tetrahedra)[0]]
-    return np.abs(moving_surface(atlas).distances(shift, target.measured))
+    out = np.zeros(len(target.measured))
+    pairs = target.pairs
+    if len(pairs):
+        out[pairs] = PointRows(locator(atlas), target.pre[pairs], target.measured[pairs], target.labels).errors(u)
+    others = np.setdiff1d(np.arange(len(out)), pairs)
+    if len(others):
+        shift = surface_u
+        if atlas.surface_points is None:
+            shift = u[boundary_triangles(atlas.points, atlas.tetrahedra)[0]]
+        out[others] = np.abs(moving_surface(atlas).distances(shift, target.measured[others]))
+    return out
+
+
+def _coordinates(target) -> np.ndarray:
+    """(n,) the coordinates each point measures: 3 for a pair, 1 for a distance to the surface."""
+    dims = np.ones(len(target.measured))
+    dims[target.pairs] = 3.0
+    return dims
+
+
+def _too_few(target) -> str | None:
+    """Why these points are too few for an update, or None: at least MIN_POINT_PAIRS pairs, or
+    MIN_SURFACE_POINTS points on the surface, or as many coordinates as those together."""
+    pairs = len(target.pairs)
+    surface = len(target.measured) - pairs
+    if pairs >= MIN_POINT_PAIRS or surface >= MIN_SURFACE_POINTS or 3 * pairs + surface >= 3 * MIN_POINT_PAIRS:
+        return None
+    return (
+        f"--target: {len(target.measured)} point(s) are too few for the update: give at least {MIN_POINT_PAIRS} "
+        f"point pairs or {MIN_SURFACE_POINTS} points on the surface"
+    )
 
 
 @dataclass
@@ -188,7 +212,8 @@ class _Fit:
 
 
 def _rounds(atlas, data_rows, noise: float, skull, point_to_point: bool, C0, d0) -> _Fit:
-    """Step 2-3 of the update: alpha and the fit, the rows taken again at the new weights."""
+    """Step 2-3 of the update: alpha and the fit, the rows taken again at the new weights.
+    data_rows(c) -> (A, b, groups, each point's error at c: signed to the surface)."""
     c = prior_weights(atlas)
     alpha, curve, cv_s, deepest = None, [], 0.0, 0.0
     nodes = np.zeros(0, dtype=np.int64)
@@ -211,35 +236,37 @@ def _rounds(atlas, data_rows, noise: float, skull, point_to_point: bool, C0, d0)
         deepest = skull.deepest(c) if skull is not None else 0.0
         if (point_to_point or change < 1e-6) and deepest <= PAST_SKULL:
             break
-    residual = problem.misfit(c) if point_to_point else data_rows(c)[3]
+    residual = data_rows(c)[3]
     return _Fit(c, alpha, curve, problem, residual, nodes, deepest, round_ + 1, cv_s)
 
 
 def _update(atlas, target, noise: float, samples: int, keep_inside: bool) -> UpdateResult:
     start = time.perf_counter()
     n_points = len(target.measured)
-    point_to_point = target.pre is not None
-    need = MIN_POINT_PAIRS if point_to_point else MIN_SURFACE_POINTS
-    if n_points < need:
-        raise InputError(
-            f"--target: {n_points} point(s) are too few for the update: give at least {need} "
-            f"{'point pairs' if point_to_point else 'points on the surface'}"
-        )
+    too_few = _too_few(target)
+    if too_few:
+        raise InputError(too_few)
+    pair, on_surface = target.pairs, np.setdiff1d(np.arange(n_points), target.pairs)
+    point_to_point = not len(on_surface)
     modes = atlas.vertex_modes  # float32; the rows and sums take float64 slices of it
     lower, upper = bounds(atlas)
     C0, d0 = weight_constraints(atlas.family, lower, upper, family_sum(atlas))
-    surface = None if point_to_point else moving_surface(atlas)
-    if point_to_point:
-        pairs = PointRows(locator(atlas), target.pre, target.measured, target.labels)
-        fixed = pairs.rows(modes)
-        prior_residual = pairs.errors(atlas.prior_vertex)
+    surface = moving_surface(atlas) if len(on_surface) else None
+    prior_residual = np.zeros(n_points)
+    against, fixed = None, None
+    if len(pair):
+        pairs = PointRows(locator(atlas), target.pre[pair], target.measured[pair], [target.labels[i] for i in pair])
+        A, b, groups = pairs.rows(modes)
+        fixed = (A, b, pair[groups])  # (a point's rows are grouped by its place among all the points)
+        prior_residual[pair] = pairs.errors(atlas.prior_vertex)
         against = against_prediction(pairs.measured - pairs.pre, pairs.at(atlas.prior_vertex), noise)
-    else:
-        prior_signed = surface.prior_distances(target.measured)
-        prior_residual = np.abs(prior_signed)
-        against = None
+    if len(on_surface):
+        prior_residual[on_surface] = np.abs(surface.prior_distances(target.measured[on_surface]))
     check_near(atlas, prior_residual, point_to_point)
-    mirrored = other_frame(atlas, target, prior_residual, noise, surface)
+    # (the other frame is tried on one kind of points: the pairs if there are enough, else the surface's)
+    chosen = pair if len(pair) >= MIN_POINT_PAIRS or not len(on_surface) else on_surface
+    one_kind = target.subset(chosen) if chosen is pair else dataclasses.replace(target.subset(chosen), pre=None)
+    mirrored = other_frame(atlas, one_kind, prior_residual[chosen], noise, surface)
     if against and mirrored:  # (gravity across x and y: negating them reverses the shift too; one note)
         against = (
             f"{against}; or {mirrored.removeprefix('the points ')} (pairs cannot tell the two apart when gravity "
@@ -250,14 +277,30 @@ def _update(atlas, target, noise: float, samples: int, keep_inside: bool) -> Upd
     skull = skull_rows(atlas, modes) if keep_inside else None
     whole = None  # (point to surface: the whole surface's displacement at the fit, as its patch was checked)
     setup_s = time.perf_counter() - start
+
+    def data_rows(c, patch=None):
+        """The rows of every point at weights c: pairs first, then the surface's (its patch's)."""
+        error = np.zeros(n_points)
+        parts = []
+        if fixed is not None:
+            r = fixed[0] @ c - fixed[1]
+            error[pair] = np.sqrt(np.bincount(np.searchsorted(pair, fixed[2]), weights=r * r, minlength=len(pair)))
+            parts.append(fixed)
+        if patch is not None:
+            A, b, groups, distance = patch.rows.rows(c, target.measured[on_surface])
+            error[on_surface] = distance
+            parts.append((A, b, on_surface[groups]))
+        return (*(np.concatenate(x) for x in zip(*parts)), error)
+
     if point_to_point:
-        fit = _rounds(atlas, lambda c: (*fixed, None), noise, skull, True, C0, d0)
+        fit = _rounds(atlas, data_rows, noise, skull, True, C0, d0)
     else:  # on the triangles near the points, wider until none left out could be nearer (surface_patch.py)
-        radius = prior_residual + PATCH_MARGIN
+        measured = target.measured[on_surface]
+        radius = prior_residual[on_surface] + PATCH_MARGIN
         for attempt in range(PATCH_TRIES + 1):
-            patch = surface.patch(target.measured, radius if attempt < PATCH_TRIES else np.full(n_points, np.inf))
-            fit = _rounds(atlas, lambda c, rows=patch.rows: rows.rows(c, target.measured), noise, skull, False, C0, d0)
-            whole = surface.fits(patch, fit.c, target.measured, fit.residual)
+            patch = surface.patch(measured, radius if attempt < PATCH_TRIES else np.full(len(measured), np.inf))
+            fit = _rounds(atlas, lambda c, patch=patch: data_rows(c, patch), noise, skull, False, C0, d0)
+            whole = surface.fits(patch, fit.c, measured, fit.residual[on_surface])
             if whole is not None or attempt == PATCH_TRIES:
                 break
             radius = 2 * radius
@@ -296,7 +339,7 @@ def _update(atlas, target, noise: float, samples: int, keep_inside: bool) -> Upd
                 answer_warning(
                     residual,
                     noise,
-                    3 if target.pre is not None else 1,
+                    _coordinates(target),
                     skull_report.get("deepest_past_mm", 0.0) * 1e-3,
                     keep_inside,
                     ROUNDS,

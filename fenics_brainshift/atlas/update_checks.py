@@ -83,17 +83,17 @@ def against_prediction(measured_shift: np.ndarray, predicted_shift: np.ndarray, 
 
 
 def warning(
-    residual: np.ndarray, noise: float, coordinates: int, deepest: float, keep_inside: bool, rounds: int
+    residual: np.ndarray, noise: float, coordinates, deepest: float, keep_inside: bool, rounds: int
 ) -> str | None:
     """What the update's answer does not support: residuals the stated noise cannot explain
-    (their chi-square over ``coordinates`` a point: 3 for a pair's distance, 1 for a distance
-    to the surface), or a brain past the skull."""
+    (their chi-square over ``coordinates`` a point, one number or one a point: 3 for a pair's
+    distance, 1 for a distance to the surface), or a brain past the skull."""
     from scipy.special import gammaincc
 
     parts = []
     rms = float(np.sqrt(np.mean(residual**2))) if len(residual) else 0.0
     chi2 = float(np.sum((residual / noise) ** 2))
-    dof = coordinates * len(residual)
+    dof = int(np.sum(np.broadcast_to(coordinates, np.shape(residual))))
     p = float(gammaincc(dof / 2, chi2 / 2)) if dof else 1.0  # (the chi-square's upper tail)
     ratio = float(np.sqrt(chi2 / dof)) if dof else 0.0  # the residual per coordinate over the noise
     if p < UNEXPLAINED_P and ratio > UNEXPLAINED_RATIO:

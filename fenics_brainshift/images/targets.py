@@ -47,15 +47,32 @@ def check_noise(noise_mm: float, flag: str = "--noise") -> None:
 @dataclass
 class Target:
     """Measured intra-operative points (m, RAS) with their labels: point to point with the
-    same points before the shift (``pre``), else point to the predicted surface."""
+    same points before the shift (``pre``), else point to the predicted surface; both at once
+    where ``pre`` has rows of NaN (those points to the surface: a pointer's touches on the
+    cortex beside landmark pairs, as the live service takes them)."""
 
     measured: np.ndarray  # (n, 3) intra-operative positions, m
     pre: np.ndarray | None  # (n, 3) the same points before (point to point), or None (to the surface)
     labels: list[str]
 
     @property
+    def pairs(self) -> np.ndarray:
+        """The indices of the points fitted point to point."""
+        if self.pre is None:
+            return np.zeros(0, dtype=np.int64)
+        return np.flatnonzero(np.isfinite(self.pre).all(axis=1))
+
+    @property
     def kind(self) -> str:
-        return "point-to-point" if self.pre is not None else "point-to-surface"
+        pairs = len(self.pairs)
+        if pairs == len(self.measured):
+            return "point-to-point"
+        return "point-to-surface" if not pairs else "point-to-point and point-to-surface"
+
+    def subset(self, keep) -> Target:
+        """The same kind of target over these points."""
+        keep = np.asarray(keep, dtype=np.int64)
+        return Target(self.measured[keep], None if self.pre is None else self.pre[keep], [self.labels[i] for i in keep])
 
 
 def read_target(target: str | Path, pre: str | Path | None = None, frame: str | None = None) -> Target:
