@@ -31,6 +31,7 @@ LAYERS = [
     {"runner"},
     {"fit", "warp", "bench"},
     {"atlas", "patients", "machine"},
+    {"theatre"},
     {"commands"},
     {"cli", "__init__"},
 ]
@@ -48,6 +49,12 @@ THEATRE = [
     "fenics_brainshift.images.targets",
     "fenics_brainshift.surfaces",
     "fenics_brainshift.commands.update",
+    "fenics_brainshift.theatre.case",
+    "fenics_brainshift.theatre.session",
+    "fenics_brainshift.theatre.server",
+    "fenics_brainshift.theatre.record",
+    "fenics_brainshift.commands.serve",
+    "fenics_brainshift.commands.replay",
 ]
 
 

@@ -38,7 +38,7 @@ class MovingSurface:
         # by vertex (a patch's modes are then a few contiguous blocks: gathered from the first
         # layout they were most of a small update's time)
         self._flat = modes.reshape(len(modes), -1)
-        self._by_vertex = np.ascontiguousarray(modes.transpose(1, 2, 0))  # (S, 3, M)
+        self.by_vertex = np.ascontiguousarray(modes.transpose(1, 2, 0))  # (S, 3, M)
         order = np.argsort(self.triangles.ravel(), kind="stable")
         self._owner = order // 3  # triangles sorted by corner, and where each vertex's begin
         self._start = np.searchsorted(self.triangles.ravel()[order], np.arange(len(points) + 1))
@@ -51,6 +51,10 @@ class MovingSurface:
         if 4 * len(used) > len(c):  # (most of them: gathering the rows would copy most of the modes)
             return (c.astype(self._flat.dtype) @ self._flat).reshape(-1, 3).astype(np.float64)
         return (c[used].astype(self._flat.dtype) @ self._flat[used]).reshape(-1, 3).astype(np.float64)
+
+    def displacement_at(self, vertices: np.ndarray, c: np.ndarray) -> np.ndarray:
+        """(n, 3) at these vertices only, at weights c."""
+        return self.by_vertex[vertices].astype(np.float64) @ c
 
     def distances(self, displacement: np.ndarray, measured: np.ndarray) -> np.ndarray:
         """Signed distances (+ outside) of points to the whole surface moved by a displacement (S, 3)."""
@@ -70,7 +74,7 @@ class MovingSurface:
             near[h] = True
         chosen = np.flatnonzero(near[self.triangles].any(axis=1))
         vertices, local = np.unique(self.triangles[chosen], return_inverse=True)
-        modes = self._by_vertex[vertices].astype(np.float64)
+        modes = self.by_vertex[vertices].astype(np.float64)
         return Patch(vertices, chosen, SurfaceRows(self.points[vertices], local.reshape(-1, 3), modes))
 
     def fits(self, patch: Patch, c: np.ndarray, measured: np.ndarray, distances: np.ndarray) -> np.ndarray | None:

@@ -78,6 +78,7 @@ class UpdateResult:
     warning: str | None = None
     outliers: list[int] = field(default_factory=list)  # the points set aside (not in the fit)
     spread_from: str = "posterior"  # or "bootstrap (N resamplings)"
+    problem: object = field(default=None, repr=False, compare=False)  # combine.Problem of the fit (its posterior)
 
     def volume_changes(self, atlas) -> dict[str, float]:
         """Each swelling region's fitted volume change."""
@@ -373,4 +374,5 @@ def _update(atlas, target, noise: float, samples: int, keep_inside: bool) -> Upd
         seconds,
         warning,
         spread_from=spread_from,
+        problem=problem,
     )

@@ -7,4 +7,18 @@ nothing at its top that starts DOLFINx or PETSc: those imports sit inside ``main
 (tests/test_layers.py checks it).
 """
 
-NAMES = ("run", "prepare", "mesh", "warp", "fit", "atlas", "update", "compare", "bench", "info", "scenes")
+NAMES = (
+    "run",
+    "prepare",
+    "mesh",
+    "warp",
+    "fit",
+    "atlas",
+    "update",
+    "serve",
+    "replay",
+    "compare",
+    "bench",
+    "info",
+    "scenes",
+)

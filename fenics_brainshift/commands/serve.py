@@ -1,0 +1,138 @@
+"""`brainshift serve ATLAS`: the live service in theatre (theatre/): the atlas held prepared,
+OpenIGTLink clients (3D Slicer's OpenIGTLinkIF, a navigation system) send points and get the
+updated brain back in milliseconds; docs/theatre.md walks through it."""
+
+from __future__ import annotations
+
+import signal
+import sys
+import time
+from pathlib import Path
+
+from ..errors import InputError
+from .help_format import Defaults
+
+
+def add(sub) -> None:
+    serve = sub.add_parser(
+        "serve",
+        formatter_class=Defaults,
+        help="in theatre, live: an OpenIGTLink server holding the atlas; points in, the updated brain out",
+        description="Hold the atlas prepared and serve OpenIGTLink clients: a POINT list (Slicer's markups) "
+        "replaces the case's points and starts an update (labels among --pre point to point, the rest point "
+        "to surface), a TRANSFORM/POSITION tip is captured on the STRING 'capture' or when it rests, a "
+        "POLYDATA is a surface scan; STRING commands: update, capture, undo, reset, status. Each update "
+        "answers with the moved cortex (POLYDATA BrainshiftCortex), the moved targets and pre-operative "
+        "points (POINT), the displacement and its uncertainty on a grid (IMAGE BrainshiftShift, "
+        "BrainshiftSpread), the next point worth touching (POINT NextPoint) and the status (STRING "
+        "BrainshiftStatus, JSON) last. Runs until Ctrl-C.",
+    )
+    serve.add_argument("atlas", help="atlas folder (brainshift atlas SCENE -o ATLAS)")
+    serve.add_argument(
+        "--port", type=int, default=18944, help="TCP port (OpenIGTLink's own is 18944; 0: any free one, said at start)"
+    )
+    serve.add_argument(
+        "--host",
+        default="127.0.0.1",
+        help="address to listen on; anything but loopback puts the port on a network (OpenIGTLink has no "
+        "authentication: the navigation network only, with --allow)",
+    )
+    serve.add_argument("--allow", action="append", default=[], help="a client address allowed (repeat); default any")
+    serve.add_argument("--pre", help="the pre-operative points (.mrk.json): point-list labels among them are pairs")
+    serve.add_argument(
+        "--targets",
+        help="points of interest (.mrk.json: the tumour's margin): moved, and where suggestions aim "
+        "(default: the atlas's probes)",
+    )
+    serve.add_argument(
+        "--frame", type=str.upper, choices=["RAS", "LPS"], default="RAS", help="the clients' frame (Slicer: RAS)"
+    )
+    serve.add_argument("--noise", type=float, default=1.0, help="a point's measurement noise, mm per coordinate")
+    serve.add_argument("--grid", type=float, default=4.0, help="the displacement image's spacing, mm (0: none)")
+    serve.add_argument("--share", action="store_true", help="every client updates one case (else one each)")
+    serve.add_argument(
+        "--record", help="a folder to append every message received and every update sent to (resumed on a restart)"
+    )
+    serve.add_argument("--seconds", type=float, default=0.0, help="stop after this long (0: at Ctrl-C); for scripts")
+
+
+def main(args, comm) -> list[str]:
+    """Serve until Ctrl-C (or --seconds); returns the closing line."""
+    started = time.perf_counter()
+    if comm.size > 1:
+        raise InputError("serve: run it as one process (the update is milliseconds; mpirun adds nothing)")
+    if not 0 <= args.port < 65536:
+        raise InputError(f"--port: {args.port} is not a TCP port (1-65535; 0: any free one)")
+    if args.seconds < 0:
+        raise InputError(f"--seconds: {args.seconds} is negative")
+    from ..images.targets import check_noise
+
+    check_noise(args.noise, "--noise")
+    make = session_factory(args)
+    from ..theatre.server import Server, loopback
+
+    recorder = None
+    if args.record:
+        from ..theatre.record import Recorder
+
+        recorder = Recorder(Path(args.record))
+    server = Server(make, args.host, args.port, args.allow, recorder, log=_log)
+    if not loopback(args.host):
+        _log(
+            f"WARNING: listening on {args.host}, not loopback: OpenIGTLink has no authentication; keep port "
+            f"{server.port} on the navigation network only"
+            + ("" if args.allow else " and name the clients with --allow")
+        )
+    _log(
+        f"serving {args.atlas} on {args.host}:{server.port} ({args.frame}, mm), ready in "
+        f"{time.perf_counter() - started:.2f} s; Ctrl-C to stop"
+    )
+    stop = {"now": False}
+    signal.signal(signal.SIGTERM, lambda *_: stop.update(now=True))
+    ends = started + args.seconds if args.seconds else float("inf")
+    until = lambda: stop["now"] or time.perf_counter() > ends  # noqa: E731
+    try:
+        server.serve(until)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        if recorder is not None:
+            recorder.close()
+    return [f"serve: stopped after {server.updates} updates"]
+
+
+def session_factory(args):
+    """new_session() for the server (and replay): the atlas read and prepared once, the case's
+    pre-operative points and targets, one case per client or one shared, resumed from --record."""
+    from ..atlas import store
+    from ..images.frames import read_markups
+    from ..theatre.case import Case
+    from ..theatre.session import Session
+
+    atlas = store.read(args.atlas)
+    pre = targets = None
+    if args.pre:
+        labels, mm = read_markups(args.pre, "--pre")
+        pre = (labels, mm * 1e-3)
+    if args.targets:
+        labels, mm = read_markups(args.targets, "--targets")
+        targets = (labels, mm * 1e-3)
+    if args.grid and not 0.5 <= args.grid <= 20:
+        raise InputError(f"--grid: {args.grid:g} mm; the displacement image's spacing is 0.5-20 mm (0: none)")
+    base = Case(atlas, pre, targets, noise=args.noise * 1e-3, grid=args.grid * 1e-3 if args.grid else None)
+    resumed = None
+    if getattr(args, "record", None) and (Path(args.record) / "messages.bin").is_file():
+        from ..theatre.record import play, read_updates
+
+        sessions, _ = play(Path(args.record), lambda: Session(base.fresh(), args.frame), answer=False)
+        updates = read_updates(Path(args.record))
+        last = updates[-1]["client"] if updates else max(sessions, default=None)
+        if last is not None:
+            resumed = sessions[last].case
+            _log(f"resumed the recorded case: {resumed.counts}")
+    shared = base.fresh(resumed) if args.share else None
+    return lambda: Session(shared if shared is not None else base.fresh(resumed), args.frame)
+
+
+def _log(line: str) -> None:
+    print(f"[{time.strftime('%H:%M:%S')}] {line}", flush=True, file=sys.stdout)

@@ -1,0 +1,249 @@
+"""An operation's measurements against a prepared atlas, updated as they arrive: the object a
+team writing its own bridge holds (and `brainshift serve` and `brainshift update` use).
+
+The atlas is prepared once, when the case is made (before the measurements arrive); every
+update then fits the points the case holds now:
+- a point list (a navigation system's, Slicer's markups), replaced whole each time it is sent:
+  points whose labels are among the pre-operative points are fitted point to point, the
+  others point to the surface (a tracked pointer's touches on the cortex);
+- touches captured from a tracked pointer's tip (`capture`), kept until reset or undone;
+- a surface scan (a laser or stereo scan's points), thinned to MAX_SCAN_POINTS.
+Positions are RAS metres here; the service converts a client's frame and millimetres.
+"""
+
+from __future__ import annotations
+
+import copy
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..atlas.prepared import locator
+from ..atlas.update import UpdateResult, prepare, update
+from ..errors import InputError
+from ..images.targets import Target
+from .grid import Grid
+from .suggest import Suggestion, exposed_cortex, suggest
+
+MAX_SCAN_POINTS = 2000  # a scan's points are thinned to this many (each is a row of the fit)
+MAX_POINTS = 1000  # in a point list
+OUTSIDE_BODY = 50e-3  # m: a point farther than this outside the atlas's bounding box is refused
+HISTORY = 100  # states kept for undo
+
+
+@dataclass
+class Answer:
+    """An update and what goes back to the surgeon, RAS metres."""
+
+    result: UpdateResult
+    target: Target
+    surface: tuple[np.ndarray, np.ndarray] | None  # the moved surface: points (S, 3), triangles (T, 3)
+    targets: tuple[list[str], np.ndarray]  # the targets of interest, moved
+    pre: tuple[list[str], np.ndarray]  # the pre-operative points, moved
+    displacement: np.ndarray | None  # (i, j, k, 3) on the case's grid
+    spread: np.ndarray | None  # (i, j, k)
+    suggestion: Suggestion | None
+    status: dict = field(default_factory=dict)
+
+
+@dataclass
+class _State:
+    labels: list[str] = field(default_factory=list)
+    positions: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    touches: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    scan: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+
+
+class Case:
+    """The case of one operation on a prepared atlas (atlas/store.py's Atlas).
+
+    pre, targets: (labels, (n, 3) m) or None; targets default to the atlas's probes (the
+    craniotomy, a patient's anatomy): where the uncertainty matters and the suggestions aim.
+    grid: the displacement image's spacing (m; None: no image)."""
+
+    def __init__(
+        self,
+        atlas,
+        pre: tuple[list[str], np.ndarray] | None = None,
+        targets: tuple[list[str], np.ndarray] | None = None,
+        noise: float = 1e-3,
+        grid: float | None = 4e-3,
+        samples: int = 0,
+        set_aside: bool = True,
+    ):
+        self.atlas, self.noise, self.samples, self.set_aside = atlas, noise, samples, set_aside
+        started = time.perf_counter()
+        prepare(atlas)
+        lo, hi = atlas.points.min(axis=0), atlas.points.max(axis=0)
+        self._box = (lo - OUTSIDE_BODY, hi + OUTSIDE_BODY)
+        self.pre = self._checked(*pre, "the pre-operative points") if pre else ([], np.zeros((0, 3)))
+        self._pre_at = dict(zip(self.pre[0], self.pre[1]))
+        probes = atlas.info.get("probes") or {}
+        if targets is None:
+            targets = (list(probes), np.array([probes[k] for k in probes], dtype=float).reshape(-1, 3))
+        self.targets = self._checked(*targets, "the targets") if len(targets[0]) else ([], np.zeros((0, 3)))
+        self.grid = Grid(atlas.points, atlas.tetrahedra, grid) if grid else None
+        up = -np.asarray(atlas.info.get("gravity", [0.0, 0.0, -9.81]), dtype=float)
+        centre = probes.get("craniotomy")
+        if centre is None:  # (no craniotomy said: the top of the brain, against gravity)
+            centre = atlas.points[np.argmax(atlas.points @ up)]
+        self.candidates = exposed_cortex(atlas, np.asarray(centre, dtype=float), up / np.linalg.norm(up))
+        self._state, self._history = _State(), []
+        self.last: Answer | None = None
+        self.prepare_s = time.perf_counter() - started
+
+    def fresh(self, like: Case | None = None) -> Case:
+        """A new case on the same prepared atlas, targets and grid (made once), holding no
+        measurements, or those `like` holds now (a restarted service resumes a recorded case)."""
+        case = copy.copy(self)
+        case._state = like._state if like is not None else _State()
+        case._history, case.last = [], None
+        return case
+
+    # -- what arrives ----------------------------------------------------------------------
+
+    def set_points(self, labels: list[str], positions: np.ndarray) -> None:
+        """Replace the point list (a markups list sent whole each time it changes)."""
+        labels, positions = self._checked(labels, positions, "the point list")
+        if len(labels) > MAX_POINTS:
+            raise InputError(f"the point list: {len(labels)} points (at most {MAX_POINTS}); send a thinned list")
+        self._push(labels=labels, positions=positions)
+
+    def capture(self, position: np.ndarray) -> None:
+        """Keep a tracked pointer's tip as a touch of the cortex."""
+        _, tip = self._checked(["tip"], np.reshape(position, (1, 3)), "the pointer's tip")
+        self._push(touches=np.vstack([self._state.touches, tip]))
+
+    def set_scan(self, points: np.ndarray) -> None:
+        """Replace the surface scan (its points, thinned evenly to MAX_SCAN_POINTS)."""
+        points = np.asarray(points, dtype=float).reshape(-1, 3)
+        if len(points) > MAX_SCAN_POINTS:
+            points = points[np.linspace(0, len(points) - 1, MAX_SCAN_POINTS).astype(int)]
+        _, points = self._checked([f"scan{i}" for i in range(len(points))], points, "the surface scan")
+        self._push(scan=points)
+
+    def undo(self) -> bool:
+        """Back to the state before the last change; False when there is none."""
+        if not self._history:
+            return False
+        self._state = self._history.pop()
+        return True
+
+    def reset(self) -> None:
+        """Forget every measurement (undo brings them back)."""
+        self._push(labels=[], positions=np.zeros((0, 3)), touches=np.zeros((0, 3)), scan=np.zeros((0, 3)))
+
+    @property
+    def counts(self) -> dict[str, int]:
+        s = self._state
+        pairs = sum(label in self._pre_at for label in s.labels)
+        return {"pairs": pairs, "surface": len(s.labels) - pairs, "touches": len(s.touches), "scan": len(s.scan)}
+
+    # -- the update --------------------------------------------------------------------------
+
+    def target(self) -> Target:
+        """The points held now: pairs first where labels match the pre-operative points."""
+        s = self._state
+        pre = np.array([self._pre_at.get(label, np.full(3, np.nan)) for label in s.labels]).reshape(-1, 3)
+        labels = list(s.labels) + [f"touch{i + 1}" for i in range(len(s.touches))]
+        labels += [f"scan{i + 1}" for i in range(len(s.scan))]
+        measured = np.vstack([s.positions, s.touches, s.scan])
+        pre = np.vstack([pre, np.full((len(s.touches) + len(s.scan), 3), np.nan)])
+        return Target(measured, pre if np.isfinite(pre).any() else None, labels)
+
+    def update(self, target: Target | None = None) -> Answer:
+        """The update to the points held now (or to `target`), and what goes back."""
+        target = self.target() if target is None else target
+        started = time.perf_counter()
+        result = update(self.atlas, target, self.noise, self.samples, set_aside=self.set_aside)
+        surface = None
+        if self.atlas.surface_points is not None:
+            surface = (self.atlas.surface_points + result.surface_displacement, self.atlas.surface_triangles)
+        answer = Answer(
+            result,
+            target,
+            surface,
+            (self.targets[0], self._moved(self.targets[1], result.displacement)),
+            (self.pre[0], self._moved(self.pre[1], result.displacement)),
+            None if self.grid is None else self.grid.sample(result.displacement),
+            None if self.grid is None else self.grid.sample(result.spread),
+            suggest(self.atlas, result, self.targets[1], self.candidates, self.noise),
+        )
+        answer.status = self._status(answer, time.perf_counter() - started)
+        self.last = answer
+        return answer
+
+    def _moved(self, points: np.ndarray, u: np.ndarray) -> np.ndarray:
+        if not len(points):
+            return points
+        index, weight, _ = locator(self.atlas).weights(points)
+        return points + np.einsum("nj,njd->nd", weight, u[index])
+
+    def _status(self, answer: Answer, seconds: float) -> dict:
+        r, mm = answer.result, 1e3
+        rms = lambda x: float(np.sqrt(np.mean(x**2))) * mm if len(x) else None  # noqa: E731
+        keep = np.ones(len(r.residual), dtype=bool)
+        keep[r.outliers] = False
+        loo = r.leave_one_out[keep]
+        s = answer.suggestion
+        family = r.family_weights(self.atlas)[:3]
+        return {
+            "atlas_id": self.atlas.info.get("build_id") or self.atlas.mesh_id(),
+            "kind": answer.target.kind,
+            "points": len(answer.target.measured),
+            **self.counts,
+            "prior_residual_mm": rms(r.prior_residual[keep]),
+            "residual_mm": rms(r.residual[keep]),
+            "leave_one_out_mm": float(np.sqrt(np.nanmean(loo**2))) * mm if np.isfinite(loo).any() else None,
+            "set_aside": [answer.target.labels[i] for i in r.outliers],
+            "noise_mm": self.noise * mm,
+            "stiffness_G_Pa": r.stiffness(self.atlas),
+            "fluid_level_m": (
+                float(
+                    sum(f["weight"] * f["fluid.level"] for f in family if "fluid.level" in f)
+                    / sum(f["weight"] for f in family if "fluid.level" in f)
+                )
+                if any("fluid.level" in f for f in family)
+                else None
+            ),
+            "largest_shift_mm": float(np.linalg.norm(r.displacement, axis=1).max()) * mm,
+            "targets_spread_mm": None if s is None else s.spread * mm,
+            "suggestion": None
+            if s is None
+            else {"label": "NextPoint", "expected_spread_mm": s.expected * mm, "spread_mm": s.spread * mm},
+            "warning": r.warning,
+            "update_ms": seconds * 1e3,
+            "weights": [float(w) for w in r.weights],
+        }
+
+    # -- keeping the state -------------------------------------------------------------------
+
+    def _push(self, **changes) -> None:
+        self._history.append(self._state)
+        del self._history[:-HISTORY]
+        s = self._state
+        self._state = _State(
+            changes.get("labels", s.labels),
+            changes.get("positions", s.positions),
+            changes.get("touches", s.touches),
+            changes.get("scan", s.scan),
+        )
+
+    def _checked(self, labels, positions, what: str) -> tuple[list[str], np.ndarray]:
+        """Labels and finite positions inside the body's reach, or an InputError naming the point."""
+        positions = np.asarray(positions, dtype=float).reshape(-1, 3)
+        labels = [str(label) for label in labels]
+        if len(labels) != len(positions):
+            raise InputError(f"{what}: {len(labels)} labels for {len(positions)} points")
+        bad = np.flatnonzero(~np.isfinite(positions).all(axis=1))
+        if len(bad):
+            raise InputError(f"{what}: point '{labels[bad[0]]}' is not a number (NaN or inf); measure it again")
+        lo, hi = self._box
+        out = np.flatnonzero(((positions < lo) | (positions > hi)).any(axis=1))
+        if len(out):
+            raise InputError(
+                f"{what}: point '{labels[out[0]]}' at {np.round(positions[out[0]] * 1e3, 1).tolist()} mm is more than "
+                f"{OUTSIDE_BODY * 1e3:g} mm outside the atlas's brain: another frame (RAS/LPS), unit or patient?"
+            )
+        return labels, positions

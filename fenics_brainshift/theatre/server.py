@@ -1,0 +1,204 @@
+"""The OpenIGTLink server: one thread, one selector, every client its own session (its own
+case: an update never mixes two clients' points unless the service is told to share one).
+
+Each turn of the loop reads what every client sent, handles each message (session.py), then
+makes the updates asked for, one per client however many messages asked (a 60 Hz tip stream
+or a flood of `update` strings costs one update: the latest points win), then writes. Bad
+traffic is dropped with one log line: a body that fails its CRC is skipped and the client
+kept; a header that cannot be read (a wrong type, a body over its limit, garbage) closes that
+client, as the stream cannot be found again after it. A client that does not read its answers
+is closed once MAX_OUTBOX bytes wait for it. Recording (record.py) is written before the
+answer goes out.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import selectors
+import socket
+import time
+from collections.abc import Callable
+
+from ..errors import InputError
+from . import igtl
+from .session import Session
+
+MAX_OUTBOX = 256 << 20  # bytes waiting for a client that does not read
+READ_CHUNK = 1 << 20
+MAX_CLIENTS = 16
+
+
+class _Client:
+    def __init__(self, sock: socket.socket, address, number: int, session: Session):
+        self.sock, self.address, self.number, self.session = sock, address, number, session
+        self.reader = igtl.Reader()
+        self.outbox = bytearray()
+        self.pending = False  # an update asked for
+        self.received = 0  # messages, for the record
+
+
+def loopback(host: str) -> bool:
+    try:
+        return ipaddress.ip_address(socket.gethostbyname(host)).is_loopback
+    except (OSError, ValueError):
+        return False
+
+
+class Server:
+    """serve(until) runs the loop until `until()` is true; the socket is bound on creation
+    (port 0: any free port, then .port says which)."""
+
+    def __init__(
+        self,
+        new_session: Callable[[], Session],
+        host: str = "127.0.0.1",
+        port: int = 18944,
+        allow: list[str] | None = None,
+        recorder=None,
+        log: Callable[[str], None] = print,
+    ):
+        self.new_session, self.recorder, self.log = new_session, recorder, log
+        self.allow = None if not allow else {socket.gethostbyname(a) for a in allow}
+        self.listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        self.listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            self.listener.bind((host, port))
+        except OSError as exc:
+            self.listener.close()
+            raise InputError(
+                f"--port {port} on {host}: {exc.strerror} (another server there? --port to choose)"
+            ) from None
+        self.listener.listen(8)
+        self.listener.setblocking(False)
+        self.port = self.listener.getsockname()[1]
+        self.selector = selectors.DefaultSelector()
+        self.selector.register(self.listener, selectors.EVENT_READ)
+        self.clients: dict[int, _Client] = {}
+        self._numbers = 0
+        self.updates = 0
+
+    def serve(self, until: Callable[[], bool] = lambda: False, tick: float = 0.05) -> None:
+        try:
+            while not until():
+                self.step(tick)
+        finally:
+            self.close()
+
+    def step(self, timeout: float) -> None:
+        for key, events in self.selector.select(timeout):
+            if key.fileobj is self.listener:
+                self._accept()
+                continue
+            client = key.data
+            if events & selectors.EVENT_READ and client.number in self.clients:
+                self._read(client)
+            if events & selectors.EVENT_WRITE and client.number in self.clients:
+                self._write(client)
+        for client in list(self.clients.values()):
+            if client.pending:
+                client.pending = False
+                self._answer(client)
+
+    def close(self) -> None:
+        for client in list(self.clients.values()):
+            self._drop(client, None)
+        self.selector.close()
+        self.listener.close()
+
+    # -- the clients -------------------------------------------------------------------------
+
+    def _accept(self) -> None:
+        try:
+            sock, address = self.listener.accept()
+        except OSError:
+            return
+        if self.allow is not None and address[0] not in self.allow:
+            self.log(f"refused {address[0]}:{address[1]}: not among --allow")
+            sock.close()
+            return
+        if len(self.clients) >= MAX_CLIENTS:
+            self.log(f"refused {address[0]}:{address[1]}: {MAX_CLIENTS} clients already")
+            sock.close()
+            return
+        sock.setblocking(False)
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self._numbers += 1
+        client = _Client(sock, address, self._numbers, self.new_session())
+        self.clients[client.number] = client
+        self.selector.register(sock, selectors.EVENT_READ, client)
+        self.log(f"client {client.number} connected from {address[0]}:{address[1]}")
+
+    def _drop(self, client: _Client, why: str | None) -> None:
+        if why:
+            self.log(f"client {client.number}: {why}; closed")
+        self.clients.pop(client.number, None)
+        try:
+            self.selector.unregister(client.sock)
+        except (KeyError, ValueError):
+            pass
+        client.sock.close()
+
+    def _read(self, client: _Client) -> None:
+        try:
+            data = client.sock.recv(READ_CHUNK)
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError as exc:
+            self._drop(client, f"receive failed ({exc.strerror})")
+            return
+        if not data:
+            self._drop(client, "disconnected" if not client.reader.pending else "disconnected mid-message")
+            return
+        try:
+            messages = client.reader.feed(data)
+        except igtl.ProtocolError as exc:
+            self._drop(client, f"unreadable header ({exc})")
+            return
+        for header, body in messages:
+            self._message(client, header, body)
+
+    def _message(self, client: _Client, header: igtl.Header, body: bytes) -> None:
+        client.received += 1
+        if self.recorder is not None:
+            self.recorder.received(client.number, header, body)
+        try:
+            igtl.check_body(header, body)
+            message = igtl.decode(header, body)
+        except igtl.ProtocolError as exc:
+            self.log(f"client {client.number}: {header.type} {header.device!r} dropped ({exc})")
+            return
+        reply = client.session.handle(message)
+        if reply.log:
+            self.log(f"client {client.number}: {reply.log}")
+        for data in reply.send:
+            self._send(client, data)
+        client.pending = client.pending or reply.update
+
+    def _answer(self, client: _Client) -> None:
+        started = time.perf_counter()
+        messages = client.session.answer()
+        self.updates += 1
+        if self.recorder is not None:  # (on disk before the answer goes out)
+            self.recorder.answered(client.number, client.received, messages, time.perf_counter() - started)
+        for data in messages:
+            self._send(client, data)
+
+    def _send(self, client: _Client, data: bytes) -> None:
+        if client.number not in self.clients:
+            return
+        client.outbox += data
+        self._write(client)
+        if len(client.outbox) > MAX_OUTBOX:
+            self._drop(client, f"{len(client.outbox) >> 20} MB of answers not read")
+
+    def _write(self, client: _Client) -> None:
+        try:
+            sent = client.sock.send(client.outbox) if client.outbox else 0
+        except (BlockingIOError, InterruptedError):
+            sent = 0
+        except OSError as exc:
+            self._drop(client, f"send failed ({exc.strerror})")
+            return
+        del client.outbox[:sent]
+        events = selectors.EVENT_READ | (selectors.EVENT_WRITE if client.outbox else 0)
+        self.selector.modify(client.sock, events, client)

@@ -1,0 +1,165 @@
+"""One client's conversation with the service: what each OpenIGTLink message it sends does to
+its case, and the messages an update answers with. No sockets here (server.py has them), so
+a recorded operation replays through the same code (record.py).
+
+In: POINT (the point list, replaced whole: Slicer sends a markups list as one message each
+time it changes), TRANSFORM or POSITION (a tracked pointer's tip: the latest kept; captured on
+`capture`, or when it rests), POLYDATA (a surface scan), STRING commands (COMMANDS).
+Out, after each update, in this order: the moved cortex (POLYDATA), the moved targets and
+pre-operative points (POINT), the displacement and its uncertainty on a coarse grid (IMAGE),
+the next point worth touching (POINT `NextPoint`), and the status (STRING JSON) last, so a
+client knows the answer is complete. Everything in the client's frame (RAS, or LPS: x and y
+negated) and millimetres, said in each message's metadata.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .. import json_text
+from ..errors import InputError
+from . import igtl
+from .case import Case
+
+COMMANDS = ("update", "capture", "undo", "reset", "status")
+REST_MM = 1.0  # a tip that stays within this ...
+REST_S = 1.0  # ... for this long is captured once (it must then move REST_AWAY_MM before the next)
+REST_AWAY_MM = 5.0
+FLIP = np.array([-1.0, -1.0, 1.0])  # RAS <-> LPS
+
+
+@dataclass
+class Reply:
+    """What handling a message asks for: an update, or messages to send now (encoded)."""
+
+    update: bool = False
+    send: list[bytes] = field(default_factory=list)
+    log: str | None = None
+
+
+class Session:
+    def __init__(self, case: Case, frame: str = "RAS"):
+        self.case, self.frame = case, frame
+        self.tip: np.ndarray | None = None  # RAS m, the latest
+        self._rest: tuple[np.ndarray, float] | None = None  # where and since when the tip rests
+        self._rested_at: np.ndarray | None = None
+        self.updates = 0
+
+    # -- in ----------------------------------------------------------------------------------
+
+    def handle(self, message: igtl.Message) -> Reply:
+        """What a decoded message does; an InputError's one line goes back as the status."""
+        try:
+            return self._handle(message)
+        except InputError as exc:
+            return Reply(send=[self._status({"error": str(exc)})], log=f"{message.type} {message.device!r}: {exc}")
+
+    def _handle(self, message: igtl.Message) -> Reply:
+        kind, content = message.type, message.content
+        if kind == "POINT":
+            self.case.set_points(content.names, self._in(content.positions))
+            return Reply(update=True)
+        if kind == "POLYDATA":
+            self.case.set_scan(self._in(content.points))
+            return Reply(update=True)
+        if kind in ("TRANSFORM", "POSITION"):
+            position = content[:3, 3] if kind == "TRANSFORM" else content[0]
+            tip = self._in(np.reshape(position, (1, 3)))[0]
+            if not np.isfinite(tip).all():
+                return Reply(log=f"{kind} {message.device!r}: the tip is not a number; ignored")
+            self.tip = tip
+            return self._rested(tip, message.timestamp)
+        if kind == "STRING":
+            return self._command(content.strip().lower())
+        return Reply(log=f"{kind} {message.device!r}: not a message the service takes; ignored")
+
+    def _command(self, command: str) -> Reply:
+        if command == "update":
+            return Reply(update=True)
+        if command == "capture":
+            if self.tip is None:
+                raise InputError("capture: no pointer tip received yet (send its TRANSFORM or POSITION)")
+            self.case.capture(self.tip)
+            return Reply(update=True)
+        if command == "undo":
+            if not self.case.undo():
+                return Reply(send=[self._status({"undo": "nothing to undo", **self.case.counts})])
+            return Reply(update=True)
+        if command == "reset":
+            self.case.reset()
+            return Reply(send=[self._status({"reset": True, **self.case.counts})])
+        if command == "status":
+            last = self.case.last.status if self.case.last is not None else {}
+            return Reply(send=[self._status({**last, **self.case.counts, "updates": self.updates})])
+        shown = command[:40].encode("ascii", "replace").decode()
+        raise InputError(f"command '{shown}': not one of {', '.join(COMMANDS)}")
+
+    def _rested(self, tip: np.ndarray, t: float) -> Reply:
+        """A tip held still REST_S is captured, once until it moves away."""
+        if self._rested_at is not None and np.linalg.norm(tip - self._rested_at) * 1e3 < REST_AWAY_MM:
+            return Reply()
+        self._rested_at = None
+        if self._rest is None or np.linalg.norm(tip - self._rest[0]) * 1e3 > REST_MM:
+            self._rest = (tip, t)
+            return Reply()
+        if t - self._rest[1] < REST_S:
+            return Reply()
+        self._rest, self._rested_at = None, tip
+        self.case.capture(tip)
+        return Reply(update=True, log=f"the tip rested {REST_S:g} s: captured as a touch")
+
+    def _in(self, positions) -> np.ndarray:
+        """The client's mm (RAS or LPS) in RAS m."""
+        xyz = np.asarray(positions, dtype=float).reshape(-1, 3) * 1e-3
+        return xyz * FLIP if self.frame == "LPS" else xyz
+
+    # -- out ---------------------------------------------------------------------------------
+
+    def _out(self, positions: np.ndarray) -> np.ndarray:
+        xyz = np.asarray(positions, dtype=float).reshape(-1, 3) * 1e3
+        return xyz * FLIP if self.frame == "LPS" else xyz
+
+    @property
+    def metadata(self) -> dict[str, str]:
+        return {"frame": self.frame, "units": "mm"}
+
+    def _status(self, status: dict) -> bytes:
+        return igtl.encode_string("BrainshiftStatus", json_text.dumps(status, indent=None), self.metadata)
+
+    def answer(self) -> list[bytes]:
+        """The update of the points held now, as the messages that carry it (status last); an
+        update the points cannot make is answered by its one line as the status."""
+        try:
+            answer = self.case.update()
+        except InputError as exc:
+            return [self._status({"error": str(exc), **self.case.counts})]
+        self.updates += 1
+        meta, out = self.metadata, []
+        if answer.surface is not None:
+            points, triangles = answer.surface
+            out.append(igtl.encode_polydata("BrainshiftCortex", self._out(points), triangles, meta))
+        for device, (labels, points) in (("BrainshiftTargets", answer.targets), ("BrainshiftPre", answer.pre)):
+            if len(labels):
+                out.append(igtl.encode_point(device, labels, self._out(points), meta))
+        if answer.displacement is not None:
+            grid = self.case.grid
+            matrix = grid.ijk_to_ras()
+            shift = answer.displacement * 1e3
+            if self.frame == "LPS":  # (the grid's axes and the vectors, both)
+                matrix, shift = np.diag([-1.0, -1.0, 1.0, 1.0]) @ matrix, shift * FLIP
+            # (i, j, k[, 3]) -> (k, j, i[, 3]): an IMAGE's voxels run with i fastest
+            out.append(igtl.encode_image("BrainshiftShift", np.swapaxes(shift, 0, 2), matrix, meta))
+            out.append(igtl.encode_image("BrainshiftSpread", np.swapaxes(answer.spread * 1e3, 0, 2), matrix, meta))
+        if answer.suggestion is not None:
+            out.append(igtl.encode_point("NextPoint", ["next"], self._out(answer.suggestion.position), meta))
+        out.append(self._status(answer.status))
+        return out
+
+
+def status_of(messages: list[bytes]) -> dict:
+    """The status JSON of an answer (its last message)."""
+    header = igtl.parse_header(messages[-1][: igtl.HEADER_SIZE])
+    return json.loads(igtl.decode(header, messages[-1][igtl.HEADER_SIZE :]).content)

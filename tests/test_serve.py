@@ -1,0 +1,496 @@
+"""`brainshift serve` over a real TCP socket on loopback, with pyigtl's client as a navigation
+system would connect (and a raw socket where pyigtl cannot: POLYDATA, the order of an
+answer, bad bytes): what goes in, what comes out in each frame, bad traffic, the record and
+its replay. Answers are checked against the atlas's update called directly on the same
+points, and against interpolation of its displacement done here."""
+
+from __future__ import annotations
+
+import json
+import socket
+import struct
+import threading
+import time
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pyigtl
+import pytest
+from mpi4py import MPI
+
+from fenics_brainshift import load_scene
+from fenics_brainshift.atlas import store
+from fenics_brainshift.atlas.build import build
+from fenics_brainshift.atlas.locate import MeshLocator
+from fenics_brainshift.atlas.scenarios import parse_vary
+from fenics_brainshift.atlas.update import update
+from fenics_brainshift.cli import main as brainshift
+from fenics_brainshift.commands.serve import session_factory
+from fenics_brainshift.images import write_markups
+from fenics_brainshift.images.targets import Target
+from fenics_brainshift.theatre import igtl, server
+from fenics_brainshift.theatre.record import Recorder, read_messages
+
+pytestmark = pytest.mark.usefixtures("serial_only")
+
+VARY = ["fluid.level=0.02,0.03,0.04", "gravity.angle_z=-8,0,8"]
+
+
+@pytest.fixture(scope="module")
+def atlas_folder(tmp_path_factory):
+    built, _ = build(
+        load_scene("brain", ["mesh.voxel=0.01", "time.mode=quasi-static"]), parse_vary(VARY), MPI.COMM_WORLD
+    )
+    folder = tmp_path_factory.mktemp("serve") / "atlas"
+    store.write(folder, built)
+    return folder
+
+
+@pytest.fixture(scope="module")
+def atlas(atlas_folder):
+    return store.read(atlas_folder)
+
+
+def _args(folder, **extra):
+    base = dict(atlas=str(folder), pre=None, targets=None, frame="RAS", noise=1.0, grid=4.0, share=False, record=None)
+    return SimpleNamespace(**{**base, **extra})
+
+
+class Served:
+    """A server on a free loopback port, its loop in a thread under the test's control."""
+
+    def __init__(self, args, recorder=None, allow=None):
+        self.log: list[str] = []
+        self.server = server.Server(session_factory(args), "127.0.0.1", 0, allow, recorder, log=self.log.append)
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self.server.serve, args=(self.stop.is_set, 0.01), daemon=True)
+        self.thread.start()
+
+    def close(self):
+        self.stop.set()
+        self.thread.join(10)
+
+
+@pytest.fixture()
+def served(atlas_folder):
+    s = Served(_args(atlas_folder))
+    yield s
+    s.close()
+
+
+def _touches(atlas, count=12, seed=0, weights=(0.0, 0.6, 0.4)):
+    """Points on the cortex moved by a mix of modes (RAS m), and that displacement."""
+    c = np.zeros(len(atlas.scenarios))
+    c[[1, 4, 7][: len(weights)]] = weights
+    moved = atlas.surface_points + np.tensordot(c, atlas.surface_modes.astype(float), axes=1)
+    top = np.flatnonzero(moved[:, 1] > np.percentile(moved[:, 1], 90))
+    picked = np.random.default_rng(seed).choice(top, count, replace=False)
+    return _wire(moved[picked])
+
+
+def _wire(points: np.ndarray) -> np.ndarray:
+    """Points (m) as they arrive: millimetres in float32 (OpenIGTLink's POINT)."""
+    return (points * 1e3).astype(np.float32).astype(float) * 1e-3
+
+
+class Raw:
+    """A client on a plain socket: sends bytes, reads whole messages (framing read here by hand;
+    bodies decoded by the codec, an IMAGE's kept as bytes: the service never takes one)."""
+
+    def __init__(self, port):
+        self.sock = socket.create_connection(("127.0.0.1", port), timeout=20)
+        self.buffer = b""
+
+    def send(self, data: bytes):
+        self.sock.sendall(data)
+
+    def _take(self, size: int) -> bytes:
+        while len(self.buffer) < size:
+            data = self.sock.recv(1 << 20)
+            if not data:
+                raise ConnectionError("closed by the server")
+            self.buffer += data
+        out, self.buffer = self.buffer[:size], self.buffer[size:]
+        return out
+
+    def message(self) -> igtl.Message:
+        head = self._take(58)
+        version, kind, device, seconds, fraction, size, crc = struct.unpack(">H12s20sIIQQ", head)
+        body = self._take(size)
+        kind, device = kind.rstrip(b"\0").decode(), device.rstrip(b"\0").decode()
+        assert igtl.CRC64(body) == crc
+        if kind == "IMAGE":
+            return igtl.Message(kind, device, seconds, {}, body)
+        return igtl.decode(igtl.Header(version, kind, device, seconds, size, crc), body)
+
+    def answer(self) -> list[igtl.Message]:
+        """Messages up to and including the next BrainshiftStatus."""
+        out = [self.message()]
+        while out[-1].device != "BrainshiftStatus":
+            out.append(self.message())
+        return out
+
+    def closed(self, within: float = 5.0) -> bool:
+        self.sock.settimeout(within)
+        try:
+            while self.sock.recv(1 << 20):
+                pass
+            return True
+        except (ConnectionResetError, BrokenPipeError):
+            return True
+        except TimeoutError:
+            return False
+
+    def close(self):
+        self.sock.close()
+
+
+def _wait(client, device, timeout=20.0):
+    message = client.wait_for_message(device, timeout=timeout)
+    assert message is not None, f"no {device} within {timeout} s"
+    return message
+
+
+def test_points_in_the_updated_brain_out_through_pyigtl(served, atlas):
+    touches = _touches(atlas)
+    labels = [f"t{i}" for i in range(len(touches))]
+    direct = update(atlas, Target(touches, None, labels), 1e-3)
+    client = pyigtl.OpenIGTLinkClient("127.0.0.1", served.server.port)
+    try:
+        client.send_message(pyigtl.PointMessage(positions=touches * 1e3, names=labels, device_name="Touches"))
+        status = json.loads(_wait(client, "BrainshiftStatus").string)
+        targets = _wait(client, "BrainshiftTargets")
+        shift = _wait(client, "BrainshiftShift")
+        spread = _wait(client, "BrainshiftSpread")
+        nxt = _wait(client, "NextPoint")
+    finally:
+        client.stop()
+    assert status["kind"] == "point-to-surface" and status["points"] == 12
+    rms = lambda r: float(np.sqrt(np.mean(r**2))) * 1e3  # noqa: E731
+    assert status["residual_mm"] == pytest.approx(rms(direct.residual), abs=1e-9)
+    assert status["prior_residual_mm"] == pytest.approx(rms(direct.prior_residual), abs=1e-9)
+    assert np.allclose(status["weights"], direct.weights, atol=1e-12)
+    # the moved targets (the atlas's probes) by interpolation here, mm
+    probes = atlas.info["probes"]
+    names = list(probes)
+    points = np.array([probes[k] for k in names])
+    index, weight, _ = MeshLocator(atlas.points, atlas.tetrahedra).weights(points)
+    moved = (points + np.einsum("nj,njd->nd", weight, direct.displacement[index])) * 1e3
+    assert list(targets.names) == names
+    assert np.allclose(np.asarray(targets.positions), moved, atol=1e-3)  # (float32 on the wire)
+    # the displacement image: at voxels inside the brain, the displacement interpolated there
+    data = np.asarray(shift.image, dtype=float)  # (k, j, i, 3) as pyigtl reads it
+    assert data.ndim == 4 and data.shape[-1] == 3
+    matrix = np.asarray(shift.ijk_to_world_matrix, dtype=float)
+    k, j, i = np.argwhere(np.linalg.norm(data, axis=-1) > 0.5 * np.linalg.norm(data, axis=-1).max())[:20].T
+    ras = (matrix @ np.c_[i, j, k, np.ones(len(i))].T).T[:, :3] * 1e-3
+    index, weight, outside = MeshLocator(atlas.points, atlas.tetrahedra).weights(ras)
+    assert np.all(outside == 0)
+    expected = np.einsum("nj,njd->nd", weight, direct.displacement[index]) * 1e3
+    assert np.allclose(data[k, j, i], expected, atol=1e-4)
+    assert np.asarray(spread.image).max() > 0
+    # the suggestion: a point of the cortex, said to lower the targets' spread
+    assert status["suggestion"]["expected_spread_mm"] < status["suggestion"]["spread_mm"]
+    assert np.asarray(nxt.positions).shape == (1, 3)
+
+
+def test_an_answer_ends_with_its_status_and_carries_the_moved_cortex(served, atlas):
+    touches = _touches(atlas, seed=1)
+    labels = [f"t{i}" for i in range(len(touches))]
+    direct = update(atlas, Target(touches, None, labels), 1e-3)
+    raw = Raw(served.server.port)
+    try:
+        raw.send(igtl.encode_point("Touches", labels, touches * 1e3))
+        answer = raw.answer()
+    finally:
+        raw.close()
+    devices = [m.device for m in answer]
+    assert devices[-1] == "BrainshiftStatus" and devices.count("BrainshiftStatus") == 1
+    assert set(devices) >= {"BrainshiftCortex", "BrainshiftTargets", "BrainshiftShift", "BrainshiftSpread", "NextPoint"}
+    cortex = answer[devices.index("BrainshiftCortex")]
+    assert cortex.metadata == {"frame": "RAS", "units": "mm"}
+    assert np.array_equal(cortex.content.triangles, atlas.surface_triangles)
+    assert np.allclose(cortex.content.points, (atlas.surface_points + direct.surface_displacement) * 1e3, atol=1e-3)
+
+
+def test_an_lps_client_gets_the_same_update_in_lps(atlas_folder, atlas):
+    touches = _touches(atlas, seed=2)
+    labels = [f"t{i}" for i in range(len(touches))]
+    direct = update(atlas, Target(touches, None, labels), 1e-3)
+    s = Served(_args(atlas_folder, frame="LPS"))
+    raw = Raw(s.server.port)
+    try:
+        raw.send(igtl.encode_point("Touches", labels, touches * 1e3 * [-1, -1, 1]))
+        answer = {m.device: m for m in raw.answer()}
+    finally:
+        raw.close()
+        s.close()
+    status = json.loads(answer["BrainshiftStatus"].content)
+    assert np.allclose(status["weights"], direct.weights, atol=1e-12)
+    cortex = answer["BrainshiftCortex"]
+    assert cortex.metadata["frame"] == "LPS"
+    assert np.allclose(
+        cortex.content.points, (atlas.surface_points + direct.surface_displacement) * 1e3 * [-1, -1, 1], atol=1e-3
+    )
+
+
+def test_labels_among_the_pre_operative_points_are_pairs_and_the_rest_touches(atlas_folder, atlas, tmp_path):
+    top = np.flatnonzero(atlas.points[:, 1] > np.percentile(atlas.points[:, 1], 90))[:3]
+    pre = atlas.points[top]
+    write_markups(tmp_path / "pre.mrk.json", ["A", "B", "C"], pre * 1e3)
+    c = np.zeros(len(atlas.scenarios))
+    c[4] = 1.0
+    u = np.tensordot(c, atlas.vertex_modes.astype(float), axes=1)
+    touches = _touches(atlas, count=4, seed=3, weights=(0.0, 1.0))
+    measured = _wire(np.vstack([pre + u[top], touches]))
+    labels = ["A", "B", "C", "s1", "s2", "s3", "s4"]
+    s = Served(_args(atlas_folder, pre=str(tmp_path / "pre.mrk.json")))
+    raw = Raw(s.server.port)
+    try:
+        raw.send(igtl.encode_point("Touches", labels, measured * 1e3))
+        answer = {m.device: m for m in raw.answer()}
+    finally:
+        raw.close()
+        s.close()
+    status = json.loads(answer["BrainshiftStatus"].content)
+    assert status["kind"] == "point-to-point and point-to-surface"
+    assert (status["pairs"], status["surface"]) == (3, 4)
+    pre = (pre * 1e3).astype(np.float32).astype(float) * 1e-3  # (read back from the markups file's mm)
+    direct = update(atlas, Target(measured, np.vstack([pre, np.full((4, 3), np.nan)]), labels), 1e-3)
+    assert np.allclose(status["weights"], direct.weights, atol=1e-12)
+    assert list(answer["BrainshiftPre"].content.names) == ["A", "B", "C"]
+
+
+def test_a_tracked_tip_is_captured_and_the_commands_do_what_they_say(served, atlas):
+    touches = _touches(atlas, count=6, seed=4)
+    raw = Raw(served.server.port)
+    try:
+        for k, tip in enumerate(touches):
+            matrix = np.eye(4)
+            matrix[:3, 3] = tip * 1e3
+            raw.send(igtl.encode_transform("PointerToTracker", matrix))
+            raw.send(igtl.encode_string("cmd", "capture"))
+            status = json.loads(raw.answer()[-1].content)
+            if k < 4:  # (too few touches for an update: said, not fitted)
+                assert "too few" in status["error"] and status["touches"] == k + 1
+        assert status["touches"] == 6 and status["kind"] == "point-to-surface"
+        raw.send(igtl.encode_string("cmd", "undo"))
+        assert json.loads(raw.answer()[-1].content)["touches"] == 5
+        raw.send(igtl.encode_string("cmd", "status"))
+        said = json.loads(raw.answer()[-1].content)
+        assert said["touches"] == 5 and said["updates"] >= 2
+        raw.send(igtl.encode_string("cmd", "reset"))
+        assert json.loads(raw.answer()[-1].content) == {
+            "reset": True,
+            "pairs": 0,
+            "surface": 0,
+            "touches": 0,
+            "scan": 0,
+        }
+        raw.send(igtl.encode_string("cmd", "dance"))
+        assert "not one of update, capture, undo, reset, status" in json.loads(raw.answer()[-1].content)["error"]
+    finally:
+        raw.close()
+
+
+def test_a_tip_held_still_is_captured_once(served, atlas):
+    tip = _touches(atlas, count=1, seed=5)[0] * 1e3
+    raw = Raw(served.server.port)
+    try:
+        for t in np.arange(0.0, 1.6, 1 / 60):  # 60 Hz, still within 0.2 mm for 1.6 s
+            raw.send(igtl.encode_position("Tip", tip + 0.2 * np.sin(t), metadata=None))
+        raw.send(igtl.encode_string("cmd", "status"))
+        assert json.loads(raw.answer()[-1].content)["touches"] in (0, 1)
+    finally:
+        raw.close()
+
+
+def test_a_surface_scan_is_fitted_point_to_surface(served, atlas):
+    scan = _touches(atlas, count=300, seed=6)
+    raw = Raw(served.server.port)
+    try:
+        raw.send(igtl.encode_polydata("Scan", scan * 1e3, np.array([[0, 1, 2]])))
+        status = json.loads(raw.answer()[-1].content)
+    finally:
+        raw.close()
+    assert status["scan"] == 300 and status["kind"] == "point-to-surface"
+    assert status["residual_mm"] < 0.05 < status["prior_residual_mm"]
+
+
+def _frame(kind: bytes, body: bytes, size: int | None = None, crc: int | None = None) -> bytes:
+    return (
+        struct.pack(
+            ">H12s20sIIQQ",
+            2,
+            kind,
+            b"bad",
+            0,
+            0,
+            len(body) if size is None else size,
+            igtl.CRC64(body) if crc is None else crc,
+        )
+        + body
+    )
+
+
+def test_bad_traffic_is_dropped_and_every_other_client_served(served, atlas):
+    touches = _touches(atlas, seed=7)
+    labels = [f"t{i}" for i in range(len(touches))]
+    good = Raw(served.server.port)
+    try:
+        # a wrong CRC: that message dropped, its client kept
+        bad = bytearray(igtl.encode_point("Touches", labels, touches * 1e3))
+        bad[-1] ^= 0xFF
+        good.send(bytes(bad))
+        good.send(igtl.encode_point("Touches", labels, touches * 1e3))
+        assert json.loads(good.answer()[-1].content)["points"] == 12
+        # a NaN point, and points of another frame: one line back, nothing fitted
+        nan = touches.copy() * 1e3
+        nan[3, 1] = np.nan
+        good.send(igtl.encode_point("Touches", labels, nan))
+        assert "'t3' is not a number" in json.loads(good.answer()[-1].content)["error"]
+        good.send(igtl.encode_point("Touches", labels, touches * 1e3 + [0, 0, 400]))
+        assert "outside the atlas's brain" in json.loads(good.answer()[-1].content)["error"]
+        for name, data in (
+            ("an unknown type", _frame(b"VIDEO", b"x" * 10)),
+            ("a body over its limit", _frame(b"POLYDATA", b"", size=1 << 40)),
+            ("garbage", b"\x00\xff" * 64),
+        ):
+            other = Raw(served.server.port)
+            other.send(data)
+            assert other.closed(), name
+            other.close()
+        cut = Raw(served.server.port)  # a header cut off, then gone
+        cut.send(igtl.encode_point("Touches", labels, touches * 1e3)[:30])
+        cut.close()
+        good.send(igtl.encode_string("cmd", "update"))
+        assert json.loads(good.answer()[-1].content)["points"] == 12  # still served, its last good list
+    finally:
+        good.close()
+    lines = "\n".join(served.log)
+    assert "fails its CRC-64 check" in lines and "unsupported type 'VIDEO'" in lines
+    assert "over the" in lines and "disconnected mid-message" in lines
+
+
+def test_a_flood_costs_one_update_a_turn_and_two_clients_get_their_own(served, atlas):
+    first, second = _touches(atlas, seed=8), _touches(atlas, seed=9, weights=(0.0, 0.0, 1.0))
+    labels = [f"t{i}" for i in range(12)]
+    a, b = Raw(served.server.port), Raw(served.server.port)
+    try:
+        a.send(igtl.encode_point("Touches", labels, first * 1e3))
+        b.send(igtl.encode_point("Touches", labels, second * 1e3))
+        wa, wb = (json.loads(c.answer()[-1].content)["weights"] for c in (a, b))
+        assert np.allclose(wa, update(atlas, Target(first, None, labels), 1e-3).weights, atol=1e-12)
+        assert np.allclose(wb, update(atlas, Target(second, None, labels), 1e-3).weights, atol=1e-12)
+        before = served.server.updates
+        started = time.perf_counter()
+        a.send(igtl.encode_string("cmd", "update") * 10_000)
+        answers = 0
+        a.sock.settimeout(3.0)
+        try:
+            while True:
+                answers += sum(m.device == "BrainshiftStatus" for m in a.answer())
+        except TimeoutError:
+            pass
+        assert 1 <= answers < 1000 and served.server.updates - before == answers
+        assert time.perf_counter() - started < 60
+        b.send(igtl.encode_string("cmd", "update"))
+        assert np.allclose(json.loads(b.answer()[-1].content)["weights"], wb, atol=1e-12)
+    finally:
+        a.close()
+        b.close()
+
+
+def test_a_client_that_never_reads_is_closed_and_the_others_served(served, atlas, monkeypatch):
+    monkeypatch.setattr(server, "MAX_OUTBOX", 4 << 20)
+    touches = _touches(atlas, seed=10)
+    labels = [f"t{i}" for i in range(12)]
+    deaf = socket.create_connection(("127.0.0.1", served.server.port))
+    deaf.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+    try:
+        for _ in range(40):
+            deaf.sendall(igtl.encode_point("Touches", labels, touches * 1e3))
+            time.sleep(0.05)
+    except OSError:
+        pass  # (closed by the server)
+    finally:
+        deaf.close()
+    deadline = time.time() + 20
+    while not any("answers not read" in line for line in served.log) and time.time() < deadline:
+        time.sleep(0.1)
+    assert any("answers not read" in line for line in served.log)
+    raw = Raw(served.server.port)
+    try:
+        raw.send(igtl.encode_point("Touches", labels, touches * 1e3))
+        assert json.loads(raw.answer()[-1].content)["points"] == 12
+    finally:
+        raw.close()
+
+
+def test_a_recorded_operation_replays_to_the_same_answers_and_resumes_after_a_kill(
+    atlas_folder, atlas, tmp_path, capsys
+):
+    record = tmp_path / "record"
+    recorder = Recorder(record)
+    s = Served(_args(atlas_folder), recorder=recorder)
+    raw = Raw(s.server.port)
+    touches = _touches(atlas, count=14, seed=11)
+    try:
+        for n in (8, 11, 14):
+            raw.send(igtl.encode_point("Touches", [f"t{i}" for i in range(n)], touches[:n] * 1e3))
+            raw.answer()
+        raw.send(igtl.encode_string("cmd", "undo"))
+        raw.answer()
+    finally:
+        raw.close()
+        s.close()  # (the recorder left open: as a killed server leaves it)
+    with open(record / "messages.bin", "ab") as f:  # a kill inside a message's record
+        f.write(b"\x00" * 30)
+    assert len(read_messages(record)) == 4
+    assert brainshift(["replay", str(record), "--atlas", str(atlas_folder)]) == 0
+    assert "4 updates: each the recorded answer" in capsys.readouterr().out
+    # a restart on the same record resumes the case's points (the undo's: 11 of them)
+    resumed = Served(_args(atlas_folder, record=str(record)))
+    raw = Raw(resumed.server.port)
+    try:
+        raw.send(igtl.encode_string("cmd", "update"))
+        assert json.loads(raw.answer()[-1].content)["points"] == 11
+    finally:
+        raw.close()
+        resumed.close()
+    # a record of another atlas's answers does not replay as the same
+    lines = (record / "updates.jsonl").read_text().splitlines()
+    changed = json.loads(lines[0])
+    changed["status"]["weights"][1] += 1e-3
+    (record / "updates.jsonl").write_text("\n".join([json.dumps(changed)] + lines[1:]) + "\n")
+    assert brainshift(["replay", str(record), "--atlas", str(atlas_folder)]) == 2
+    assert "update 1 of 4 differs from the record" in capsys.readouterr().err
+
+
+def test_serve_binds_loopback_warns_off_it_and_refuses_clients_not_allowed(atlas_folder, capsys):
+    assert brainshift(["serve", str(atlas_folder), "--port", "0", "--seconds", "0.5"]) == 0
+    out = capsys.readouterr().out
+    assert "on 127.0.0.1:" in out and "WARNING" not in out
+    assert brainshift(["serve", str(atlas_folder), "--host", "0.0.0.0", "--port", "0", "--seconds", "0.5"]) == 0
+    assert "OpenIGTLink has no authentication" in capsys.readouterr().out
+    s = Served(_args(atlas_folder), allow=["10.9.8.7"])
+    try:
+        raw = Raw(s.server.port)
+        assert raw.closed()
+        raw.close()
+        time.sleep(0.2)
+        assert any("not among --allow" in line for line in s.log)
+    finally:
+        s.close()
+    taken = socket.socket()
+    taken.bind(("127.0.0.1", 0))
+    taken.listen(1)
+    try:
+        port = taken.getsockname()[1]
+        assert brainshift(["serve", str(atlas_folder), "--port", str(port), "--seconds", "0.5"]) == 2
+        assert f"--port {port}" in capsys.readouterr().err
+    finally:
+        taken.close()
+    assert brainshift(["serve", str(atlas_folder), "--port", "70000"]) == 2
+    assert brainshift(["serve", str(Path(atlas_folder).parent / "none")]) == 2
