@@ -380,6 +380,8 @@ def test_update_writes_a_run_folder_that_warp_takes(atlas, atlas_folder, tmp_pat
     assert report["points"] == 20 and report["kind"] == "point-to-point"
     assert report["residual_rms_mm"] < 0.6 < report["prior_residual_rms_mm"]
     assert json.loads((out / "summary.json").read_text())["status"] == "ok"
+    hint = report["suggestion"]  # (theatre/suggest.py; tests/test_suggest.py checks its numbers)
+    assert hint["targets"] == list(atlas.info["probes"]) and hint["expected_spread_mm"] < hint["targets_spread_mm"]
     from fenics_brainshift.images.frames import read_markups
 
     labels, moved = read_markups(out / "targets_updated.mrk.json")

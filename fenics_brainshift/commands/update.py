@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 
 from ..atlas import store
-from ..atlas.update import prepare, update
 from ..errors import InputError
 from ..images.targets import check_noise, read_target
 from ..outputs.files import RunLock, check_writable, clear_run, runs_results, write_json
+from ..theatre.case import Case
 from .help_format import Defaults
 
 DEFAULT_NOISE_MM = 1.0  # a tracked pointer's error on the cortex
@@ -96,9 +96,11 @@ def main(args, comm) -> list[str]:
         image = read_volume(args.image, "update: --image")
     atlas = store.read(args.atlas)  # every rank: the update is small, each computes it, rank 0 writes
     target = read_target(args.target, args.pre, args.frame)
-    prepare_s = prepare(atlas)  # (once per atlas: a navigation system would keep it loaded)
-    result = update(atlas, target, args.noise * 1e-3, args.bootstrap, set_aside=not args.keep_all)
-    result.seconds["atlas_prepare_ms"] = prepare_s * 1e3
+    # (the case prepares the atlas once, as `brainshift serve` keeps it prepared)
+    case = Case(atlas, noise=args.noise * 1e-3, grid=None, samples=args.bootstrap, set_aside=not args.keep_all)
+    answer = case.update(target)
+    result = answer.result
+    result.seconds["atlas_prepare_ms"] = case.prepare_s * 1e3
     args.noise_stated = noise_stated
     # what can fail is done on every rank before a file is touched
     spread_image = _uncertainty_grid(atlas, result.spread, image) if image is not None else None
@@ -112,6 +114,7 @@ def main(args, comm) -> list[str]:
             _write_outputs(out, atlas, target, result, image, spread_image)
         comm.barrier()
         report = _report(atlas, target, result, args, time.perf_counter() - start)
+        report["suggestion"] = _suggestion(answer, case)
         write_json(out / "update.json", report, comm)
         write_json(
             out / "summary.json",
@@ -291,6 +294,19 @@ def _report(atlas, target, result, args, seconds: float) -> dict:
         "timings_ms": result.seconds,
         "command_s": seconds,
         "warning": result.warning,
+    }
+
+
+def _suggestion(answer, case) -> dict | None:
+    """Where a touch of the cortex would most lower the spread at the atlas's probes."""
+    s = answer.suggestion
+    if s is None:
+        return None
+    return {
+        "position_ras_mm": [float(x) for x in s.position * 1e3],
+        "targets": case.targets[0],
+        "targets_spread_mm": s.spread * 1e3,
+        "expected_spread_mm": s.expected * 1e3,
     }
 
 

@@ -55,9 +55,10 @@ def vertex_normals(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     """Unit outward normals at the vertices (the triangles' area-weighted)."""
     a, b, c = (points[triangles[:, i]] for i in range(3))
     face = np.cross(b - a, c - a)
-    normals = np.zeros_like(points)
-    for i in range(3):
-        np.add.at(normals, triangles[:, i], face)
+    corners = triangles.ravel()
+    normals = np.stack(
+        [np.bincount(corners, np.repeat(face[:, d], 3), minlength=len(points)) for d in range(3)], axis=1
+    )  # (a sum per vertex: np.add.at was 15 times slower)
     return normals / np.maximum(np.linalg.norm(normals, axis=1), 1e-300)[:, None]
 
 
