@@ -12,10 +12,10 @@ pytestmark = pytest.mark.mpi
 DOCS = sorted((ROOT / "docs").glob("*.md")) + [ROOT / "README.md"]
 
 
-@pytest.mark.parametrize("block", range(4))
+@pytest.mark.parametrize("block", range(5))
 def test_api_examples_run(block):
     code = re.findall(r"```python\n(.*?)```", (ROOT / "docs" / "api.md").read_text(), re.S)
-    assert len(code) == 4
+    assert len(code) == 5
     exec(compile(code[block], f"docs/api.md example {block + 1}", "exec"), {})
 
 
