@@ -494,3 +494,27 @@ def test_serve_binds_loopback_warns_off_it_and_refuses_clients_not_allowed(atlas
         taken.close()
     assert brainshift(["serve", str(atlas_folder), "--port", "70000"]) == 2
     assert brainshift(["serve", str(Path(atlas_folder).parent / "none")]) == 2
+
+
+def test_a_growing_list_keeps_its_cross_validated_alpha_while_near_as_many_points(atlas):
+    from fenics_brainshift.theatre.case import ALPHA_KEPT, ALPHA_MIN_POINTS, Case
+
+    touches = _touches(atlas, count=16, seed=12)
+    case = Case(atlas, grid=None)
+    chosen = None
+    for n in range(ALPHA_MIN_POINTS, 16):
+        labels = [f"t{i}" for i in range(n)]
+        case.set_points(labels, touches[:n])
+        answer = case.update()
+        target = Target(touches[:n], None, labels)
+        if n == ALPHA_MIN_POINTS or n > (1 + ALPHA_KEPT) * ALPHA_MIN_POINTS:  # chosen again
+            assert answer.status["alpha_from"] == "cross-validation"
+            assert answer.result.alpha == update(atlas, target, 1e-3).alpha
+            chosen = answer.result.alpha if n == ALPHA_MIN_POINTS else chosen
+        else:
+            assert answer.status["alpha_from"] == f"kept (cross-validated on {ALPHA_MIN_POINTS} points)"
+            kept = update(atlas, target, 1e-3, alpha=chosen)
+            assert answer.result.alpha == chosen and np.allclose(answer.result.weights, kept.weights, atol=1e-12)
+        if n == ALPHA_MIN_POINTS + 3:
+            break
+    assert case.update(Target(touches[:11], None, [f"t{i}" for i in range(11)])).result.curve  # (a target given: anew)

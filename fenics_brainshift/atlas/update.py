@@ -113,7 +113,13 @@ class UpdateResult:
 
 
 def update(
-    atlas: Atlas, target: Target, noise: float, samples: int = 0, keep_inside: bool = True, set_aside: bool = True
+    atlas: Atlas,
+    target: Target,
+    noise: float,
+    samples: int = 0,
+    keep_inside: bool = True,
+    set_aside: bool = True,
+    alpha: float | None = None,
 ) -> UpdateResult:
     """The update of an atlas (store.Atlas) to a target (images.targets.Target), noise in m;
     samples: 0 for the spread from the posterior, else the bootstrap's resamplings;
@@ -121,8 +127,10 @@ def update(
     what the rows add); set_aside: points whose left-out error is far past the noise and the
     other points' (a pointer slip, a landmark on the wrong structure) are set aside and the
     update made again without them (they are reported, with their error at the new fit); a
-    point not among those left out (LEAVE_OUT_MAX) is judged by its error at the fit."""
-    result = _update(atlas, target, noise, samples, keep_inside)
+    point not among those left out (LEAVE_OUT_MAX) is judged by its error at the fit; alpha:
+    the regularisation's weight if already chosen (a live case's last update), else chosen by
+    cross-validation."""
+    result = _update(atlas, target, noise, samples, keep_inside, alpha)
     if not set_aside:
         return result
     dims = _coordinates(target)
@@ -136,7 +144,7 @@ def update(
     if not len(far) or len(far) > OUTLIERS_MAX * len(loo) or _too_few(target.subset(keep)):
         return result
     kept = target.subset(keep)
-    again = _update(atlas, kept, noise, samples, keep_inside)
+    again = _update(atlas, kept, noise, samples, keep_inside, alpha)
     # every point's errors at the new fit (the set-aside ones' "left out" is their error now)
     residual = np.zeros(len(loo))
     residual[keep] = again.residual
@@ -212,11 +220,11 @@ class _Fit:
     cv_s: float
 
 
-def _rounds(atlas, data_rows, noise: float, skull, point_to_point: bool, C0, d0) -> _Fit:
+def _rounds(atlas, data_rows, noise: float, skull, point_to_point: bool, C0, d0, alpha=None) -> _Fit:
     """Step 2-3 of the update: alpha and the fit, the rows taken again at the new weights.
     data_rows(c) -> (A, b, groups, each point's error at c: signed to the surface)."""
     c = prior_weights(atlas)
-    alpha, curve, cv_s, deepest = None, [], 0.0, 0.0
+    curve, cv_s, deepest = [], 0.0, 0.0
     nodes = np.zeros(0, dtype=np.int64)
     for round_ in range(ROUNDS):
         A, b, groups, residual = data_rows(c)
@@ -246,7 +254,7 @@ def _rounds(atlas, data_rows, noise: float, skull, point_to_point: bool, C0, d0)
     return _Fit(c, alpha, curve, problem, residual, nodes, deepest, round_ + 1, cv_s)
 
 
-def _update(atlas, target, noise: float, samples: int, keep_inside: bool) -> UpdateResult:
+def _update(atlas, target, noise: float, samples: int, keep_inside: bool, alpha: float | None) -> UpdateResult:
     start = time.perf_counter()
     n_points = len(target.measured)
     too_few = _too_few(target)
@@ -299,13 +307,13 @@ def _update(atlas, target, noise: float, samples: int, keep_inside: bool) -> Upd
         return (*(np.concatenate(x) for x in zip(*parts)), error)
 
     if point_to_point:
-        fit = _rounds(atlas, data_rows, noise, skull, True, C0, d0)
+        fit = _rounds(atlas, data_rows, noise, skull, True, C0, d0, alpha)
     else:  # on the triangles near the points, wider until none left out could be nearer (surface_patch.py)
         measured = target.measured[on_surface]
         radius = prior_residual[on_surface] + PATCH_MARGIN
         for attempt in range(PATCH_TRIES + 1):
             patch = surface.patch(measured, radius if attempt < PATCH_TRIES else np.full(len(measured), np.inf))
-            fit = _rounds(atlas, lambda c, patch=patch: data_rows(c, patch), noise, skull, False, C0, d0)
+            fit = _rounds(atlas, lambda c, patch=patch: data_rows(c, patch), noise, skull, False, C0, d0, alpha)
             whole = surface.fits(patch, fit.c, measured, fit.residual[on_surface])
             if whole is not None or attempt == PATCH_TRIES:
                 break

@@ -30,6 +30,11 @@ MAX_SCAN_POINTS = 2000  # a scan's points are thinned to this many (each is a ro
 MAX_POINTS = 1000  # in a point list
 OUTSIDE_BODY = 50e-3  # m: a point farther than this outside the atlas's bounding box is refused
 HISTORY = 100  # states kept for undo
+# a live case keeps the regularisation's alpha of its last cross-validation while the points
+# it was chosen on are at least ALPHA_MIN_POINTS and differ in number by at most ALPHA_KEPT
+# (a list growing touch by touch: the cross-validation, a third of an update, once in a while)
+ALPHA_MIN_POINTS = 10
+ALPHA_KEPT = 0.25
 
 
 @dataclass
@@ -91,6 +96,7 @@ class Case:
         self.candidates = exposed_cortex(atlas, np.asarray(centre, dtype=float), up / np.linalg.norm(up))
         self._state, self._history = _State(), []
         self.last: Answer | None = None
+        self._alpha: tuple[float, int, str] | None = None  # (alpha, points, kind) of the last cross-validation
         self.prepare_s = time.perf_counter() - started
 
     def fresh(self, like: Case | None = None) -> Case:
@@ -98,7 +104,7 @@ class Case:
         measurements, or those `like` holds now (a restarted service resumes a recorded case)."""
         case = copy.copy(self)
         case._state = like._state if like is not None else _State()
-        case._history, case.last = [], None
+        case._history, case.last, case._alpha = [], None, None
         return case
 
     # -- what arrives ----------------------------------------------------------------------
@@ -153,10 +159,15 @@ class Case:
         return Target(measured, pre if np.isfinite(pre).any() else None, labels)
 
     def update(self, target: Target | None = None) -> Answer:
-        """The update to the points held now (or to `target`), and what goes back."""
-        target = self.target() if target is None else target
+        """The update to the points held now (alpha kept from the last cross-validation while
+        the points are near as many: ALPHA_KEPT), or to `target` (alpha chosen anew)."""
+        live = target is None
+        target = self.target() if live else target
         started = time.perf_counter()
-        result = update(self.atlas, target, self.noise, self.samples, set_aside=self.set_aside)
+        alpha = self._kept_alpha(target) if live else None
+        result = update(self.atlas, target, self.noise, self.samples, set_aside=self.set_aside, alpha=alpha)
+        if result.curve:
+            self._alpha = (result.alpha, len(target.measured), target.kind)
         surface = None
         if self.atlas.surface_points is not None:
             surface = (self.atlas.surface_points + result.surface_displacement, self.atlas.surface_triangles)
@@ -173,6 +184,15 @@ class Case:
         answer.status = self._status(answer, time.perf_counter() - started)
         self.last = answer
         return answer
+
+    def _kept_alpha(self, target: Target) -> float | None:
+        if self._alpha is None:
+            return None
+        alpha, points, kind = self._alpha
+        n = len(target.measured)
+        if kind != target.kind or min(n, points) < ALPHA_MIN_POINTS or abs(n - points) > ALPHA_KEPT * points:
+            return None
+        return alpha
 
     def _moved(self, points: np.ndarray, u: np.ndarray) -> np.ndarray:
         if not len(points):
@@ -198,6 +218,8 @@ class Case:
             "leave_one_out_mm": float(np.sqrt(np.nanmean(loo**2))) * mm if np.isfinite(loo).any() else None,
             "set_aside": [answer.target.labels[i] for i in r.outliers],
             "noise_mm": self.noise * mm,
+            "alpha": r.alpha,
+            "alpha_from": "cross-validation" if r.curve else f"kept (cross-validated on {self._alpha[1]} points)",
             "stiffness_G_Pa": r.stiffness(self.atlas),
             "fluid_level_m": (
                 float(
