@@ -39,20 +39,25 @@ def parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
-    from mpi4py import MPI
-
     from . import logs
     from .errors import InputError, Interrupted, SolverError, write_failed
 
-    logs.configure(args.log_level, args.log_all_ranks)
+    command = import_module(f".commands.{args.command}", __package__)
+    one_process = getattr(command, "ONE_PROCESS", False)  # (no MPI started: a third of the service's start-up)
+    logs.configure(args.log_level, args.log_all_ranks, one_process)
     if args.no_progress:
         from .outputs import progress
 
         progress.ENABLED = False
-    comm = MPI.COMM_WORLD
+    if one_process:
+        comm = OneProcess()
+    else:
+        from mpi4py import MPI
+
+        comm = MPI.COMM_WORLD
     try:
         _check_finite(args)
-        lines = import_module(f".commands.{args.command}", __package__).main(args, comm)
+        lines = command.main(args, comm)
         if comm.rank == 0 and lines:
             print("\n".join(lines))
         return 0
@@ -90,6 +95,21 @@ def main(argv: list[str] | None = None) -> int:
             sys.stderr.flush()
             comm.Abort(1)
         return 1
+
+
+class OneProcess:
+    """The communicator of a command that runs as one process (ONE_PROCESS in its module)."""
+
+    rank, size = 0, 1
+
+    def barrier(self) -> None:
+        pass
+
+    def bcast(self, value, root: int = 0):
+        return value
+
+    def Abort(self, code: int = 1) -> None:  # noqa: N802 (MPI's name)
+        raise SystemExit(code)
 
 
 def _check_finite(args) -> None:

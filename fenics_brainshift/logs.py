@@ -20,16 +20,18 @@ def get_logger(name: str = "") -> logging.Logger:
     return logging.getLogger(f"{LOGGER_NAME}.{name}" if name else LOGGER_NAME)
 
 
-def configure(level: str = "INFO", all_ranks: bool = False) -> None:
+def configure(level: str = "INFO", all_ranks: bool = False, one_process: bool = False) -> None:
     """Install one stderr handler on the package logger (idempotent), and, as every entry
     point (the CLI, the demos) calls this first, the hook that aborts every rank on an error
-    no one caught (errors.abort_on_uncaught)."""
-    from mpi4py import MPI
+    no one caught (errors.abort_on_uncaught); one_process: a command that starts no MPI."""
+    rank = 0
+    if not one_process:
+        from mpi4py import MPI
 
-    from .errors import abort_on_uncaught
+        from .errors import abort_on_uncaught
 
-    abort_on_uncaught()
-    rank = MPI.COMM_WORLD.rank
+        abort_on_uncaught()
+        rank = MPI.COMM_WORLD.rank
     logger = get_logger()
     logger.setLevel(level.upper())
     for handler in list(logger.handlers):

@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import socket
 import struct
+import sys
 import threading
 import time
 from pathlib import Path
@@ -31,6 +32,8 @@ from fenics_brainshift.images import write_markups
 from fenics_brainshift.images.targets import Target
 from fenics_brainshift.theatre import igtl, server
 from fenics_brainshift.theatre.record import Recorder, read_messages
+
+from conftest import mpirun, run_group, subprocess_env
 
 pytestmark = pytest.mark.usefixtures("serial_only")
 
@@ -496,6 +499,22 @@ def test_serve_binds_loopback_warns_off_it_and_refuses_clients_not_allowed(atlas
     assert brainshift(["serve", str(Path(atlas_folder).parent / "none")]) == 2
 
 
+def test_serve_starts_as_one_process_without_dolfinx_and_refuses_mpirun(atlas_folder):
+    """The service as a user starts it: no DOLFINx, PETSc or MPI started (a third of its
+    start-up was MPI's), and under mpirun every rank refuses in one line."""
+    code = (
+        "import sys\n"
+        "from fenics_brainshift.cli import main\n"
+        f"code = main(['serve', {str(atlas_folder)!r}, '--port', '0', '--seconds', '0.2'])\n"
+        "loaded = [m for m in ('dolfinx', 'petsc4py', 'ufl', 'basix', 'mpi4py.MPI') if m in sys.modules]\n"
+        "print('LOADED', loaded, code)\n"
+    )
+    done = run_group([sys.executable, "-c", code], 120, env=subprocess_env())
+    assert "LOADED [] 0" in done.stdout, done.stdout + done.stderr
+    done = run_group(mpirun() + [sys.executable, "-c", code], 120, env=subprocess_env())
+    assert done.stdout.count("LOADED [] 2") == 2 and done.stderr.count("run it as one process") == 2
+
+
 def test_a_growing_list_keeps_its_cross_validated_alpha_while_near_as_many_points(atlas):
     from fenics_brainshift.theatre.case import ALPHA_KEPT, ALPHA_MIN_POINTS, Case
 
@@ -518,3 +537,28 @@ def test_a_growing_list_keeps_its_cross_validated_alpha_while_near_as_many_point
         if n == ALPHA_MIN_POINTS + 3:
             break
     assert case.update(Target(touches[:11], None, [f"t{i}" for i in range(11)])).result.curve  # (a target given: anew)
+
+
+def test_a_fault_in_one_update_is_logged_and_the_service_goes_on(served, atlas, monkeypatch):
+    from fenics_brainshift.theatre.session import Session
+
+    answer, calls = Session.answer, []
+
+    def faulty(self):
+        calls.append(1)
+        if len(calls) == 1:
+            raise RuntimeError("a fault")
+        return answer(self)
+
+    monkeypatch.setattr(Session, "answer", faulty)
+    touches = _touches(atlas, seed=13)
+    labels = [f"t{i}" for i in range(12)]
+    raw = Raw(served.server.port)
+    try:
+        raw.send(igtl.encode_point("Touches", labels, touches * 1e3))
+        time.sleep(1.0)
+        raw.send(igtl.encode_string("cmd", "update"))
+        assert json.loads(raw.answer()[-1].content)["points"] == 12
+    finally:
+        raw.close()
+    assert any("the update failed: internal error RuntimeError('a fault')" in line for line in served.log)

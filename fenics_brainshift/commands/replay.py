@@ -7,6 +7,8 @@ from pathlib import Path
 
 from .help_format import Defaults
 
+ONE_PROCESS = True  # (the CLI starts no MPI for it; launched by mpirun it refuses)
+
 
 def add(sub) -> None:
     replay = sub.add_parser(

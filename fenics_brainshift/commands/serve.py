@@ -12,6 +12,8 @@ from pathlib import Path
 from ..errors import InputError
 from .help_format import Defaults
 
+ONE_PROCESS = True  # (the CLI starts no MPI for it; launched by mpirun it refuses)
+
 
 def add(sub) -> None:
     serve = sub.add_parser(
@@ -59,7 +61,7 @@ def add(sub) -> None:
 def main(args, comm) -> list[str]:
     """Serve until Ctrl-C (or --seconds); returns the closing line."""
     started = time.perf_counter()
-    if comm.size > 1:
+    if comm.size > 1 or under_mpirun():
         raise InputError("serve: run it as one process (the update is milliseconds; mpirun adds nothing)")
     if not 0 <= args.port < 65536:
         raise InputError(f"--port: {args.port} is not a TCP port (1-65535; 0: any free one)")
@@ -99,6 +101,13 @@ def main(args, comm) -> list[str]:
         if recorder is not None:
             recorder.close()
     return [f"serve: stopped after {server.updates} updates"]
+
+
+def under_mpirun() -> bool:
+    """Launched by mpirun with more than one process (Open MPI's or MPICH's environment)."""
+    import os
+
+    return any(int(os.environ.get(k, "1") or 1) > 1 for k in ("OMPI_COMM_WORLD_SIZE", "PMI_SIZE"))
 
 
 def session_factory(args):

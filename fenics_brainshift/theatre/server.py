@@ -167,7 +167,11 @@ class Server:
         except igtl.ProtocolError as exc:
             self.log(f"client {client.number}: {header.type} {header.device!r} dropped ({exc})")
             return
-        reply = client.session.handle(message)
+        try:
+            reply = client.session.handle(message)
+        except Exception as exc:  # a fault here must not stop the service for every client  # noqa: BLE001
+            self.log(f"client {client.number}: {header.type} {header.device!r} dropped: internal error {exc!r}")
+            return
         if reply.log:
             self.log(f"client {client.number}: {reply.log}")
         for data in reply.send:
@@ -176,7 +180,11 @@ class Server:
 
     def _answer(self, client: _Client) -> None:
         started = time.perf_counter()
-        messages = client.session.answer()
+        try:
+            messages = client.session.answer()
+        except Exception as exc:  # (as in _message: logged, that update not made, the service kept)  # noqa: BLE001
+            self.log(f"client {client.number}: the update failed: internal error {exc!r}")
+            return
         self.updates += 1
         if self.recorder is not None:  # (on disk before the answer goes out)
             self.recorder.answered(client.number, client.received, messages, time.perf_counter() - started)
