@@ -26,6 +26,7 @@ from .session import Session
 MAX_OUTBOX = 256 << 20  # bytes waiting for a client that does not read
 READ_CHUNK = 1 << 20
 MAX_CLIENTS = 16
+LOG_BURST, LOG_WINDOW = 20, 10.0  # lines about one client's messages, per seconds
 
 
 class _Client:
@@ -35,6 +36,7 @@ class _Client:
         self.outbox = bytearray()
         self.pending = False  # an update asked for
         self.received = 0  # messages, for the record
+        self.window, self.said, self.quiet = time.monotonic(), 0, 0  # its log lines (Server._say)
 
 
 def loopback(host: str) -> bool:
@@ -128,7 +130,23 @@ class Server:
         self.selector.register(sock, selectors.EVENT_READ, client)
         self.log(f"client {client.number} connected from {address[0]}:{address[1]}")
 
+    def _say(self, client: _Client, line: str) -> None:
+        """A line about a client's message, at most LOG_BURST of them per LOG_WINDOW seconds (a
+        flood's every message would be a line: a log no one can read, a pipe that fills)."""
+        now = time.monotonic()
+        if now - client.window > LOG_WINDOW:
+            if client.quiet:
+                self.log(f"client {client.number}: {client.quiet} more such lines not shown")
+            client.window, client.said, client.quiet = now, 0, 0
+        client.said += 1
+        if client.said <= LOG_BURST:
+            self.log(f"client {client.number}: {line}")
+        else:
+            client.quiet += 1
+
     def _drop(self, client: _Client, why: str | None) -> None:
+        if client.quiet:
+            self.log(f"client {client.number}: {client.quiet} more such lines not shown")
         if why:
             self.log(f"client {client.number}: {why}; closed")
         self.clients.pop(client.number, None)
@@ -165,15 +183,15 @@ class Server:
             igtl.check_body(header, body)
             message = igtl.decode(header, body)
         except igtl.ProtocolError as exc:
-            self.log(f"client {client.number}: {header.type} {header.device!r} dropped ({exc})")
+            self._say(client, f"{header.type} {header.device!r} dropped ({exc})")
             return
         try:
             reply = client.session.handle(message)
         except Exception as exc:  # a fault here must not stop the service for every client  # noqa: BLE001
-            self.log(f"client {client.number}: {header.type} {header.device!r} dropped: internal error {exc!r}")
+            self._say(client, f"{header.type} {header.device!r} dropped: internal error {exc!r}")
             return
         if reply.log:
-            self.log(f"client {client.number}: {reply.log}")
+            self._say(client, f"{reply.log}")
         for data in reply.send:
             self._send(client, data)
         client.pending = client.pending or reply.update
