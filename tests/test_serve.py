@@ -562,3 +562,21 @@ def test_a_fault_in_one_update_is_logged_and_the_service_goes_on(served, atlas, 
     finally:
         raw.close()
     assert any("the update failed: internal error RuntimeError('a fault')" in line for line in served.log)
+
+
+def test_a_clients_flood_of_bad_messages_is_a_few_log_lines(served, atlas):
+    raw = Raw(served.server.port)
+    bad = bytearray(igtl.encode_string("cmd", "update"))
+    bad[-1] ^= 0xFF
+    try:
+        raw.send(bytes(bad) * 500)
+        raw.send(igtl.encode_string("cmd", "status"))
+        raw.answer()
+    finally:
+        raw.close()
+    deadline = time.time() + 10
+    while not any("more such lines not shown" in line for line in served.log) and time.time() < deadline:
+        time.sleep(0.05)
+    crc = [line for line in served.log if "fails its CRC-64 check" in line]
+    assert len(crc) == server.LOG_BURST
+    assert any(f"{500 - server.LOG_BURST} more such lines not shown" in line for line in served.log)
