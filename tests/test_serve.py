@@ -580,3 +580,19 @@ def test_a_clients_flood_of_bad_messages_is_a_few_log_lines(served, atlas):
     crc = [line for line in served.log if "fails its CRC-64 check" in line]
     assert len(crc) == server.LOG_BURST
     assert any(f"{500 - server.LOG_BURST} more such lines not shown" in line for line in served.log)
+
+
+def test_the_live_demo_plays_an_operation_against_the_service(atlas_folder, tmp_path):
+    """demos/live.py against a real `brainshift serve` process: both plays answered touch by
+    touch, the error read from the moved targets the service sent, the picture written."""
+    out = tmp_path / "live"
+    done = run_group(
+        [sys.executable, str(Path(__file__).parents[1] / "demos" / "live.py"), "--atlas", str(atlas_folder),
+         "--set", "mesh.voxel=0.01", "--touches", "8", "--out", str(out)],
+        600, env=subprocess_env(),
+    )  # fmt: skip
+    assert done.returncode == 0, done.stdout + done.stderr
+    curves = json.loads((out / "live.json").read_text())
+    for way in ("suggested", "random"):
+        assert len(curves[way]["target_error_mm"]) == 4 and all(e < 5.0 for e in curves[way]["target_error_mm"])
+    assert (out / "live.png").stat().st_size > 10_000
