@@ -18,6 +18,7 @@ import socket
 import struct
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -112,7 +113,7 @@ def main() -> None:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    log_file = open(Path(args.out).with_suffix(".log"), "w")  # noqa: SIM115 (the server's lines, read at the end)
+    log_file = tempfile.NamedTemporaryFile("w", suffix=".log", delete=False)  # noqa: SIM115 (the server's lines)
     server = subprocess.Popen(
         [BRAINSHIFT, "serve", args.atlas, "--port", str(port)], stdout=log_file, stderr=subprocess.STDOUT
     )
@@ -144,7 +145,8 @@ def main() -> None:
         server.terminate()
         server.wait(20)
         log_file.close()
-        log = Path(args.out).with_suffix(".log").read_text(errors="replace")
+        log = Path(log_file.name).read_text(errors="replace")
+        Path(log_file.name).unlink()
     p = lambda x, q: float(np.percentile(x, q))  # noqa: E731
     dropped = log.count("fails its CRC-64 check")
     suppressed = sum(int(line.split(": ")[1].split()[0]) for line in log.splitlines() if "more such lines" in line)
