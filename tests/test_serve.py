@@ -27,7 +27,7 @@ from fenics_brainshift.atlas.locate import MeshLocator
 from fenics_brainshift.atlas.scenarios import parse_vary
 from fenics_brainshift.atlas.update import update
 from fenics_brainshift.cli import main as brainshift
-from fenics_brainshift.commands.serve import session_factory
+from fenics_brainshift.commands.serve import resume, session_factory
 from fenics_brainshift.images import write_markups
 from fenics_brainshift.images.targets import Target
 from fenics_brainshift.theatre import igtl, server
@@ -63,9 +63,14 @@ def _args(folder, **extra):
 class Served:
     """A server on a free loopback port, its loop in a thread under the test's control."""
 
-    def __init__(self, args, recorder=None, allow=None):
+    def __init__(self, args, record: Path | None = None, allow=None):
         self.log: list[str] = []
-        self.server = server.Server(session_factory(args), "127.0.0.1", 0, allow, recorder, log=self.log.append)
+        make, options = session_factory(args)
+        self.recorder, resumed = None, (None, None)
+        if record is not None:  # (as `brainshift serve --record` starts)
+            resumed = resume(record, make)
+            self.recorder = Recorder(record, options, resumed[0])
+        self.server = server.Server(lambda: make(resumed[1]), "127.0.0.1", 0, allow, self.recorder, log=self.log.append)
         self.stop = threading.Event()
         self.thread = threading.Thread(target=self.server.serve, args=(self.stop.is_set, 0.01), daemon=True)
         self.thread.start()
@@ -431,44 +436,81 @@ def test_a_client_that_never_reads_is_closed_and_the_others_served(served, atlas
         raw.close()
 
 
-def test_a_recorded_operation_replays_to_the_same_answers_and_resumes_after_a_kill(
-    atlas_folder, atlas, tmp_path, capsys
-):
+def _play(served: Served, atlas, steps) -> list[dict]:
+    """Each step on a new or the same connection: ("points", client, n) or ("command", client, text)."""
+    touches = _touches(atlas, count=24, seed=11)
+    clients, statuses = {}, []
+    try:
+        for kind, who, what in steps:
+            raw = clients.get(who) or clients.setdefault(who, Raw(served.server.port))
+            if kind == "points":
+                raw.send(
+                    igtl.encode_point(
+                        "Touches", [f"t{i}" for i in range(what)], touches[who % 4 : who % 4 + what] * 1e3
+                    )
+                )
+            else:
+                raw.send(igtl.encode_string("cmd", what))
+            statuses.append(json.loads(raw.answer()[-1].content))
+    finally:
+        for raw in clients.values():
+            raw.close()
+    return statuses
+
+
+def test_a_recorded_operation_replays_and_resumes_across_kills(atlas_folder, atlas, tmp_path, capsys):
     record = tmp_path / "record"
-    recorder = Recorder(record)
-    s = Served(_args(atlas_folder), recorder=recorder)
-    raw = Raw(s.server.port)
-    touches = _touches(atlas, count=14, seed=11)
-    try:
-        for n in (8, 11, 14):
-            raw.send(igtl.encode_point("Touches", [f"t{i}" for i in range(n)], touches[:n] * 1e3))
-            raw.answer()
-        raw.send(igtl.encode_string("cmd", "undo"))
-        raw.answer()
-    finally:
-        raw.close()
-        s.close()  # (the recorder left open: as a killed server leaves it)
-    with open(record / "messages.bin", "ab") as f:  # a kill inside a message's record
-        f.write(b"\x00" * 30)
-    assert len(read_messages(record)) == 4
+    first = Served(_args(atlas_folder), record=record)
+    done = _play(first, atlas, [("points", 0, 8), ("points", 1, 11), ("points", 0, 12), ("command", 1, "undo")])
+    first.close()  # (its recorder left open, as a killed service leaves it) ...
+    with open(record / "messages.bin", "ab") as f:  # ... a record half-written by the kill
+        f.write(b"BSR1" + b"\x00" * 26)
+    # a second start cuts the half-written record off and resumes the case of the client whose
+    # good update came last (client 2's, undone back to none: then client 1's 12 points)
+    second = Served(_args(atlas_folder), record=record)
+    again = _play(second, atlas, [("command", 5, "update"), ("points", 6, 9)])
+    second.close()
+    assert done[-1]["error"] and again[0]["points"] == 12 and again[1]["points"] == 9
+    assert len(read_messages(record)) == 6
     assert brainshift(["replay", str(record), "--atlas", str(atlas_folder)]) == 0
-    assert "4 updates: each the recorded answer" in capsys.readouterr().out
-    # a restart on the same record resumes the case's points (the undo's: 11 of them)
-    resumed = Served(_args(atlas_folder, record=str(record)))
-    raw = Raw(resumed.server.port)
-    try:
-        raw.send(igtl.encode_string("cmd", "update"))
-        assert json.loads(raw.answer()[-1].content)["points"] == 11
-    finally:
-        raw.close()
-        resumed.close()
-    # a record of another atlas's answers does not replay as the same
+    assert "6 messages from 4 client(s) over 2 start(s), 6 updates: each the recorded answer" in capsys.readouterr().out
+    # the record damaged, edited, or replayed with other options: one line each
+    assert brainshift(["replay", str(record), "--atlas", str(atlas_folder), "--frame", "LPS"]) == 2
+    assert "served with --frame 'RAS', not 'LPS'" in capsys.readouterr().err
     lines = (record / "updates.jsonl").read_text().splitlines()
     changed = json.loads(lines[0])
     changed["status"]["weights"][1] += 1e-3
-    (record / "updates.jsonl").write_text("\n".join([json.dumps(changed)] + lines[1:]) + "\n")
+    for text, words in (
+        ("\n".join([json.dumps(changed)] + lines[1:]) + "\n", "update 1 of 6 differs from the record"),
+        ("\n".join(lines[:2] + ['{"foo": 1}'] + lines[2:]) + "\n", "updates.jsonl is damaged at line 3"),
+        ("\n".join(lines[:2] + ["[1, 2]"]) + "\n", "updates.jsonl is damaged at line 3"),
+    ):
+        (record / "updates.jsonl").write_text(text)
+        assert brainshift(["replay", str(record), "--atlas", str(atlas_folder)]) == 2
+        assert words in capsys.readouterr().err
+    (record / "updates.jsonl").write_text("\n".join(lines) + "\n")
+    data = (record / "messages.bin").read_bytes()
+    (record / "messages.bin").write_bytes(data[:100] + b"x" + data[101:])
     assert brainshift(["replay", str(record), "--atlas", str(atlas_folder)]) == 2
-    assert "update 1 of 4 differs from the record" in capsys.readouterr().err
+    assert "messages.bin is damaged after byte" in capsys.readouterr().err
+
+
+def test_a_shared_case_replays_in_the_order_the_service_met_its_messages(atlas_folder, atlas, tmp_path, capsys):
+    record = tmp_path / "shared"
+    s = Served(_args(atlas_folder, share=True), record=record)
+    touches = _touches(atlas, count=14, seed=14)
+    a, b = Raw(s.server.port), Raw(s.server.port)
+    try:  # (A's and B's lists within one turn of the loop: one case, two answers)
+        a.send(igtl.encode_point("Touches", [f"t{i}" for i in range(8)], touches[:8] * 1e3))
+        b.send(igtl.encode_point("Touches", [f"t{i}" for i in range(12)], touches[:12] * 1e3))
+        a.answer(), b.answer()
+        a.send(igtl.encode_string("cmd", "update"))
+        assert json.loads(a.answer()[-1].content)["points"] in (8, 12)
+    finally:
+        a.close(), b.close()
+        s.close()
+    assert brainshift(["replay", str(record), "--atlas", str(atlas_folder), "--share"]) == 0
+    assert "each the recorded answer" in capsys.readouterr().out
 
 
 def test_serve_binds_loopback_warns_off_it_and_refuses_clients_not_allowed(atlas_folder, capsys):

@@ -34,6 +34,6 @@ def main(args, comm) -> list[str]:
     from .serve import session_factory
 
     check_noise(args.noise, "--noise")
-    args.record_folder, args.record = Path(args.record), None  # (no resuming: each client from its start)
-    args.atlas = str(args.atlas)
-    return replay(args.record_folder, session_factory(args))
+    folder = Path(args.record)
+    new_session, options = session_factory(args)
+    return replay(folder, new_session, options)

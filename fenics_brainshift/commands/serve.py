@@ -70,15 +70,16 @@ def main(args, comm) -> list[str]:
     from ..images.targets import check_noise
 
     check_noise(args.noise, "--noise")
-    make = session_factory(args)
+    make, options = session_factory(args)
     from ..theatre.server import Server, loopback
 
-    recorder = None
+    recorder, resumed = None, (None, None)
     if args.record:
         from ..theatre.record import Recorder
 
-        recorder = Recorder(Path(args.record))
-    server = Server(make, args.host, args.port, args.allow, recorder, log=_log)
+        resumed = resume(Path(args.record), make)
+        recorder = Recorder(Path(args.record), options, resumed[0])
+    server = Server(lambda: make(resumed[1]), args.host, args.port, args.allow, recorder, log=_log)
     if not loopback(args.host):
         _log(
             f"WARNING: listening on {args.host}, not loopback: OpenIGTLink has no authentication; keep port "
@@ -111,8 +112,11 @@ def under_mpirun() -> bool:
 
 
 def session_factory(args):
-    """new_session() for the server (and replay): the atlas read and prepared once, the case's
-    pre-operative points and targets, one case per client or one shared, resumed from --record."""
+    """(new_session(case=None), the options a record keeps): the atlas read and prepared once,
+    the case's pre-operative points and targets; each client a case of its own (beginning
+    with the points of `case`, a resumed one), or with --share one case for a start's clients."""
+    import hashlib
+
     from ..atlas import store
     from ..images.frames import read_markups
     from ..theatre.case import Case
@@ -120,27 +124,47 @@ def session_factory(args):
 
     atlas = store.read(args.atlas)
     pre = targets = None
-    if args.pre:
-        labels, mm = read_markups(args.pre, "--pre")
-        pre = (labels, mm * 1e-3)
-    if args.targets:
-        labels, mm = read_markups(args.targets, "--targets")
-        targets = (labels, mm * 1e-3)
+    digest = {}
+    for name in ("pre", "targets"):
+        path = getattr(args, name)
+        if path:
+            labels, mm = read_markups(path, f"--{name}")
+            digest[name] = hashlib.sha256(repr((labels, mm.round(6).tolist())).encode()).hexdigest()[:16]
+            if name == "pre":
+                pre = (labels, mm * 1e-3)
+            else:
+                targets = (labels, mm * 1e-3)
     if args.grid and not 0.5 <= args.grid <= 20:
         raise InputError(f"--grid: {args.grid:g} mm; the displacement image's spacing is 0.5-20 mm (0: none)")
     base = Case(atlas, pre, targets, noise=args.noise * 1e-3, grid=args.grid * 1e-3 if args.grid else None)
-    resumed = None
-    if getattr(args, "record", None) and (Path(args.record) / "messages.bin").is_file():
-        from ..theatre.record import play, read_updates
+    shared: dict = {}
 
-        sessions, _ = play(Path(args.record), lambda: Session(base.fresh(), args.frame), answer=False)
-        updates = read_updates(Path(args.record))
-        last = updates[-1]["client"] if updates else max(sessions, default=None)
-        if last is not None:
-            resumed = sessions[last].case
-            _log(f"resumed the recorded case: {resumed.counts}")
-    shared = base.fresh(resumed) if args.share else None
-    return lambda: Session(shared if shared is not None else base.fresh(resumed), args.frame)
+    def new_session(case=None):
+        if not args.share:
+            return Session(base.fresh(case), args.frame)
+        if id(case) not in shared:  # (one case for the clients of a start, kept with what it began from)
+            shared[id(case)] = (case, base.fresh(case))
+        return Session(shared[id(case)][1], args.frame)
+
+    options = {"frame": args.frame, "noise": args.noise, "grid": args.grid, "share": bool(args.share), **digest}
+    options["atlas"] = atlas.info.get("build_id") or atlas.mesh_id()
+    return new_session, options
+
+
+def resume(folder: Path, new_session) -> tuple[int | None, object]:
+    """(client, its case): the client of a record whose last good update came last, whose case
+    every new client begins with; (None, None) for a new record."""
+    if folder.is_dir() and (folder / "messages.bin").is_file():
+        from ..theatre.record import play, repair
+
+        note = repair(folder)
+        if note:
+            _log(f"--record: {note}")
+        sessions, _, last, _ = play(folder, new_session, answer=False)
+        if last in sessions:
+            _log(f"resumed the recorded case of client {last}: {sessions[last].case.counts}")
+            return last, sessions[last].case
+    return None, None
 
 
 def _log(line: str) -> None:

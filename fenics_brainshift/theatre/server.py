@@ -76,7 +76,7 @@ class Server:
         self.selector = selectors.DefaultSelector()
         self.selector.register(self.listener, selectors.EVENT_READ)
         self.clients: dict[int, _Client] = {}
-        self._numbers = 0
+        self._numbers = 0 if recorder is None else recorder.first_client - 1  # (numbers run on across starts)
         self.updates = 0
 
     def serve(self, until: Callable[[], bool] = lambda: False, tick: float = 0.05) -> None:
@@ -205,7 +205,7 @@ class Server:
             return
         self.updates += 1
         if self.recorder is not None:  # (on disk before the answer goes out)
-            self.recorder.answered(client.number, client.received, messages, time.perf_counter() - started)
+            self.recorder.answered(client.number, messages, time.perf_counter() - started)
         for data in messages:
             self._send(client, data)
 
