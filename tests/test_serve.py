@@ -128,8 +128,10 @@ class Raw:
         body = self._take(size)
         kind, device = kind.rstrip(b"\0").decode(), device.rstrip(b"\0").decode()
         assert igtl.CRC64(body) == crc
-        if kind == "IMAGE":
-            return igtl.Message(kind, device, seconds, {}, body)
+        if kind == "IMAGE":  # (read by pyigtl, from the bytes as they came)
+            image = pyigtl.ImageMessage()
+            image.unpack(pyigtl.MessageBase.parse_header(head), body)
+            return igtl.Message(kind, device, seconds, {}, image)
         return igtl.decode(igtl.Header(version, kind, device, seconds, size, crc), body)
 
     def answer(self) -> list[igtl.Message]:
@@ -237,7 +239,7 @@ def test_an_lps_client_gets_the_same_update_in_lps(atlas_folder, atlas):
     status = json.loads(answer["BrainshiftStatus"].content)
     assert np.allclose(status["weights"], direct.weights, atol=1e-12)
     cortex = answer["BrainshiftCortex"]
-    assert cortex.metadata["frame"] == "LPS"
+    assert cortex.metadata["frame"] == "LPS" and answer["BrainshiftShift"].content.world_coordinate_system == "lps"
     assert np.allclose(
         cortex.content.points, (atlas.surface_points + direct.surface_displacement) * 1e3 * [-1, -1, 1], atol=1e-3
     )
@@ -287,7 +289,7 @@ def test_a_tracked_tip_is_captured_and_the_commands_do_what_they_say(served, atl
         assert json.loads(raw.answer()[-1].content)["touches"] == 5
         raw.send(igtl.encode_string("cmd", "status"))
         said = json.loads(raw.answer()[-1].content)
-        assert said["touches"] == 5 and said["updates"] >= 2
+        assert said["touches"] == 5 and said["updates"] >= 2 and said["last_update"]["touches"] == 5
         raw.send(igtl.encode_string("cmd", "reset"))
         assert json.loads(raw.answer()[-1].content) == {
             "reset": True,
@@ -638,3 +640,72 @@ def test_the_live_demo_plays_an_operation_against_the_service(atlas_folder, tmp_
     for way in ("suggested", "random"):
         assert len(curves[way]["target_error_mm"]) == 4 and all(e < 5.0 for e in curves[way]["target_error_mm"])
     assert (out / "live.png").stat().st_size > 10_000
+
+
+def test_what_a_review_broke_stays_fixed(atlas_folder, atlas, tmp_path, served, monkeypatch, capsys):
+    """Labels too long for OpenIGTLink or given twice, a refused list after a good one, a client
+    that closes its side before its answer, idle clients holding every place, names that do not
+    resolve, a label that would forge log lines."""
+    touches = _touches(atlas, count=12, seed=15)
+    labels = [f"t{i}" for i in range(12)]
+    write_markups(tmp_path / "long.mrk.json", ["a" * 70], touches[:1] * 1e3)
+    write_markups(tmp_path / "twice.mrk.json", ["L1", "L1"], touches[:2] * 1e3)
+    for flag, name, words in (
+        ("--targets", "long", "is longer than 64 bytes"),
+        ("--pre", "twice", "label 'L1' is given twice"),
+    ):
+        assert brainshift(["serve", str(atlas_folder), "--port", "0", flag, str(tmp_path / f"{name}.mrk.json")]) == 2
+        assert words in capsys.readouterr().err
+    for flag, value in (("--allow", "nosuch.invalid"), ("--host", "nosuch.invalid")):
+        assert brainshift(["serve", str(atlas_folder), "--port", "0", flag, value]) == 2
+        assert f"{flag} 'nosuch.invalid': not an IPv4 address" in capsys.readouterr().err
+    raw = Raw(served.server.port)
+    try:
+        twice = igtl.encode_point("Touches", labels[:11] + ["t0"], touches * 1e3)
+        raw.send(twice)
+        assert "label 't0' is given twice" in json.loads(raw.answer()[-1].content)["error"]
+        nan = touches * 1e3
+        nan[2, 0] = np.nan
+        raw.send(igtl.encode_point("Touches", labels, touches * 1e3) + igtl.encode_point("Touches", labels, nan))
+        first = json.loads(raw.answer()[-1].content)
+        raw.send(igtl.encode_string("cmd", "status"))
+        after = json.loads(raw.answer()[-1].content)
+        # the refused list's error is the last word; no answer for the older list came after it
+        assert "'t2' is not a number" in first["error"] and after["updates"] == 0
+        raw.send(igtl.encode_string("cmd", "x\n[10:00:00] serve: stopped after 0 updates"))
+        raw.answer()
+    finally:
+        raw.close()
+    assert not any(line.startswith("[10:00:00]") for line in "\n".join(served.log).splitlines())
+    fine = Served(_args(atlas_folder, grid=2.0))  # (an answer of ~10 MB: more than the socket holds)
+    half = socket.socket()
+    half.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+    half.settimeout(20)
+    half.connect(("127.0.0.1", fine.server.port))
+    half.sendall(igtl.encode_point("Touches", labels, touches * 1e3))
+    half.shutdown(socket.SHUT_WR)
+    time.sleep(1.0)  # (the service sees the end of the stream before the answer has gone)
+    data = b""
+    while chunk := half.recv(1 << 20):
+        data += chunk
+    half.close()
+    fine.close()
+    devices, at = [], 0
+    while at < len(data):  # (the whole answer, message by message)
+        _, _, device, _, _, size, _ = struct.unpack(">H12s20sIIQQ", data[at : at + 58])
+        devices.append(device.rstrip(b"\0").decode())
+        at += 58 + size
+    assert at == len(data) and devices[-1] == "BrainshiftStatus" and "BrainshiftCortex" in devices
+    monkeypatch.setattr(server, "MAX_CLIENTS", 2)
+    monkeypatch.setattr(server, "IDLE_S", 0.3)
+    idle = [socket.create_connection(("127.0.0.1", served.server.port)) for _ in range(2)]
+    time.sleep(0.6)
+    raw = Raw(served.server.port)
+    try:
+        raw.send(igtl.encode_string("cmd", "status"))
+        assert json.loads(raw.answer()[-1].content)["updates"] == 0
+    finally:
+        raw.close()
+        for sock in idle:
+            sock.close()
+    assert any("its place given to a new client" in line for line in served.log)

@@ -30,6 +30,7 @@ MAX_SCAN_POINTS = 2000  # a scan's points are thinned to this many (each is a ro
 MAX_POINTS = 1000  # in a point list
 OUTSIDE_BODY = 50e-3  # m: a point farther than this outside the atlas's bounding box is refused
 HISTORY = 100  # states kept for undo
+LABEL_BYTES = 64  # the longest point name OpenIGTLink carries
 # a live case keeps the regularisation's alpha of its last cross-validation while the points
 # it was chosen on are at least ALPHA_MIN_POINTS and differ in number by at most ALPHA_KEPT
 # (a list growing touch by touch: the cross-validation, a third of an update, once in a while)
@@ -258,14 +259,24 @@ class Case:
         labels = [str(label) for label in labels]
         if len(labels) != len(positions):
             raise InputError(f"{what}: {len(labels)} labels for {len(positions)} points")
+        long = [label for label in labels if len(label.encode("utf-8")) > LABEL_BYTES]
+        if long:
+            raise InputError(
+                f"{what}: label {long[0][:40]!r}... is longer than {LABEL_BYTES} bytes (an OpenIGTLink point's name); "
+                f"shorten it"
+            )
+        seen = set()
+        twice = next((label for label in labels if label in seen or seen.add(label)), None)
+        if twice is not None:
+            raise InputError(f"{what}: label {twice!r} is given twice; labels pair points: give each its own")
         bad = np.flatnonzero(~np.isfinite(positions).all(axis=1))
         if len(bad):
-            raise InputError(f"{what}: point '{labels[bad[0]]}' is not a number (NaN or inf); measure it again")
+            raise InputError(f"{what}: point {labels[bad[0]]!r} is not a number (NaN or inf); measure it again")
         lo, hi = self._box
         out = np.flatnonzero(((positions < lo) | (positions > hi)).any(axis=1))
         if len(out):
             raise InputError(
-                f"{what}: point '{labels[out[0]]}' at {np.round(positions[out[0]] * 1e3, 1).tolist()} mm is more than "
+                f"{what}: point {labels[out[0]]!r} at {np.round(positions[out[0]] * 1e3, 1).tolist()} mm is more than "
                 f"{OUTSIDE_BODY * 1e3:g} mm outside the atlas's brain: another frame (RAS/LPS), unit or patient?"
             )
         return labels, positions

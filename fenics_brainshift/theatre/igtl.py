@@ -336,7 +336,7 @@ def encode_polydata(device: str, points, triangles, metadata: dict | None = None
     return _frame("POLYDATA", device, head + xyz.astype(">f4").tobytes() + cells.tobytes(), metadata)
 
 
-def encode_image(device: str, data, ijk_to_ras, metadata: dict | None = None) -> bytes:
+def encode_image(device: str, data, ijk_to_ras, metadata: dict | None = None, frame: str = "RAS") -> bytes:
     """data (k, j, i) or (k, j, i, components), sent as float32; ijk_to_ras with the spacing in
     its columns. pyigtl's ImageMessage packs the body as the reference library and Slicer read it:
     the columns as they are, the image centre ijk_to_ras @ ((size - 1) / 2, 1) as the position,
@@ -347,7 +347,8 @@ def encode_image(device: str, data, ijk_to_ras, metadata: dict | None = None) ->
     if matrix.shape != (4, 4):
         raise ProtocolError(f"IMAGE ijk_to_ras of shape {matrix.shape}, not (4, 4)")
     voxels = np.ascontiguousarray(voxels, dtype="<f4")
-    image = pyigtl.ImageMessage(voxels, matrix, world_coordinate_system="ras")
+    world = {"RAS": "ras", "LPS": "lps"}[frame]  # (the frame the matrix is in, said in the IMAGE's own flag)
+    image = pyigtl.ImageMessage(voxels, matrix, world_coordinate_system=world)
     return _frame("IMAGE", device, image.pack()[HEADER_SIZE:], metadata)  # its header version 1: body = content
 
 

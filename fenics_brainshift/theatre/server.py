@@ -27,6 +27,7 @@ MAX_OUTBOX = 256 << 20  # bytes waiting for a client that does not read
 READ_CHUNK = 1 << 20
 MAX_CLIENTS = 16
 LOG_BURST, LOG_WINDOW = 20, 10.0  # lines about one client's messages, per seconds
+IDLE_S = 30.0  # with every place taken, a client silent this long gives its place to a new one
 
 
 class _Client:
@@ -37,6 +38,22 @@ class _Client:
         self.pending = False  # an update asked for
         self.received = 0  # messages, for the record
         self.window, self.said, self.quiet = time.monotonic(), 0, 0  # its log lines (Server._say)
+        self.heard = time.monotonic()  # when it last sent anything
+        self.closing = False  # it closed its side: answered what it asked, then closed
+        self.answering = False  # an answer's messages are being queued
+        self.registered = True
+
+
+def printable(line: str) -> str:
+    """A log line with control characters escaped (a label's newline forged lines of its own)."""
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in line)
+
+
+def _address(name: str, flag: str) -> str:
+    try:
+        return socket.gethostbyname(name)
+    except (OSError, UnicodeError) as exc:
+        raise InputError(f"{flag} {name!r}: not an IPv4 address or a name this machine resolves ({exc})") from None
 
 
 def loopback(host: str) -> bool:
@@ -59,8 +76,10 @@ class Server:
         recorder=None,
         log: Callable[[str], None] = print,
     ):
-        self.new_session, self.recorder, self.log = new_session, recorder, log
-        self.allow = None if not allow else {socket.gethostbyname(a) for a in allow}
+        self.new_session, self.recorder = new_session, recorder
+        self.log = lambda line: log(printable(line))  # (a client's labels and commands may hold any character)
+        self.allow = None if not allow else {_address(a, "--allow") for a in allow}
+        _address(host, "--host")
         self.listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         self.listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         try:
@@ -119,9 +138,12 @@ class Server:
             sock.close()
             return
         if len(self.clients) >= MAX_CLIENTS:
-            self.log(f"refused {address[0]}:{address[1]}: {MAX_CLIENTS} clients already")
-            sock.close()
-            return
+            idle = min(self.clients.values(), key=lambda c: c.heard)
+            if time.monotonic() - idle.heard < IDLE_S:
+                self.log(f"refused {address[0]}:{address[1]}: {MAX_CLIENTS} clients already, none idle")
+                sock.close()
+                return
+            self._drop(idle, f"silent {time.monotonic() - idle.heard:.0f} s, its place given to a new client")
         sock.setblocking(False)
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         self._numbers += 1
@@ -150,10 +172,12 @@ class Server:
         if why:
             self.log(f"client {client.number}: {why}; closed")
         self.clients.pop(client.number, None)
-        try:
-            self.selector.unregister(client.sock)
-        except (KeyError, ValueError):
-            pass
+        if client.registered:
+            try:
+                self.selector.unregister(client.sock)
+            except (KeyError, ValueError):
+                pass
+            client.registered = False
         client.sock.close()
 
     def _read(self, client: _Client) -> None:
@@ -165,8 +189,15 @@ class Server:
             self._drop(client, f"receive failed ({exc.strerror})")
             return
         if not data:
-            self._drop(client, "disconnected" if not client.reader.pending else "disconnected mid-message")
+            if client.reader.pending:
+                self._drop(client, "disconnected mid-message")
+            elif client.pending or client.outbox:  # (it closed its side only: its answer still goes out)
+                client.closing = True
+                self._events(client)
+            else:
+                self._drop(client, "disconnected")
             return
+        client.heard = time.monotonic()
         try:
             messages = client.reader.feed(data)
         except igtl.ProtocolError as exc:
@@ -194,7 +225,9 @@ class Server:
             self._say(client, f"{reply.log}")
         for data in reply.send:
             self._send(client, data)
-        client.pending = client.pending or reply.update
+        # (a refused list after a good one in the same turn: its error is the last word, not the
+        # older list's answer)
+        client.pending = (client.pending or reply.update) and not reply.refused
 
     def _answer(self, client: _Client) -> None:
         started = time.perf_counter()
@@ -206,8 +239,12 @@ class Server:
         self.updates += 1
         if self.recorder is not None:  # (on disk before the answer goes out)
             self.recorder.answered(client.number, messages, time.perf_counter() - started)
+        client.answering = True
         for data in messages:
             self._send(client, data)
+        client.answering = False
+        if client.number in self.clients and client.closing:
+            self._events(client)
 
     def _send(self, client: _Client, data: bytes) -> None:
         if client.number not in self.clients:
@@ -226,5 +263,20 @@ class Server:
             self._drop(client, f"send failed ({exc.strerror})")
             return
         del client.outbox[:sent]
-        events = selectors.EVENT_READ | (selectors.EVENT_WRITE if client.outbox else 0)
-        self.selector.modify(client.sock, events, client)
+        self._events(client)
+
+    def _events(self, client: _Client) -> None:
+        """Watch the client for what it can still do: read unless it closed its side, write
+        while answers wait; a closed client with nothing left to answer is let go."""
+        events = (0 if client.closing else selectors.EVENT_READ) | (selectors.EVENT_WRITE if client.outbox else 0)
+        if events:
+            if client.registered:
+                self.selector.modify(client.sock, events, client)
+            else:
+                self.selector.register(client.sock, events, client)
+                client.registered = True
+        elif client.closing and not client.pending and not client.answering:
+            self._drop(client, None)
+        elif client.registered:
+            self.selector.unregister(client.sock)
+            client.registered = False

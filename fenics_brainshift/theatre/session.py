@@ -38,6 +38,7 @@ class Reply:
     update: bool = False
     send: list[bytes] = field(default_factory=list)
     log: str | None = None
+    refused: bool = False  # the message was refused: an update asked before it is not made
 
 
 class Session:
@@ -55,7 +56,12 @@ class Session:
         try:
             return self._handle(message)
         except InputError as exc:
-            return Reply(send=[self._status({"error": str(exc)})], log=f"{message.type} {message.device!r}: {exc}")
+            said = str(exc).replace("--target: ", "the points: ")  # (the update's words are the command's)
+            return Reply(
+                send=[self._status({"error": said, **self.case.counts})],
+                log=f"{message.type} {message.device!r}: {said}",
+                refused=True,
+            )
 
     def _handle(self, message: igtl.Message) -> Reply:
         kind, content = message.type, message.content
@@ -73,7 +79,7 @@ class Session:
             self.tip = tip
             return self._rested(tip, message.timestamp)
         if kind == "STRING":
-            return self._command(content.strip().lower())
+            return self._command(content.strip(" \t\r\n\x00").lower())
         return Reply(log=f"{kind} {message.device!r}: not a message the service takes; ignored")
 
     def _command(self, command: str) -> Reply:
@@ -91,11 +97,10 @@ class Session:
         if command == "reset":
             self.case.reset()
             return Reply(send=[self._status({"reset": True, **self.case.counts})])
-        if command == "status":
-            last = self.case.last.status if self.case.last is not None else {}
-            return Reply(send=[self._status({**last, **self.case.counts, "updates": self.updates})])
-        shown = command[:40].encode("ascii", "replace").decode()
-        raise InputError(f"command '{shown}': not one of {', '.join(COMMANDS)}")
+        if command == "status":  # (the points held now; the last update's answer apart: it may be of others)
+            last = self.case.last.status if self.case.last is not None else None
+            return Reply(send=[self._status({**self.case.counts, "updates": self.updates, "last_update": last})])
+        raise InputError(f"command {command[:40]!r}: not one of {', '.join(COMMANDS)}")
 
     def _rested(self, tip: np.ndarray, t: float) -> Reply:
         """A tip held still REST_S is captured, once until it moves away."""
@@ -135,7 +140,7 @@ class Session:
         try:
             answer = self.case.update()
         except InputError as exc:
-            return [self._status({"error": str(exc), **self.case.counts})]
+            return [self._status({"error": str(exc).replace("--target: ", "the points: "), **self.case.counts})]
         self.updates += 1
         meta, out = self.metadata, []
         if answer.surface is not None:
@@ -151,8 +156,9 @@ class Session:
             if self.frame == "LPS":  # (the grid's axes and the vectors, both)
                 matrix, shift = np.diag([-1.0, -1.0, 1.0, 1.0]) @ matrix, shift * FLIP
             # (i, j, k[, 3]) -> (k, j, i[, 3]): an IMAGE's voxels run with i fastest
-            out.append(igtl.encode_image("BrainshiftShift", np.swapaxes(shift, 0, 2), matrix, meta))
-            out.append(igtl.encode_image("BrainshiftSpread", np.swapaxes(answer.spread * 1e3, 0, 2), matrix, meta))
+            out.append(igtl.encode_image("BrainshiftShift", np.swapaxes(shift, 0, 2), matrix, meta, self.frame))
+            spread = np.swapaxes(answer.spread * 1e3, 0, 2)
+            out.append(igtl.encode_image("BrainshiftSpread", spread, matrix, meta, self.frame))
         if answer.suggestion is not None:
             out.append(igtl.encode_point("NextPoint", ["next"], self._out(answer.suggestion.position), meta))
         out.append(self._status(answer.status))
