@@ -28,6 +28,7 @@ from fenics_brainshift.atlas.scenarios import parse_vary
 from fenics_brainshift.atlas.update import update
 from fenics_brainshift.cli import main as brainshift
 from fenics_brainshift.commands.serve import resume, session_factory
+from fenics_brainshift.errors import InputError
 from fenics_brainshift.images import write_markups
 from fenics_brainshift.images.targets import Target
 from fenics_brainshift.theatre import igtl, server
@@ -68,7 +69,7 @@ class Served:
         make, options = session_factory(args)
         self.recorder, resumed = None, (None, None)
         if record is not None:  # (as `brainshift serve --record` starts)
-            resumed = resume(record, make)
+            resumed = resume(record, make, options)
             self.recorder = Recorder(record, options, resumed[0])
         self.server = server.Server(lambda: make(resumed[1]), "127.0.0.1", 0, allow, self.recorder, log=self.log.append)
         self.stop = threading.Event()
@@ -304,14 +305,30 @@ def test_a_tracked_tip_is_captured_and_the_commands_do_what_they_say(served, atl
         raw.close()
 
 
-def test_a_tip_held_still_is_captured_once(served, atlas):
+def test_a_tip_held_still_is_captured_once_by_the_services_clock(served, atlas):
+    """A tip within 1 mm of where it rests for 1 s is one touch (its samples jittering by
+    0.4 mm a coordinate, its stamps all the same: the service's clock times the rest); held
+    again 3 mm away, no second; 8 mm away, a second."""
     tip = _touches(atlas, count=1, seed=5)[0] * 1e3
+    rng = np.random.default_rng(0)
     raw = Raw(served.server.port)
-    try:
-        for t in np.arange(0.0, 1.6, 1 / 60):  # 60 Hz, still within 0.2 mm for 1.6 s
-            raw.send(igtl.encode_position("Tip", tip + 0.2 * np.sin(t), metadata=None))
+
+    def rest(at, seconds=1.3):
+        for _ in range(int(seconds * 60)):
+            message = bytearray(igtl.encode_position("Tip", at + rng.uniform(-0.4, 0.4, 3)))
+            message[34:42] = bytes(8)  # (the client's stamp: always the same)
+            message[50:58] = struct.pack(">Q", igtl.CRC64(bytes(message[58:])))
+            raw.send(bytes(message))
+            time.sleep(1 / 60)
         raw.send(igtl.encode_string("cmd", "status"))
-        assert json.loads(raw.answer()[-1].content)["touches"] in (0, 1)
+        while "last_update" not in (status := json.loads(raw.answer()[-1].content)):
+            pass  # (a capture's own answer first: too few touches to fit)
+        return status["touches"]
+
+    try:
+        assert rest(tip) == 1
+        assert rest(tip + [3.0, 0.0, 0.0]) == 1
+        assert rest(tip + [8.0, 0.0, 0.0]) == 2
     finally:
         raw.close()
 
@@ -476,6 +493,8 @@ def test_a_recorded_operation_replays_and_resumes_across_kills(atlas_folder, atl
     assert len(read_messages(record)) == 6
     assert brainshift(["replay", str(record), "--atlas", str(atlas_folder)]) == 0
     assert "6 messages from 4 client(s) over 2 start(s), 6 updates: each the recorded answer" in capsys.readouterr().out
+    with pytest.raises(InputError, match="served with frame 'RAS', not 'LPS'"):  # (a record replays with one set)
+        Served(_args(atlas_folder, frame="LPS"), record=record)
     # the record damaged, edited, or replayed with other options: one line each
     assert brainshift(["replay", str(record), "--atlas", str(atlas_folder), "--frame", "LPS"]) == 2
     assert "served with --frame 'RAS', not 'LPS'" in capsys.readouterr().err

@@ -77,7 +77,7 @@ def main(args, comm) -> list[str]:
     if args.record:
         from ..theatre.record import Recorder
 
-        resumed = resume(Path(args.record), make)
+        resumed = resume(Path(args.record), make, options)
         recorder = Recorder(Path(args.record), options, resumed[0])
     server = Server(lambda: make(resumed[1]), args.host, args.port, args.allow, recorder, log=_log)
     if not loopback(args.host):
@@ -151,7 +151,7 @@ def session_factory(args):
     return new_session, options
 
 
-def resume(folder: Path, new_session) -> tuple[int | None, object]:
+def resume(folder: Path, new_session, options: dict | None = None) -> tuple[int | None, object]:
     """(client, its case): the client of a record whose last good update came last, whose case
     every new client begins with; (None, None) for a new record."""
     if folder.is_dir() and (folder / "messages.bin").is_file():
@@ -160,6 +160,16 @@ def resume(folder: Path, new_session) -> tuple[int | None, object]:
         note = repair(folder)
         if note:
             _log(f"--record: {note}")
+        from ..theatre.record import options_of
+
+        before = options_of(folder) or {}
+        changed = [k for k in before if options is not None and before[k] != options.get(k)]
+        if changed:  # (a record replays with one set of options)
+            k = changed[0]
+            raise InputError(
+                f"--record '{folder}': the operation there was served with {k} {before[k]!r}, not {options.get(k)!r}: "
+                f"give the same options, or another folder"
+            )
         sessions, _, last, _ = play(folder, new_session, answer=False)
         if last in sessions:
             _log(f"resumed the recorded case of client {last}: {sessions[last].case.counts}")

@@ -127,7 +127,7 @@ class Case:
         points = np.asarray(points, dtype=float).reshape(-1, 3)
         if len(points) > MAX_SCAN_POINTS:
             points = points[np.linspace(0, len(points) - 1, MAX_SCAN_POINTS).astype(int)]
-        _, points = self._checked([f"scan{i}" for i in range(len(points))], points, "the surface scan")
+        _, points = self._checked([f"scan{i + 1}" for i in range(len(points))], points, "the surface scan")
         self._push(scan=points)
 
     def undo(self) -> bool:

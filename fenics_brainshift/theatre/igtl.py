@@ -29,7 +29,7 @@ import pyigtl
 from pyigtl.messages import CRC64  # crcmod's CRC-64 ECMA-182, the C library's
 
 HEADER_SIZE = 58
-MAX_BODY = {"POINT": 1 << 20, "TRANSFORM": 4096, "POSITION": 4096, "STRING": 1 << 16, "POLYDATA": 16 << 20}
+MAX_BODY = {"POINT": 1 << 20, "TRANSFORM": 4096, "POSITION": 4096, "STRING": 1 << 17, "POLYDATA": 16 << 20}
 _HEADER = struct.Struct(">H12s20sIIQQ")  # version, type, device, seconds, fraction / 2^32, body size, CRC
 _EXTENDED = struct.Struct(">HHII")
 _ASCII, _UTF8 = 3, 106  # IANA character set numbers

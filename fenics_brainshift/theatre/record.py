@@ -53,13 +53,13 @@ class Recorder:
         start = {"start": time.time(), "options": options, "resumed": resumed}
         self._write(0, json_text.dumps(start, indent=None).encode())
 
-    def _write(self, client: int, payload: bytes) -> None:
-        record = _RECORD.pack(_MAGIC, time.time(), client, len(payload)) + payload
+    def _write(self, client: int, payload: bytes, when: float | None = None) -> None:
+        record = _RECORD.pack(_MAGIC, time.time() if when is None else when, client, len(payload)) + payload
         self._messages.write(record + struct.pack(">I", zlib.crc32(record)))
         self._messages.flush()
 
-    def received(self, client: int, header: igtl.Header, body: bytes) -> None:
-        self._write(client, _raw_header(header) + bytes(body))
+    def received(self, client: int, header: igtl.Header, body: bytes, arrived: float | None = None) -> None:
+        self._write(client, _raw_header(header) + bytes(body), arrived)
         self.count += 1
 
     def answered(self, client: int, messages: list[bytes], seconds: float) -> None:
@@ -186,7 +186,7 @@ def play(folder: Path, new_session, answer: bool = True, records=None, updates=N
     for u in updates:
         due.setdefault(u["after"], []).append(u)
     sessions, pairs, count, resumed = {}, [], 0, None
-    for _, client, raw in records:
+    for arrived, client, raw in records:
         if client == 0:  # a start of the service: its new clients begin with the case it resumed
             start = json.loads(raw)
             resumed = sessions[start["resumed"]].case if start.get("resumed") in sessions else None
@@ -198,7 +198,7 @@ def play(folder: Path, new_session, answer: bool = True, records=None, updates=N
             header = igtl.parse_header(raw[: igtl.HEADER_SIZE])
             body = raw[igtl.HEADER_SIZE :]
             igtl.check_body(header, body)
-            sessions[client].handle(igtl.decode(header, body))
+            sessions[client].handle(igtl.decode(header, body), arrived)
         except igtl.ProtocolError:
             pass  # (the server dropped it too)
         for recorded in due.pop(count, []):

@@ -208,8 +208,9 @@ class Server:
 
     def _message(self, client: _Client, header: igtl.Header, body: bytes) -> None:
         client.received += 1
+        arrived = time.time()
         if self.recorder is not None:
-            self.recorder.received(client.number, header, body)
+            self.recorder.received(client.number, header, body, arrived)
         try:
             igtl.check_body(header, body)
             message = igtl.decode(header, body)
@@ -217,7 +218,7 @@ class Server:
             self._say(client, f"{header.type} {header.device!r} dropped ({exc})")
             return
         try:
-            reply = client.session.handle(message)
+            reply = client.session.handle(message, arrived)
         except Exception as exc:  # a fault here must not stop the service for every client  # noqa: BLE001
             self._say(client, f"{header.type} {header.device!r} dropped: internal error {exc!r}")
             return

@@ -45,16 +45,17 @@ class Session:
     def __init__(self, case: Case, frame: str = "RAS"):
         self.case, self.frame = case, frame
         self.tip: np.ndarray | None = None  # RAS m, the latest
-        self._rest: tuple[np.ndarray, float] | None = None  # where and since when the tip rests
+        self._rest: tuple[np.ndarray, int, float] | None = None  # the resting tip's sum, samples, since when
         self._rested_at: np.ndarray | None = None
         self.updates = 0
 
     # -- in ----------------------------------------------------------------------------------
 
-    def handle(self, message: igtl.Message) -> Reply:
-        """What a decoded message does; an InputError's one line goes back as the status."""
+    def handle(self, message: igtl.Message, arrived: float | None = None) -> Reply:
+        """What a decoded message does (arrived: when, by the service's clock: a tip's rest is
+        timed by it, not by the client's stamps); an InputError's one line goes back as the status."""
         try:
-            return self._handle(message)
+            return self._handle(message, message.timestamp if arrived is None else arrived)
         except InputError as exc:
             said = str(exc).replace("--target: ", "the points: ")  # (the update's words are the command's)
             return Reply(
@@ -63,7 +64,7 @@ class Session:
                 refused=True,
             )
 
-    def _handle(self, message: igtl.Message) -> Reply:
+    def _handle(self, message: igtl.Message, arrived: float) -> Reply:
         kind, content = message.type, message.content
         if kind == "POINT":
             self.case.set_points(content.names, self._in(content.positions))
@@ -77,7 +78,7 @@ class Session:
             if not np.isfinite(tip).all():
                 return Reply(log=f"{kind} {message.device!r}: the tip is not a number; ignored")
             self.tip = tip
-            return self._rested(tip, message.timestamp)
+            return self._rested(tip, arrived)
         if kind == "STRING":
             return self._command(content.strip(" \t\r\n\x00").lower())
         return Reply(log=f"{kind} {message.device!r}: not a message the service takes; ignored")
@@ -103,18 +104,22 @@ class Session:
         raise InputError(f"command {command[:40]!r}: not one of {', '.join(COMMANDS)}")
 
     def _rested(self, tip: np.ndarray, t: float) -> Reply:
-        """A tip held still REST_S is captured, once until it moves away."""
+        """A tip held still REST_S (within REST_MM of the mean of its samples since) is captured,
+        once until it moves REST_AWAY_MM away."""
         if self._rested_at is not None and np.linalg.norm(tip - self._rested_at) * 1e3 < REST_AWAY_MM:
             return Reply()
         self._rested_at = None
-        if self._rest is None or np.linalg.norm(tip - self._rest[0]) * 1e3 > REST_MM:
-            self._rest = (tip, t)
-            return Reply()
-        if t - self._rest[1] < REST_S:
-            return Reply()
-        self._rest, self._rested_at = None, tip
-        self.case.capture(tip)
-        return Reply(update=True, log=f"the tip rested {REST_S:g} s: captured as a touch")
+        if self._rest is not None:
+            total, count, since = self._rest
+            if np.linalg.norm(tip - total / count) * 1e3 <= REST_MM:
+                self._rest = (total + tip, count + 1, since)
+                if t - since < REST_S:
+                    return Reply()
+                self._rest, self._rested_at = None, tip
+                self.case.capture((total + tip) / (count + 1))
+                return Reply(update=True, log=f"the tip rested {REST_S:g} s: captured as a touch")
+        self._rest = (tip.copy(), 1, t)
+        return Reply()
 
     def _in(self, positions) -> np.ndarray:
         """The client's mm (RAS or LPS) in RAS m."""
