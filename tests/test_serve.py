@@ -57,7 +57,17 @@ def atlas(atlas_folder):
 
 
 def _args(folder, **extra):
-    base = dict(atlas=str(folder), pre=None, targets=None, frame="RAS", noise=1.0, grid=4.0, share=False, record=None)
+    base = dict(
+        atlas=str(folder),
+        pre=None,
+        targets=None,
+        frame="RAS",
+        noise=1.0,
+        grid=4.0,
+        share=False,
+        record=None,
+        structure=[],
+    )
     return SimpleNamespace(**{**base, **extra})
 
 
@@ -728,3 +738,40 @@ def test_what_a_review_broke_stays_fixed(atlas_folder, atlas, tmp_path, served, 
         for sock in idle:
             sock.close()
     assert any("its place given to a new client" in line for line in served.log)
+
+
+def test_a_segmented_structure_is_moved_with_the_brain_and_sent(atlas_folder, atlas, tmp_path, capsys):
+    """--structure Tumour=FILE: a closed surface inside the brain, sent back as the POLYDATA
+    BrainshiftTumour at its vertices' displaced places (interpolated here, tetrahedron by
+    tetrahedron, from the direct update's nodal displacement), in the client's frame."""
+    from scipy.spatial import ConvexHull
+
+    from fenics_brainshift.surfaces.files import read_surface, write_slicer_stl
+
+    centre = atlas.points.mean(axis=0) + [0.0, 0.02, 0.0]
+    rng = np.random.default_rng(0)
+    ball = rng.normal(size=(60, 3))
+    ball = centre + 0.012 * ball / np.linalg.norm(ball, axis=1)[:, None]
+    hull = ConvexHull(ball).simplices
+    write_slicer_stl(tmp_path / "tumour.stl", ball * 1e3, hull)
+    touches = _touches(atlas, seed=16)
+    labels = [f"t{i}" for i in range(12)]
+    direct = update(atlas, Target(touches, None, labels), 1e-3)
+    s = Served(_args(atlas_folder, frame="LPS", structure=[f"Tumour={tmp_path / 'tumour.stl'}"]))
+    raw = Raw(s.server.port)
+    try:
+        raw.send(igtl.encode_point("Touches", labels, touches * 1e3 * [-1, -1, 1]))
+        answer = {m.device: m for m in raw.answer()}
+    finally:
+        raw.close()
+        s.close()
+    tumour = answer["BrainshiftTumour"].content
+    points, triangles = read_surface(tmp_path / "tumour.stl", 1e-3)  # (the file as the service reads it)
+    assert np.array_equal(tumour.triangles, triangles) and answer["BrainshiftTumour"].metadata["frame"] == "LPS"
+    index, weight, _ = MeshLocator(atlas.points, atlas.tetrahedra).weights(points)
+    expected = (points + np.einsum("nj,njd->nd", weight, direct.displacement[index])) * 1e3 * [-1, -1, 1]
+    assert np.allclose(tumour.points, expected, atol=1e-3)
+    assert np.abs(expected - points * 1e3 * [-1, -1, 1]).max() > 0.1  # (it moved)
+    for item, words in (("Tumour", "give NAME=FILE"), ("Tu-mour=x.stl", "give NAME=FILE"), ("T=none.stl", "no file")):
+        assert brainshift(["serve", str(atlas_folder), "--port", "0", "--structure", item]) == 2
+        assert words in capsys.readouterr().err

@@ -47,6 +47,14 @@ def add(sub) -> None:
         "(default: the atlas's probes)",
     )
     serve.add_argument(
+        "--structure",
+        action="append",
+        default=[],
+        metavar="NAME=FILE",
+        help="a segmented structure's surface (.stl, .vtk, .ply, ... in mm; a tumour, the ventricles) moved with "
+        "each update and sent as POLYDATA BrainshiftNAME (repeat; NAME: letters and digits, at most 10)",
+    )
+    serve.add_argument(
         "--frame", type=str.upper, choices=["RAS", "LPS"], default="RAS", help="the clients' frame (Slicer: RAS)"
     )
     serve.add_argument("--noise", type=float, default=1.0, help="a point's measurement noise, mm per coordinate")
@@ -136,7 +144,17 @@ def session_factory(args):
                 targets = (labels, mm * 1e-3)
     if args.grid and not 0.5 <= args.grid <= 20:
         raise InputError(f"--grid: {args.grid:g} mm; the displacement image's spacing is 0.5-20 mm (0: none)")
-    base = Case(atlas, pre, targets, noise=args.noise * 1e-3, grid=args.grid * 1e-3 if args.grid else None)
+    structures = read_structures(getattr(args, "structure", []) or [])
+    for name, (points, triangles) in structures.items():
+        digest[f"structure {name}"] = hashlib.sha256(points.round(9).tobytes() + triangles.tobytes()).hexdigest()[:16]
+    base = Case(
+        atlas,
+        pre,
+        targets,
+        noise=args.noise * 1e-3,
+        grid=args.grid * 1e-3 if args.grid else None,
+        structures=structures,
+    )
     shared: dict = {}
 
     def new_session(case=None):
@@ -149,6 +167,28 @@ def session_factory(args):
     options = {"frame": args.frame, "noise": args.noise, "grid": args.grid, "share": bool(args.share), **digest}
     options["atlas"] = atlas.info.get("build_id") or atlas.mesh_id()
     return new_session, options
+
+
+def read_structures(items: list[str]) -> dict:
+    """--structure NAME=FILE ... -> {NAME: (points m RAS, triangles)}."""
+    import re
+
+    from ..surfaces.files import read_surface
+
+    out = {}
+    for item in items:
+        name, _, path = item.partition("=")
+        if not re.fullmatch(r"[A-Za-z0-9]{1,10}", name) or not path:
+            raise InputError(
+                f"--structure {item!r}: give NAME=FILE, NAME letters and digits, at most 10 (it names the POLYDATA "
+                f"Brainshift<NAME>)"
+            )
+        if name in out:
+            raise InputError(f"--structure: {name} given twice")
+        if not Path(path).is_file():
+            raise InputError(f"--structure {name}: no file '{path}'")
+        out[name] = read_surface(Path(path), 1e-3)
+    return out
 
 
 def resume(folder: Path, new_session, options: dict | None = None) -> tuple[int | None, object]:

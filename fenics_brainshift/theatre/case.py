@@ -45,6 +45,7 @@ class Answer:
     result: UpdateResult
     target: Target
     surface: tuple[np.ndarray, np.ndarray] | None  # the moved surface: points (S, 3), triangles (T, 3)
+    structures: dict  # name -> (points (P, 3), triangles): the segmented structures given, moved
     targets: tuple[list[str], np.ndarray]  # the targets of interest, moved
     pre: tuple[list[str], np.ndarray]  # the pre-operative points, moved
     displacement: np.ndarray | None  # (i, j, k, 3) on the case's grid
@@ -66,7 +67,9 @@ class Case:
 
     pre, targets: (labels, (n, 3) m) or None; targets default to the atlas's probes (the
     craniotomy, a patient's anatomy): where the uncertainty matters and the suggestions aim.
-    grid: the displacement image's spacing (m; None: no image)."""
+    grid: the displacement image's spacing (m; None: no image). structures: name -> (points
+    (P, 3) m, triangles): surfaces of segmented structures (a tumour, the ventricles) that each
+    update moves with the brain."""
 
     def __init__(
         self,
@@ -77,6 +80,7 @@ class Case:
         grid: float | None = 4e-3,
         samples: int = 0,
         set_aside: bool = True,
+        structures: dict | None = None,
     ):
         self.atlas, self.noise, self.samples, self.set_aside = atlas, noise, samples, set_aside
         started = time.perf_counter()
@@ -90,6 +94,7 @@ class Case:
             targets = (list(probes), np.array([probes[k] for k in probes], dtype=float).reshape(-1, 3))
         self.targets = self._checked(*targets, "the targets") if len(targets[0]) else ([], np.zeros((0, 3)))
         self.grid = Grid(atlas.points, atlas.tetrahedra, grid) if grid else None
+        self.structures = {name: self._structure(name, *surface) for name, surface in (structures or {}).items()}
         up = -np.asarray(atlas.info.get("gravity", [0.0, 0.0, -9.81]), dtype=float)
         centre = probes.get("craniotomy")
         if centre is None:  # (no craniotomy said: the top of the brain, against gravity)
@@ -176,6 +181,10 @@ class Case:
             result,
             target,
             surface,
+            {
+                name: (points + np.einsum("nj,njd->nd", weight, result.displacement[index]), triangles)
+                for name, (points, triangles, index, weight) in self.structures.items()
+            },
             (self.targets[0], self._moved(self.targets[1], result.displacement)),
             (self.pre[0], self._moved(self.pre[1], result.displacement)),
             None if self.grid is None else self.grid.sample(result.displacement),
@@ -185,6 +194,17 @@ class Case:
         answer.status = self._status(answer, time.perf_counter() - started)
         self.last = answer
         return answer
+
+    def _structure(self, name: str, points: np.ndarray, triangles: np.ndarray):
+        """(points, triangles, and where each point lies in the mesh: made once)."""
+        index, weight, outside = locator(self.atlas).weights(points)
+        far = float(outside.max(initial=0.0))
+        if far > OUTSIDE_BODY:
+            raise InputError(
+                f"--structure {name}: a point lies {far * 1e3:.0f} mm outside the atlas's brain: another frame "
+                f"(RAS/LPS), unit or patient?"
+            )
+        return points, triangles, index, weight
 
     def _kept_alpha(self, target: Target) -> float | None:
         if self._alpha is None:

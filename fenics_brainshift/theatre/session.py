@@ -151,6 +151,8 @@ class Session:
         if answer.surface is not None:
             points, triangles = answer.surface
             out.append(igtl.encode_polydata("BrainshiftCortex", self._out(points), triangles, meta))
+        for name, (points, triangles) in answer.structures.items():
+            out.append(igtl.encode_polydata(f"Brainshift{name}", self._out(points), triangles, meta))
         for device, (labels, points) in (("BrainshiftTargets", answer.targets), ("BrainshiftPre", answer.pre)):
             if len(labels):
                 out.append(igtl.encode_point(device, labels, self._out(points), meta))
