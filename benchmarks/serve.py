@@ -55,6 +55,7 @@ TIP_HZ = 60.0
 TARGET_DEPTH = 25e-3  # m under the exposed cortex: the deep targets
 THRESHOLDS_MM = (1.0, 0.5, 0.3)
 RANDOM_SEEDS = 5
+PARTS = ("cross_validation_ms", "fit_ms", "leave_one_out_and_spread_ms", "total_ms")  # of the update's fit
 BRAINSHIFT = str(Path(sys.executable).with_name("brainshift"))
 
 
@@ -163,6 +164,7 @@ def latency(atlas_folder: str, atlas, ops, repeats: int, port: int) -> tuple[lis
                             "points": n,
                             "latency_ms": (time.perf_counter() - t) * 1e3,
                             "server_update_ms": status.get("update_ms", float("nan")),
+                            **{k: status.get("timings_ms", {}).get(k, float("nan")) for k in PARTS},
                             "error": status.get("error", ""),
                         }
                     )
@@ -325,6 +327,27 @@ def main() -> None:
         f"{np.median(startups):.2f} s |",
         f"| tip stream: TRANSFORM messages sent / point lists sent / updates made | {stream['tip_messages']} / "
         f"{stream['point_lists']} / {stream['updates']} |",
+        "",
+        "Where the time goes, p50 / p99 over the same updates (ms): the fit's parts as the update times them "
+        "(cross-validation of alpha, the rounds of nearest points and skull rows, leave-one-out and the spread), "
+        "the answer's other parts on the server (the grid images, the suggestion, the moved surfaces), and the "
+        "message's way (encoding, loopback, pyigtl's client):",
+        "",
+        "| cross-validation | rounds | leave-one-out and spread | the fit in all | the rest of the answer | the way |",
+        "|---|---|---|---|---|---|",
+        "| "
+        + " | ".join(
+            f"{p(x, 50):.0f} / {p(x, 99):.0f}"
+            for x in (
+                np.array([r["cross_validation_ms"] for r in rows]),
+                np.array([r["fit_ms"] for r in rows]),
+                np.array([r["leave_one_out_and_spread_ms"] for r in rows]),
+                np.array([r["total_ms"] for r in rows]),
+                server_ms - np.array([r["total_ms"] for r in rows]),
+                latencies - server_ms,
+            )
+        )
+        + " |",
         "",
         f"## Suggested touches against random ones ({len(ops)} operations, error at 5 deep targets "
         f"{TARGET_DEPTH * 1e3:g} mm under the exposed cortex; random: mean of {RANDOM_SEEDS} seeds)",

@@ -257,6 +257,7 @@ class Case:
             else {"label": "NextPoint", "expected_spread_mm": s.expected * mm, "spread_mm": s.spread * mm},
             "warning": r.warning,
             "update_ms": seconds * 1e3,
+            "timings_ms": {k: v for k, v in r.seconds.items() if k.endswith("_ms")},  # (the fit's parts)
             "weights": [float(w) for w in r.weights],
         }
 
