@@ -53,6 +53,10 @@ LEAVE_OUT_MAX = 100  # points left out one by one (a scan's thousands: a sample 
 MIN_POINT_PAIRS = 3
 MIN_SURFACE_POINTS = 5
 ROUNDS = 4  # of nearest points (point to surface) and of the skull's rows
+# the rounds stop once one moves the fit at no point by more than this share of the noise
+# (on the 5 mm skull atlas, 10 point-to-surface updates of 20 points: 3-4 rounds instead of 4,
+# the mean error against the truth 0.313 mm against 0.316 mm with every round)
+ROUND_STILL = 0.1
 OUTLIER = 5.0  # a point left out farther than this many times the noise's expected error...
 OUTLIER_MEDIAN = 3.0  # ...and this many times the median left-out error is set aside
 OUTLIERS_MAX = 0.25  # of the points: more than that is not a few slips, it is the model or the frame
@@ -246,9 +250,13 @@ def _rounds(atlas, data_rows, noise: float, skull, point_to_point: bool, C0, d0,
             alpha, curve, near = choose_alpha(problem, near=c)  # (its fit to every point at alpha: nearer than c)
             cv_s = time.perf_counter() - t
         c_new = problem.solve(alpha, near=near)
+        # how far the round moved the fit at the points (the rows' own measure: a pair's coordinates,
+        # a distance along the surface's normal); the first round's start is the prior, not a fit
+        moved = float(np.abs(A @ (c_new - c)).max(initial=0.0)) if round_ else np.inf
         change, c = float(np.abs(c_new - c).max()), c_new
         deepest = skull.deepest(c) if skull is not None else 0.0
-        if (point_to_point or change < 1e-6) and deepest <= PAST_SKULL:
+        still = change < 1e-6 or moved < ROUND_STILL * noise
+        if (point_to_point or still) and deepest <= PAST_SKULL:
             break
     residual = data_rows(c)[3]
     return _Fit(c, alpha, curve, problem, residual, nodes, deepest, round_ + 1, cv_s)
