@@ -775,3 +775,52 @@ def test_a_segmented_structure_is_moved_with_the_brain_and_sent(atlas_folder, at
     for item, words in (("Tumour", "give NAME=FILE"), ("Tu-mour=x.stl", "give NAME=FILE"), ("T=none.stl", "no file")):
         assert brainshift(["serve", str(atlas_folder), "--port", "0", "--structure", item]) == 2
         assert words in capsys.readouterr().err
+
+
+def test_a_service_killed_by_sigkill_loses_nothing_it_had_answered(atlas_folder, atlas, tmp_path):
+    """`brainshift serve --record` as its own process, killed with SIGKILL after three updates:
+    started again on the record it resumes the last list, and the record replays."""
+    import signal
+    import subprocess
+
+    record = tmp_path / "killed"
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    command = [sys.executable, "-m", "fenics_brainshift.cli", "serve", str(atlas_folder), "--port", str(port)]
+    command += ["--record", str(record)]
+    touches = _touches(atlas, count=14, seed=17)
+
+    def started() -> subprocess.Popen:
+        process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=subprocess_env())
+        for _ in range(600):
+            try:
+                socket.create_connection(("127.0.0.1", port), timeout=0.1).close()
+                return process
+            except OSError:
+                time.sleep(0.05)
+        process.kill()
+        raise AssertionError("the service did not start")
+
+    process = started()
+    raw = Raw(port)
+    try:
+        for n in (8, 11, 14):
+            raw.send(igtl.encode_point("Touches", [f"t{i}" for i in range(n)], touches[:n] * 1e3))
+            raw.answer()
+        raw.send(igtl.encode_point("Touches", [f"t{i}" for i in range(5)], touches[:5] * 1e3)[:500])  # (half sent)
+        time.sleep(0.2)
+        process.send_signal(signal.SIGKILL)
+        process.wait(10)
+    finally:
+        raw.close()
+    process = started()
+    raw = Raw(port)
+    try:
+        raw.send(igtl.encode_string("cmd", "update"))
+        assert json.loads(raw.answer()[-1].content)["points"] == 14
+    finally:
+        raw.close()
+        process.terminate()
+        process.wait(10)
+    assert brainshift(["replay", str(record), "--atlas", str(atlas_folder)]) == 0
