@@ -33,7 +33,8 @@ HISTORY = 100  # states kept for undo
 LABEL_BYTES = 64  # the longest point name OpenIGTLink carries
 # a live case keeps the regularisation's alpha of its last cross-validation while the points
 # it was chosen on are at least ALPHA_MIN_POINTS and differ in number by at most ALPHA_KEPT
-# (a list growing touch by touch: the cross-validation, a third of an update, once in a while)
+# (a list growing touch by touch pays for the cross-validation once in a while:
+# benchmarks/results/serve.md splits an update's time)
 ALPHA_MIN_POINTS = 10
 ALPHA_KEPT = 0.25
 
