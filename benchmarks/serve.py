@@ -284,7 +284,7 @@ def main() -> None:
         t = time.perf_counter()
         step()
         parts[name] = time.perf_counter() - t
-    startups = []  # (first: a parent holding DOLFINx and MPI made each spawn 0.7 s slower)
+    startups = []  # (first: spawned from a parent holding DOLFINx and MPI, each start took longer)
     for _ in range(3):
         process, seconds = start_server(args.atlas, free_port())
         process.terminate()

@@ -43,7 +43,7 @@ def main(argv: list[str] | None = None) -> int:
     from .errors import InputError, Interrupted, SolverError, write_failed
 
     command = import_module(f".commands.{args.command}", __package__)
-    one_process = getattr(command, "ONE_PROCESS", False)  # (no MPI started: a third of the service's start-up)
+    one_process = getattr(command, "ONE_PROCESS", False)  # (no MPI started: much of the service's start-up)
     logs.configure(args.log_level, args.log_all_ranks, one_process)
     if args.no_progress:
         from .outputs import progress

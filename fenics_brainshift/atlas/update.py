@@ -240,8 +240,8 @@ def _rounds(atlas, data_rows, noise: float, skull, point_to_point: bool, C0, d0,
             C, d = skull.rows(c, nodes)
             # a row linearised here that the prior's weights would break misjudges the far side
             # (the prior is a settled state, inside the skull): eased to keep the prior inside,
-            # so every refit has a start inside all its rows (else NNLS from scratch, 0.2 s at
-            # 351 modes); the depth at the fit is measured on the skull itself after the round
+            # so every refit has a start inside all its rows (else NNLS from scratch, the slowest
+            # solve there is); the depth at the fit is measured on the skull itself after the round
             problem = problem.with_constraints(C, np.minimum(d, C @ prior_weights(atlas)))
         near = c
         if alpha is None:  # alpha once, at the first rows (the nearest points change little after)

@@ -58,7 +58,7 @@ def vertex_normals(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     corners = triangles.ravel()
     normals = np.stack(
         [np.bincount(corners, np.repeat(face[:, d], 3), minlength=len(points)) for d in range(3)], axis=1
-    )  # (a sum per vertex: np.add.at was 15 times slower)
+    )  # (a sum per vertex: bincount, much faster than np.add.at)
     return normals / np.maximum(np.linalg.norm(normals, axis=1), 1e-300)[:, None]
 
 
