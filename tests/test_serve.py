@@ -546,10 +546,10 @@ def test_a_shared_case_replays_in_the_order_the_service_met_its_messages(atlas_f
 
 def test_serve_binds_loopback_warns_off_it_and_refuses_clients_not_allowed(atlas_folder, capsys):
     assert brainshift(["serve", str(atlas_folder), "--port", "0", "--seconds", "0.5"]) == 0
-    out = capsys.readouterr().out
+    out = capsys.readouterr().err  # (the service's log)
     assert "on 127.0.0.1:" in out and "WARNING" not in out
     assert brainshift(["serve", str(atlas_folder), "--host", "0.0.0.0", "--port", "0", "--seconds", "0.5"]) == 0
-    assert "OpenIGTLink has no authentication" in capsys.readouterr().out
+    assert "OpenIGTLink has no authentication" in capsys.readouterr().err
     s = Served(_args(atlas_folder), allow=["10.9.8.7"])
     try:
         raw = Raw(s.server.port)

@@ -5,7 +5,6 @@ updated brain back in milliseconds; docs/theatre.md walks through it."""
 from __future__ import annotations
 
 import signal
-import sys
 import time
 from pathlib import Path
 
@@ -218,4 +217,7 @@ def resume(folder: Path, new_session, options: dict | None = None) -> tuple[int 
 
 
 def _log(line: str) -> None:
-    print(f"[{time.strftime('%H:%M:%S')}] {line}", flush=True, file=sys.stdout)
+    """A line of the service's log (the package's logger: stderr, --log-level), with the time."""
+    from ..logs import get_logger
+
+    get_logger("serve").info(f"[{time.strftime('%H:%M:%S')}] {line}")
