@@ -94,6 +94,7 @@ class Case:
         if targets is None:
             targets = (list(probes), np.array([probes[k] for k in probes], dtype=float).reshape(-1, 3))
         self.targets = self._checked(*targets, "the targets") if len(targets[0]) else ([], np.zeros((0, 3)))
+        self._targets_at, self._pre_at_mesh = self._located(self.targets[1]), self._located(self.pre[1])
         self.grid = Grid(atlas.points, atlas.tetrahedra, grid) if grid else None
         self.structures = {name: self._structure(name, *surface) for name, surface in (structures or {}).items()}
         up = -np.asarray(atlas.info.get("gravity", [0.0, 0.0, -9.81]), dtype=float)
@@ -186,8 +187,8 @@ class Case:
                 name: (points + np.einsum("nj,njd->nd", weight, result.displacement[index]), triangles)
                 for name, (points, triangles, index, weight) in self.structures.items()
             },
-            (self.targets[0], self._moved(self.targets[1], result.displacement)),
-            (self.pre[0], self._moved(self.pre[1], result.displacement)),
+            (self.targets[0], self._moved(self._targets_at, result.displacement)),
+            (self.pre[0], self._moved(self._pre_at_mesh, result.displacement)),
             None if self.grid is None else self.grid.sample(result.displacement),
             None if self.grid is None else self.grid.sample(result.spread),
             suggest(self.atlas, result, self.targets[1], self.candidates, self.noise),
@@ -216,10 +217,15 @@ class Case:
             return None
         return alpha
 
-    def _moved(self, points: np.ndarray, u: np.ndarray) -> np.ndarray:
+    def _located(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(points, the vertices and weights of their places in the mesh): made once."""
         if not len(points):
-            return points
-        index, weight, _ = locator(self.atlas).weights(points)
+            return points, np.zeros((0, 4), dtype=np.int64), np.zeros((0, 4))
+        return (points, *locator(self.atlas).weights(points)[:2])
+
+    @staticmethod
+    def _moved(located, u: np.ndarray) -> np.ndarray:
+        points, index, weight = located
         return points + np.einsum("nj,njd->nd", weight, u[index])
 
     def _status(self, answer: Answer, seconds: float) -> dict:
