@@ -39,9 +39,9 @@ from fenics_brainshift.atlas import build as building  # noqa: E402
 from fenics_brainshift.atlas.build import WHOLE_BODY, build, solve_from_prior  # noqa: E402
 from fenics_brainshift.atlas.rows import SKULL_SLACK  # noqa: E402
 from fenics_brainshift.atlas.scenarios import parse_vary  # noqa: E402
-from fenics_brainshift.atlas.vertices import GlobalVertices  # noqa: E402
 from fenics_brainshift.bench import machine_line  # noqa: E402
 from fenics_brainshift.fit import ForwardModel  # noqa: E402
+from fenics_brainshift.outputs.vertices import GlobalVertices  # noqa: E402
 from fenics_brainshift.scene.body import Swelling  # noqa: E402
 from fenics_brainshift.stepping import newton as newton_module  # noqa: E402
 from fenics_brainshift.stepping.newton import NewtonStatic  # noqa: E402

@@ -41,11 +41,11 @@ from fenics_brainshift import load_scene, logs  # noqa: E402
 from fenics_brainshift.atlas import combine, store  # noqa: E402
 from fenics_brainshift.atlas.build import build  # noqa: E402
 from fenics_brainshift.atlas.update import prepare, update  # noqa: E402
-from fenics_brainshift.atlas.vertices import GlobalVertices  # noqa: E402
 from fenics_brainshift.bench import machine_line  # noqa: E402
 from fenics_brainshift.data import scene_path  # noqa: E402
 from fenics_brainshift.fit import ForwardModel, Target, fit, fit_parameters  # noqa: E402
 from fenics_brainshift.fit.parameters import rotated_gravity  # noqa: E402
+from fenics_brainshift.outputs.vertices import GlobalVertices  # noqa: E402
 from fenics_brainshift.runner import Simulation  # noqa: E402
 
 NOISE = 0.5e-3

@@ -33,10 +33,10 @@ from mpi4py import MPI
 
 from fenics_brainshift import InputError, SolverError, logs
 from fenics_brainshift.atlas import store
-from fenics_brainshift.atlas.vertices import GlobalVertices
 from fenics_brainshift.cli import main as brainshift
 from fenics_brainshift.fit.synthetic import measurements, true_scene
 from fenics_brainshift.images import write_markups
+from fenics_brainshift.outputs.vertices import GlobalVertices
 from fenics_brainshift.runner import Simulation
 
 TRUTH = {"fluid.level": 0.035, "material.G": 3000.0, "gravity.angle_z": 8.0, "gravity.angle_x": -4.0}

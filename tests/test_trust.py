@@ -16,7 +16,7 @@ from fenics_brainshift.images.targets import read_target
 from fenics_brainshift.runner import Simulation, run
 from fenics_brainshift.scene import load_scene, scene_from_dict
 
-from conftest import COMM
+from conftest import COMM, subprocess_env
 
 CUBE = {
     "name": "cube",
@@ -262,6 +262,16 @@ def test_a_re_run_clears_the_earlier_runs_files_and_only_those(shared_tmp):
     assert not any((out / n).exists() for n in ("surface_0007.vtk", "surface_0007.stl", "deformed.png"))
     assert (out / "notes.txt").read_text() == "earlier"
     assert json.loads((out / "summary.json").read_text())["status"] == "ok"
+    # the last state saved whole (gathered from every rank) is the XDMF's last state
+    from fenics_brainshift.outputs.run_folder import read_last_state, read_saved_state
+
+    points, tets, u, _ = read_last_state(out / "displacement.xdmf")
+    saved_points, saved_tets, saved_u, _, _ = read_saved_state(out)
+    order = np.lexsort(np.round(points, 9).T[::-1])
+    np.testing.assert_allclose(saved_points, points[order], atol=1e-12)
+    np.testing.assert_allclose(saved_u, u[order], atol=1e-15)
+    row = np.argsort(order)  # the XDMF's vertex -> its saved row
+    assert {tuple(sorted(c)) for c in saved_tets} == {tuple(sorted(c)) for c in row[tets]}
 
 
 def test_a_second_run_into_a_folder_in_use_is_refused(tmp_path, capsys, serial_only):
@@ -301,7 +311,7 @@ time.sleep(60)
         last = err.splitlines()[-1]  # (after the run's log lines)
         assert f"another brainshift process (pid {holder.pid}) is writing into it" in last and "Traceback" not in err
         assert {p.name: p.stat().st_mtime_ns for p in out.iterdir()} == before  # nothing touched
-        from conftest import mpirun, subprocess_env  # and on two ranks: one line, from rank 0
+        from conftest import mpirun  # and on two ranks: one line, from rank 0
 
         done = subprocess.run(
             mpirun() + [sys.executable, "-m", "fenics_brainshift.cli"] + args,
@@ -416,10 +426,12 @@ def test_a_fit_never_mixes_with_what_its_folder_held(tmp_path, capsys, serial_on
         before = {p.name: p.stat().st_mtime_ns for p in out.iterdir()}
         assert main(other) == 2
         err = capsys.readouterr().err.strip().splitlines()
-        assert f"--out '{out}' holds a fit (fit.json): run its fitted.toml there, or choose another --out" in err[-1]
+        assert f"--out '{out}' holds a fit (fit.json): run its fitted.toml there, choose another --out, or " in err[-1]
         assert {p.name: p.stat().st_mtime_ns for p in out.iterdir() if p.name != ".brainshift.lock"} == {
             k: v for k, v in before.items() if k != ".brainshift.lock"
         }
+    assert main(["run", "cube", "--out", str(out), "--overwrite"] + small) == 0  # asked for: the fit goes
+    assert not (out / "fit.json").exists() and not (out / "fitted.toml").exists()
 
 
 def _stl(path, triangles) -> str:
@@ -486,3 +498,52 @@ def test_a_full_disk_during_fit_is_one_line_and_never_ok(tmp_path, monkeypatch, 
     assert "No space left on device" in err[-1] and "fit.json" in err[-1] and not any("Traceback" in e for e in err)
     assert json.loads((out / "summary.json").read_text())["status"] == "running"
     assert not (out / "displacement.xdmf").exists()
+
+
+def test_a_run_killed_by_sigkill_leaves_its_last_complete_state_readable(tmp_path, serial_only):
+    """A run killed without warning (the out-of-memory killer, a power cut) left displacement.h5
+    unreadable, and with it the last good state. Now last_state.npz holds the latest complete
+    state: the same, to round-off, as a run that ends at that time writes in its XDMF, and
+    `warp` takes it, saying the run was killed and when."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    import meshio
+
+    from fenics_brainshift.outputs.run_folder import read_saved_state
+    from fenics_brainshift.warp.deformed import DeformedMesh, killed_run_time
+
+    killed = tmp_path / "killed"
+    scene = ["cube", "--set", "mesh.cells=[4, 4, 2]", "--set", "time.dt=0.01", "--set", "output.pictures=false"]
+    command = [sys.executable, "-m", "fenics_brainshift.cli", "run", *scene, "--set", "time.end=100", "--out"]
+    process = subprocess.Popen([*command, str(killed)], env=subprocess_env(), stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            try:
+                if read_saved_state(killed)[4] >= 0.2:
+                    break
+            except (OSError, ValueError):
+                pass
+            time.sleep(0.05)
+        process.send_signal(signal.SIGKILL)
+    finally:
+        process.kill()
+        process.wait()
+    assert json.loads((killed / "summary.json").read_text())["status"] == "running"
+    t = killed_run_time(killed)
+    assert t is not None and t >= 0.2
+    # the same scene run to that time and ended normally: its XDMF's last state
+    whole = tmp_path / "whole"
+    subprocess.run([*command[:-2], f"time.end={t!r}", "--out", str(whole)], env=subprocess_env(), check=True)
+    with meshio.xdmf.TimeSeriesReader(str(whole / "displacement.xdmf")) as reader:
+        points, _ = reader.read_points_cells()
+        when, data, _ = reader.read_data(reader.num_steps - 1)
+    assert when == pytest.approx(t)
+    saved = DeformedMesh.from_run(killed)
+    order = np.lexsort(np.round(points, 9).T[::-1])
+    np.testing.assert_allclose(saved.points, 1e3 * points[order], atol=1e-9)  # (saved sorted so)
+    np.testing.assert_allclose(saved.displacement, 1e3 * data["displacement"][order], atol=1e-9)
+    assert np.abs(saved.displacement).max() > 0.5  # a state that moved (mm)

@@ -13,6 +13,7 @@ import nibabel as nib
 import numpy as np
 import pytest
 import SimpleITK
+from mpi4py import MPI
 from scipy import ndimage
 
 from fenics_brainshift.images import read_volume
@@ -267,6 +268,7 @@ def test_a_run_that_is_not_of_this_image_or_did_not_finish_is_refused(tmp_path, 
     import shutil
 
     from fenics_brainshift.errors import InputError
+    from fenics_brainshift.outputs.files import RunLock
 
     _, out = cube_run
     affine = np.eye(4)
@@ -319,17 +321,41 @@ def test_a_run_that_is_not_of_this_image_or_did_not_finish_is_refused(tmp_path, 
     with pytest.raises(InputError, match=r"the run's mesh is 75 mm across .*, the object in 'head.nii.gz' 3\d\d mm"):
         check_size(body.points, head)  # brainshift warp's check
     check_size(body.points, read_volume(tmp_path / "ct.nii.gz"))  # the cube's own image
+    # a folder that says "running": still running (its lock held), or killed (no holder): then
+    # its last complete state, last_state.npz, is the state; without one it is refused
     killed = tmp_path / "killed"
     shutil.copytree(out, killed)
     (killed / "summary.json").write_text('{"status": "running"}')
-    with pytest.raises(InputError, match=r"did not finish \(summary.json says \"running\""):
+    lock = RunLock(killed, MPI.COMM_SELF)
+    with pytest.raises(InputError, match=r"is still running \(pid \d+\); wait for it to end"):
         DeformedMesh.from_run(killed)
+    lock.release()
+    saved = DeformedMesh.from_run(killed)
+    _same_state(saved, body)
+    (killed / "last_state.npz").unlink()
+    with pytest.raises(InputError, match=r"was killed before it saved a complete state"):
+        DeformedMesh.from_run(killed)
+    # a damaged displacement.h5: the same state from last_state.npz; with neither, refused
     damaged = tmp_path / "damaged"
     shutil.copytree(out, damaged)
     h5 = damaged / "displacement.h5"
     h5.write_bytes(h5.read_bytes()[: h5.stat().st_size // 3])
+    _same_state(DeformedMesh.from_run(damaged), body)
+    saved = damaged / "last_state.npz"
+    saved.write_bytes(saved.read_bytes()[: saved.stat().st_size // 2])
     with pytest.raises(InputError, match=r"cannot be read .*damaged or incomplete"):
         DeformedMesh.from_run(damaged)
+
+
+def _same_state(a, b) -> None:
+    """Two DeformedMesh of one state, their vertices in any order: the same points, the same
+    displacement at each, the same tetrahedra as sets of points."""
+    order_a, order_b = (np.lexsort(np.round(m.points, 6).T[::-1]) for m in (a, b))
+    np.testing.assert_allclose(a.points[order_a], b.points[order_b], atol=1e-9)
+    np.testing.assert_allclose(a.displacement[order_a], b.displacement[order_b], atol=1e-12)
+    rank_a, rank_b = (np.argsort(order) for order in (order_a, order_b))
+    cells_a, cells_b = (np.sort(rank[m.tets], axis=1) for rank, m in ((rank_a, a), (rank_b, b)))
+    assert {tuple(c) for c in cells_a} == {tuple(c) for c in cells_b}
 
 
 def _image_around(body, path) -> np.ndarray:
@@ -422,3 +448,37 @@ def test_warp_of_a_run_that_stopped_says_which_state_it_warps(tmp_path, cube_run
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "No space left on device" in err[0] and "summary.json" not in err[0], err
     assert list((tmp_path / "full").iterdir()) == []
+
+
+def test_warp_never_writes_over_the_image_it_warps_or_a_runs_files_unless_asked(tmp_path, cube_run, capsys):
+    """-o naming the pre-operative image replaced it; --transform naming the run's
+    displacement.h5 destroyed the run. Both refused in one line, nothing written;
+    --overwrite asks for it."""
+    import hashlib
+    import shutil
+
+    from fenics_brainshift.cli import main
+
+    _, out = cube_run
+    run = tmp_path / "run"
+    shutil.copytree(out, run)
+    body = DeformedMesh.from_run(run)
+    _image_around(body, tmp_path / "pre.nii.gz")
+
+    def digest(path):
+        return hashlib.sha256(path.read_bytes()).hexdigest()
+
+    image, series = digest(tmp_path / "pre.nii.gz"), digest(run / "displacement.h5")
+    warp = ["warp", str(run), "--image", str(tmp_path / "pre.nii.gz")]
+    assert main(warp + ["-o", str(tmp_path / "pre.nii.gz")]) == 2
+    err = capsys.readouterr().err
+    assert "-o '" in err and "is the --image being warped" in err and "(or --overwrite)" in err, err
+    assert main(warp + ["-o", str(tmp_path / "intra.nii.gz"), "--transform", str(run / "displacement.h5")]) == 2
+    err = capsys.readouterr().err
+    assert "--transform '" in err and "is a run's displacement.h5: writing there would lose it" in err, err
+    assert not (tmp_path / "intra.nii.gz").exists()
+    assert digest(tmp_path / "pre.nii.gz") == image and digest(run / "displacement.h5") == series
+    assert main(warp + ["-o", str(tmp_path / "intra.nii.gz")]) == 0  # (anywhere else: as before)
+    assert main(warp + ["-o", str(tmp_path / "intra.nii.gz")]) == 0  # over its own earlier output
+    assert main(warp + ["-o", str(tmp_path / "pre.nii.gz"), "--overwrite"]) == 0
+    assert digest(tmp_path / "pre.nii.gz") != image

@@ -42,7 +42,7 @@ def build(scene, vary: dict, comm, source: str = "", sets=()) -> tuple[store.Atl
     """The atlas of a quasi-static scene (on rank 0; None elsewhere) and its timings: the
     family's drain/pose states, the scene's own (the prior) and one swelling mode a region."""
     from ..fit.forward import ForwardModel
-    from .vertices import GlobalVertices
+    from ..outputs.vertices import GlobalVertices
 
     start = time.perf_counter()
     scene = _mode_tolerance(scene)

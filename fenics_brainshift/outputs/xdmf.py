@@ -16,12 +16,13 @@ from dolfinx import fem
 from dolfinx.io import XDMFFile
 
 from .. import compat
+from .last_state import LastStateWriter
 
 
 class FieldWriter:
-    """displacement.xdmf (+ .h5) with the requested fields at each output time, and the
-    deformed fine surface (surface_NNNN.vtk/.stl, the last also as surface_final) when the
-    scene has one."""
+    """displacement.xdmf (+ .h5) with the requested fields at each output time, the latest
+    state alone in last_state.npz (readable after a kill), and the deformed fine surface
+    (surface_NNNN.vtk/.stl, the last also as surface_final) when the scene has one."""
 
     def __init__(
         self, folder: Path, mesh, V, fields: tuple[str, ...], material=None, embedding=None, tissue=None, contact=None
@@ -38,6 +39,7 @@ class FieldWriter:
         self.path = folder / "displacement.xdmf"
         self.file = XDMFFile(mesh.comm, str(self.path), "w")
         self.file.write_mesh(mesh)
+        self.last_state = LastStateWriter(folder, mesh, tissue)  # what a kill leaves readable
         self.P1 = compat.vector_space(mesh, 1)
         self.out = {name: fem.Function(self.P1, name=name) for name in ("displacement", "velocity") if name in fields}
         self._u = fem.Function(V)
@@ -73,6 +75,7 @@ class FieldWriter:
             self.file.write_function(self.contact_pressure, t)
         if self.embedding is not None:
             self.embedding.write(self.folder, f"surface_{self.count:04d}", u)
+        self.last_state.write(t, u)
         self.count += 1
         self.last_time = t
         self._last_u = u
