@@ -20,12 +20,12 @@ from fenics_brainshift.atlas import store
 from fenics_brainshift.atlas.build import build, solve_family_mode, solve_from_prior
 from fenics_brainshift.atlas.scenarios import parse_vary
 from fenics_brainshift.atlas.update import update
-from fenics_brainshift.atlas.vertices import GlobalVertices
 from fenics_brainshift.data import scene_path
 from fenics_brainshift.errors import InputError, SolverError
 from fenics_brainshift.fit.parameters import rotated_gravity
 from fenics_brainshift.images import write_markups
 from fenics_brainshift.images.targets import Target
+from fenics_brainshift.outputs.vertices import GlobalVertices
 from fenics_brainshift.runner import Simulation
 from fenics_brainshift.surfaces.triangles import closest_points_on_triangles
 
@@ -433,7 +433,8 @@ def test_update_reports_a_slip_set_aside_and_keep_all_fits_it(atlas, atlas_folde
 def test_swapped_points_a_second_update_and_the_default_noise_are_said(atlas, atlas_folder, tmp_path, capsys):
     """--pre and --target swapped: the measured shift points against the scene's (hand-made:
     the known operation's points, reversed) and the report says so; a second update into the
-    same folder is refused in one line unless --replace; the default noise is named."""
+    same folder is refused in one line unless --overwrite (or its old name --replace); the default
+    noise is named."""
     from fenics_brainshift.cli import main
 
     _markups(tmp_path, atlas, noise=0.3e-3)
@@ -465,7 +466,7 @@ def test_swapped_points_a_second_update_and_the_default_noise_are_said(atlas, at
     before = (tmp_path / "a" / "update.json").read_text()
     assert main(right + ["--out", str(tmp_path / "a")]) == 2
     err = capsys.readouterr().err
-    assert "holds an earlier update (20 points" in err and "--replace" in err and "Traceback" not in err
+    assert "holds an earlier update (20 points" in err and "--overwrite" in err and "Traceback" not in err
     assert (tmp_path / "a" / "update.json").read_text() == before
     assert main(right + ["--out", str(tmp_path / "a"), "--noise", "0.5", "--replace"]) == 0
     assert json.loads((tmp_path / "a" / "update.json").read_text())["noise_mm"] == 0.5
@@ -950,7 +951,8 @@ def test_residuals_the_noise_cannot_explain_are_warned_of_by_their_chi_square(at
 
 def test_an_update_into_a_runs_folder_is_refused_and_the_run_kept(atlas, atlas_folder, tmp_path, capsys):
     """`update --out RUN` over a run's results replaced its displacement and summary without a
-    word (a run into an update's folder was already refused); now refused, the run untouched."""
+    word (a run into an update's folder was already refused); now refused, the run untouched;
+    --overwrite, and only it, replaces one kind's results by the other's, whole."""
     import hashlib
 
     from fenics_brainshift.cli import main
@@ -962,9 +964,26 @@ def test_an_update_into_a_runs_folder_is_refused_and_the_run_kept(atlas, atlas_f
     code = main(["update", str(atlas_folder), "--target", str(tmp_path / "intra.mrk.json"), "--pre",
                  str(tmp_path / "pre.mrk.json"), "--out", str(run)])  # fmt: skip
     err = capsys.readouterr().err
-    assert code == 2 and "holds a run's results" in err and "choose another --out" in err, err
+    assert code == 2 and "holds a run's results" in err and "choose another --out, or --overwrite" in err, err
     after = {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in run.iterdir() if p.is_file()}
     assert after == before
+    # asked for: the run's files go, every one, and the update takes the folder
+    update_args = ["update", str(atlas_folder), "--target", str(tmp_path / "intra.mrk.json"), "--pre",
+                   str(tmp_path / "pre.mrk.json"), "--out", str(run)]  # fmt: skip
+    assert main(update_args + ["--overwrite"]) == 0
+    assert json.loads((run / "summary.json").read_text())["kind"] == "update" and (run / "update.json").is_file()
+    assert not (run / "probes.csv").exists() and not (run / "last_state.npz").exists()
+    # and back: a run over the update is refused, the update kept; with --overwrite the run's
+    kept = (run / "update.json").read_text()
+    capsys.readouterr()
+    cube = ["run", "cube", "--out", str(run), "--set", "mesh.cells=[4, 4, 2]", "--set", "time.end=0.4"]
+    assert main(cube) == 2 and "holds an update (update.json): choose another --out, or --overwrite" in (
+        capsys.readouterr().err
+    )
+    assert (run / "update.json").read_text() == kept
+    assert main(cube + ["--overwrite"]) == 0
+    assert not (run / "update.json").exists() and not (run / "uncertainty.nii.gz").exists()
+    assert json.loads((run / "summary.json").read_text())["status"] == "ok" and (run / "probes.csv").is_file()
 
 
 def test_an_update_as_it_runs_starts_no_dolfinx_and_runs_on_two_ranks(atlas, atlas_folder, tmp_path, serial_only):

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .help_format import Defaults
+from .help_format import Defaults, add_overwrite
 
 
 def add(sub) -> None:
@@ -41,6 +41,7 @@ def add(sub) -> None:
     fit.add_argument("--out", default="out_fit", help="output folder")
     fit.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", help="scene overrides")
     fit.add_argument("--no-run", action="store_true", help="fit only; do not run the fitted scene")
+    add_overwrite(fit, "the fit's folder")
 
 
 def main(args, comm) -> list[str]:
@@ -72,7 +73,8 @@ def main(args, comm) -> list[str]:
     comm.barrier()
     lock = RunLock(out, comm)  # one writer at a time; its earlier run and fit cleared (an update's folder refused)
     try:
-        clear_run(out, comm, scene.name, keep=[Path(args.scene)] if Path(args.scene).is_file() else [], kind="fit")
+        keep = [Path(args.scene)] if Path(args.scene).is_file() else []
+        clear_run(out, comm, scene.name, keep=keep, kind="fit", overwrite=args.overwrite)
         values = dict(zip(names, (float(v) for v in result.values)))
         fitted = write_fitted_scene(args.scene, args.set, scene_changes(scene, values), out) if comm.rank == 0 else None
         fitted = comm.bcast(fitted, root=0)

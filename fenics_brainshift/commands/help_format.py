@@ -22,3 +22,16 @@ class Parser(argparse.ArgumentParser):
 
     def error(self, message: str):
         self.exit(2, f"brainshift: error: {message} (see {self.prog} --help)\n")
+
+
+def add_overwrite(parser, what: str, *aliases: str) -> None:
+    """--overwrite, the one way past a refusal to write over another kind's results (a run, a
+    fit, an update, an image) in the same place."""
+    parser.add_argument(
+        "--overwrite",
+        *aliases,
+        dest="overwrite",
+        action="store_true",
+        help=f"write {what} even where it would replace another command's results (a run, a fit, an "
+        "update, the image warped): refused otherwise, naming them",
+    )

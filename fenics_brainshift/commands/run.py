@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .help_format import Defaults
+from .help_format import Defaults, add_overwrite
 
 
 def add(sub) -> None:
@@ -24,6 +24,7 @@ def add(sub) -> None:
         action="store_true",
         help="also write deformed.png and probes.png (same as --set output.pictures=true)",
     )
+    add_overwrite(run, "the run's folder")
 
 
 def main(args, comm) -> list[str]:
@@ -34,7 +35,7 @@ def main(args, comm) -> list[str]:
     scene = load_scene(args.scene, args.set + (["output.pictures=true"] if args.pictures else []))
     out = args.out or scene.output.folder
     keep = [Path(args.scene)] if Path(args.scene).is_file() else []  # (a fit's fitted.toml, run where it was fitted)
-    summary = run(scene, out, comm, keep=keep).summary
+    summary = run(scene, out, comm, keep=keep, overwrite=args.overwrite).summary
     probes = ", ".join(f"{k}=[{', '.join(f'{c * 1e3:.3f}' for c in v)}] mm" for k, v in summary["probes"].items())
     return [
         f"{scene.name}: max |u| = {summary['max_displacement_m'] * 1e3:.3f} mm"

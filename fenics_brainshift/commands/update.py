@@ -15,7 +15,7 @@ from ..errors import InputError
 from ..images.targets import check_noise, read_target
 from ..outputs.files import RunLock, check_writable, clear_run, runs_results, write_json
 from ..theatre.case import Case
-from .help_format import Defaults
+from .help_format import Defaults, add_overwrite
 
 DEFAULT_NOISE_MM = 1.0  # a tracked pointer's error on the cortex
 NEAR_MM = 20.0  # the uncertainty's headline: the nodes this close to a measured point
@@ -70,12 +70,7 @@ def add(sub) -> None:
     )
     update.add_argument("--image", help="a volume (.nii.gz, .nrrd) on whose grid to write OUT/uncertainty.nii.gz")
     update.add_argument("--out", default="out_update", help="output folder")
-    update.add_argument(
-        "--replace",
-        action="store_true",
-        help="replace an earlier update in --out (refused otherwise: keep each update in its own "
-        "folder, the record of what guided the operation)",
-    )
+    add_overwrite(update, "the update's folder", "--replace")
 
 
 def main(args, comm) -> list[str]:
@@ -83,7 +78,7 @@ def main(args, comm) -> list[str]:
     start = time.perf_counter()
     out = Path(args.out)
     check_writable(out, comm)
-    _check_no_earlier_update(out, args.replace, comm)
+    _check_no_earlier_update(out, args.overwrite, comm)
     noise_stated = args.noise is not None
     args.noise = args.noise if noise_stated else DEFAULT_NOISE_MM
     check_noise(args.noise)
@@ -109,7 +104,8 @@ def main(args, comm) -> list[str]:
     comm.barrier()
     lock = RunLock(out, comm)
     try:
-        clear_run(out, comm, atlas.info.get("scene_name", "atlas"), kind="update")  # (an earlier update's files too)
+        scene_name = atlas.info.get("scene_name", "atlas")
+        clear_run(out, comm, scene_name, kind="update", overwrite=args.overwrite)  # (an earlier update's files too)
         if comm.rank == 0:
             _write_outputs(out, atlas, target, result, image, spread_image)
         comm.barrier()
@@ -137,9 +133,11 @@ def main(args, comm) -> list[str]:
     return lines
 
 
-def _check_no_earlier_update(out: Path, replace: bool, comm) -> None:
+def _check_no_earlier_update(out: Path, overwrite: bool, comm) -> None:
     """An update's folder is the record of what guided the operation at that moment: a second
-    update into it is refused unless asked for (--replace)."""
+    update into it, or an update into a run's results, is refused unless asked for (--overwrite)."""
+    if overwrite:
+        return
     earlier = None
     if comm.rank == 0 and (out / "update.json").is_file():
         import json
@@ -154,10 +152,10 @@ def _check_no_earlier_update(out: Path, replace: bool, comm) -> None:
     if problem:
         raise InputError(problem)
     earlier = comm.bcast(earlier, root=0)
-    if earlier is not None and not replace:
+    if earlier is not None:
         raise InputError(
             f"--out '{out}' holds an earlier update ({earlier}): give each update its own --out "
-            f"(out_update_2, ...), or --replace to overwrite it"
+            f"(out_update_2, ...), or --overwrite to replace it"
         )
 
 

@@ -9,10 +9,11 @@ import numpy as np
 
 from ..errors import InputError
 from ..images.volumes import is_volume, read_volume, write_like
-from ..outputs.files import check_writable
+from ..outputs.files import check_writable, record_holding
 from ..outputs.run_folder import run_status
 from ..warp import DeformedMesh, Warp, check_size, write_itk_transform
-from .help_format import Defaults
+from ..warp.deformed import killed_run_time
+from .help_format import Defaults, add_overwrite
 
 
 def add(sub) -> None:
@@ -47,6 +48,7 @@ def add(sub) -> None:
         help="store the transform's values in single precision: half the file, 1e-7 relative",
     )
     warp.add_argument("--blend", type=float, default=10.0, help="mm over which the shift fades outside the brain")
+    add_overwrite(warp, "-o and --transform")
     warp.add_argument(
         "--mesh-frame",
         choices=["RAS", "LPS"],
@@ -66,7 +68,10 @@ def main(args, comm) -> list[str]:
     if args.transform and not args.transform.lower().endswith((".h5", ".hdf5")):
         raise InputError(f"warp: --transform '{args.transform}': use an ITK transform file name ending in .h5")
     for path in [output] + ([Path(args.transform)] if args.transform else []):
-        check_writable(path.parent, comm, "folder of " + ("-o" if path == output else "--transform"), "-o")
+        flag = "-o" if path == output else "--transform"
+        check_writable(path.parent, comm, "folder of " + flag, flag)
+        if not args.overwrite:
+            _check_not_results(path, flag, Path(args.image))
     volume = read_volume(args.image, "warp: --image")
     body = DeformedMesh.from_run(args.run_dir, args.mesh_frame)
     check_size(body.points, volume, args.labels)
@@ -90,14 +95,15 @@ def main(args, comm) -> list[str]:
     comm.barrier()
     moved = warp.moved()
     status = run_status(Path(args.run_dir))
-    note = (
-        []
-        if status in (None, "ok")
-        else [
+    killed_at = killed_run_time(Path(args.run_dir))
+    note = []
+    if killed_at is not None:
+        note = [f"warp: the run was killed: this is its last complete state, t = {killed_at:g} s, not the final one"]
+    elif status not in (None, "ok"):
+        note = [
             f"warp: the run did not end well (summary.json: {status[:100]}): "
             f"this is its last good state, not the final one"
         ]
-    )
     return note + [
         f"warp: {int(moved.sum())} of {moved.size} voxels moved (largest {warp.largest_mm():.2f} mm, "
         f"{int(warp.inside.sum())} inside the deformed brain); {'nearest' if args.labels else 'linear'} "
@@ -105,6 +111,21 @@ def main(args, comm) -> list[str]:
         + (f" and {args.transform}" if args.transform else "")
         + (f"; labels {sorted(np.unique(warped).tolist())[:12]}" if args.labels and comm.rank == 0 else "")
     ]
+
+
+def _check_not_results(path: Path, flag: str, image: Path) -> None:
+    """-o or --transform may not name the image being warped, nor a file of a run's, a fit's or
+    an update's results: writing there would lose them (--overwrite asks for it)."""
+    if path.exists() and image.exists() and path.resolve() == image.resolve():
+        raise InputError(
+            f"warp: {flag} '{path}' is the --image being warped: writing there would lose the "
+            f"pre-operative image; choose another {flag} (or --overwrite)"
+        )
+    held = record_holding(path)
+    if held is not None and path.exists():
+        raise InputError(
+            f"warp: {flag} '{path}' is {held}: writing there would lose it; choose another {flag} (or --overwrite)"
+        )
 
 
 def _write_both(image: Path, write_image, transform: Path | None, write_transform) -> None:

@@ -50,6 +50,7 @@ RUN_FILES = (
     "probes_final.mrk.json",
     "displacement.xdmf",
     "displacement.h5",
+    "last_state.npz",
     "deformed.png",
     "probes.png",
     "surface_final.vtk",
@@ -103,6 +104,23 @@ class RunLock:
             raise InputError(problem)
         RunLock._held[self._key] = 1
 
+    @classmethod
+    def holder(cls, out: Path) -> str | None:
+        """Which process holds OUT's lock ("pid N"), or None when none does: a folder whose
+        summary.json says "running" with no holder was left by a run that was killed."""
+        import fcntl
+
+        try:
+            f = open(Path(out) / cls.NAME)
+        except OSError:
+            return None
+        with f:
+            try:
+                fcntl.flock(f, fcntl.LOCK_SH | fcntl.LOCK_NB)
+            except BlockingIOError:
+                return f.read().strip() or "another process"
+            return None
+
     def release(self) -> None:
         count = RunLock._held.pop(self._key, 0)
         if count > 1:
@@ -113,24 +131,28 @@ class RunLock:
             self._file = None
 
 
-def clear_run(out: Path, comm, scene_name: str, keep=(), kind: str = "run") -> None:
+def clear_run(out: Path, comm, scene_name: str, keep=(), kind: str = "run", overwrite: bool = False) -> None:
     """Remove an earlier run's files from ``out`` (only those a run writes, and for a fit or an
     update its own earlier record; not the files in ``keep``), then mark the folder's
     summary.json "running": a run killed from here on never leaves the earlier run's "ok"
     beside its own partial files. A folder holding another kind's record is refused first,
     naming it: a run beside a fit's record would mix the two, and removing the record would
     lose the user's fit (a run of the folder's own fitted.toml, in ``keep``, is the fit's);
-    so is a run's folder for an update, which would replace the run's results."""
+    so is a run's folder for an update, which would replace the run's results. With
+    ``overwrite`` (the commands' --overwrite) nothing is refused: every kind's files go."""
     problem = None
     kept = {Path(p).resolve() for p in keep}
-    if comm.rank == 0:
+    if comm.rank == 0 and not overwrite:
         for other, names in RECORDS.items():
             if other == kind or not (out / names[0]).is_file():
                 continue
             if other == "fit" and kind == "run" and (out / "fitted.toml").resolve() in kept:
                 continue  # the fit's own scene, run where it was fitted
-            problem = f"--out '{out}' holds a {other} ({names[0]}): " + (
-                "run its fitted.toml there, or choose another --out" if other == "fit" else "choose another --out"
+            article = "an" if other == "update" else "a"
+            problem = f"--out '{out}' holds {article} {other} ({names[0]}): " + (
+                "run its fitted.toml there, choose another --out, or --overwrite to replace it"
+                if other == "fit"
+                else "choose another --out, or --overwrite to replace it"
             )
         if problem is None and kind == "update":
             problem = runs_results(out)
@@ -138,7 +160,7 @@ def clear_run(out: Path, comm, scene_name: str, keep=(), kind: str = "run") -> N
     if problem:
         raise InputError(problem)
     if comm.rank == 0:
-        names = RUN_FILES + RECORDS.get(kind, ())
+        names = RUN_FILES + (sum(RECORDS.values(), ()) if overwrite else RECORDS.get(kind, ()))
         for path in [out / name for name in names] + [p for pattern in RUN_SERIES for p in out.glob(pattern)]:
             if path.is_file() and path.resolve() not in kept:
                 path.unlink()
@@ -160,8 +182,23 @@ def runs_results(out: Path) -> str | None:
         return None
     return (
         f"--out '{out}' holds a run's results (summary.json, displacement.xdmf) that the update would "
-        f"replace: choose another --out"
+        f"replace: choose another --out, or --overwrite to replace them"
     )
+
+
+def record_holding(path: Path) -> str | None:
+    """What a file belongs to, when writing over it would lose another command's results: one
+    of a run's, a fit's or an update's own files in a folder with a summary.json ("a run's
+    displacement.h5"); None for any other file."""
+    path = Path(path)
+    if not (path.parent / "summary.json").is_file():
+        return None
+    if path.name in RUN_FILES or any(path.match(pattern) for pattern in RUN_SERIES):
+        return f"a run's {path.name}"
+    for kind, names in RECORDS.items():
+        if path.name in names:
+            return f"a{'n' if kind == 'update' else ''} {kind}'s {path.name}"
+    return None
 
 
 def write_json(path: Path, data: dict, comm) -> None:

@@ -58,13 +58,15 @@ def run(
     comm: MPI.Intracomm = MPI.COMM_WORLD,
     raise_on_stop: bool = True,
     keep: tuple | list = (),
+    overwrite: bool = False,
 ) -> Result:
     """Run a scene. With ``out``, write DIR/summary.json, displacement.xdmf, probes.csv (and the
     fine surface and pictures when the scene asks); without it, write nothing. A guard that
     fires raises SolverError after the last good state is written (raise_on_stop=False: the
     Result says so in summary["status"] instead). An earlier run's files in ``out`` are cleared
     first, but those in ``keep`` (the scene file being run); a folder holding a fit's or an
-    update's record is refused, but for the fit's own fitted.toml (outputs/files.py clear_run)."""
+    update's record is refused, but for the fit's own fitted.toml, unless ``overwrite``
+    (outputs/files.py clear_run)."""
     t_start = time.perf_counter()
     out = Path(out) if out is not None else None
     if out is not None:
@@ -82,7 +84,7 @@ def run(
                 out.mkdir(parents=True, exist_ok=True)
             comm.barrier()
             lock = RunLock(out, comm)
-            clear_run(out, comm, scene.name, keep)
+            clear_run(out, comm, scene.name, keep, overwrite=overwrite)
             _write_skull(sim, out)
             m = sim.model
             writer = FieldWriter(
