@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import re
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -295,3 +296,130 @@ def test_a_condition_with_a_nul_character_is_one_line():
 
     with pytest.raises(InputError, match="NUL character"):
         parse_predicate("z < 1e-6\x00")
+
+
+@pytest.fixture(scope="module")
+def small_atlas(tmp_path_factory):
+    """A 4-mode atlas of the 1 cm brain in a folder every rank sees (rank 0's), built by the CLI
+    on every rank of the pass."""
+    from fenics_brainshift.cli import main
+
+    folder = Path(COMM.bcast(str(tmp_path_factory.mktemp("small_atlas")), root=0)) / "atlas"
+    vary = ["--vary", "fluid.level=0.01,0.03", "--vary", "gravity.angle_x=0,8"]
+    assert main(["atlas", "brain", "-o", str(folder), "--set", "mesh.voxel=0.01", *vary]) == 0
+    return folder
+
+
+def _points(folder: Path, atlas_folder: Path, nan: bool = False) -> list[str]:
+    """--pre and --target markups of 12 top vertices of the atlas's brain moved 2 mm down; a
+    NaN in one with ``nan``."""
+    from fenics_brainshift.atlas import store
+    from fenics_brainshift.images import write_markups
+
+    points = 1e3 * store.read(atlas_folder).points
+    top = points[np.argsort(points[:, 2])[-12:]]
+    moved = top - [0.0, 0.0, 2.0]
+    if nan:
+        moved[3, 1] = np.nan
+    if COMM.rank == 0:
+        write_markups(folder / "pre.mrk.json", [f"P{i}" for i in range(12)], top)
+        write_markups(folder / "intra.mrk.json", [f"P{i}" for i in range(12)], moved)
+    COMM.barrier()
+    return ["--pre", str(folder / "pre.mrk.json"), "--target", str(folder / "intra.mrk.json")]
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize(
+    "case, words",
+    [
+        ("damaged atlas", "damaged"),
+        ("noise 1e-300", "--noise"),
+        ("noise 1e300", "--noise"),
+        ("nan point", "control point 4 has no position of 3 numbers"),
+        ("over a run", "holds a run's results"),
+        ("where too deep", "nested"),
+        ("warp over its image", "is the --image being warped"),
+    ],
+)
+def test_every_rank_refuses_in_one_line_and_writes_nothing(small_atlas, shared_tmp, capsys, case, words):
+    """Each check made on every rank (or on rank 0 and sent to the others) under mpirun -n 2:
+    both ranks exit 2, rank 0 says the one line, none hangs, nothing is written."""
+    import shutil
+
+    import h5py
+
+    from fenics_brainshift.cli import main
+
+    out = shared_tmp / "out"
+    atlas = small_atlas
+    points = _points(shared_tmp, small_atlas, nan=case == "nan point")
+    argv = ["update", str(atlas), *points, "--out", str(out)]
+    if case == "damaged atlas":
+        atlas = shared_tmp / "damaged"
+        if COMM.rank == 0:
+            shutil.copytree(small_atlas, atlas)
+            with h5py.File(atlas / "atlas.h5", "r+") as f:
+                data = f["modes/vertex"][...]
+                data.flat[data.size // 2] = np.nan
+                f["modes/vertex"][...] = data
+        COMM.barrier()
+        argv[1] = str(atlas)
+    elif case.startswith("noise"):
+        argv += ["--noise", case.split()[1]]
+    elif case == "over a run":
+        assert main(["run", "cube", "--out", str(out), "--set", "mesh.cells=[4, 4, 2]", "--set", "time.end=0.2"]) == 0
+        capsys.readouterr()
+    elif case == "where too deep":
+        argv = ["run", "cube", "--out", str(out), "--set", "fixed.0.where=" + "-" * 1000 + "z < 0.001"]
+    elif case == "warp over its image":
+        import nibabel as nib
+
+        assert main(["run", "cube", "--out", str(out), "--set", "mesh.cells=[4, 4, 2]", "--set", "time.end=0.2"]) == 0
+        capsys.readouterr()
+        if COMM.rank == 0:
+            nib.save(nib.Nifti1Image(np.ones((60, 60, 60), np.float32), np.eye(4)), str(shared_tmp / "pre.nii.gz"))
+        COMM.barrier()
+        image = str(shared_tmp / "pre.nii.gz")
+        argv = ["warp", str(out), "--image", image, "-o", image]
+    before = sorted(p.name for p in out.iterdir()) if out.exists() else None
+    code = main(argv)
+    err = capsys.readouterr().err
+    codes = COMM.allgather(code)
+    assert codes == [2] * COMM.size, (codes, err)
+    assert "Traceback" not in err
+    if COMM.rank == 0:
+        lines = err.strip().splitlines()
+        assert words in lines[-1], err
+    else:
+        assert err == ""
+    COMM.barrier()
+    assert (sorted(p.name for p in out.iterdir()) if out.exists() else None) == before
+
+
+@pytest.mark.mpi
+def test_every_rank_fits_points_the_noise_cannot_explain_and_says_so_once(small_atlas, shared_tmp, capsys):
+    """Points of another operation (a random shift of 5 mm, the noise said to be 1 mm): the update
+    runs on both ranks, and rank 0 says, once, that the noise cannot explain it, with the
+    chi-square."""
+    from fenics_brainshift.atlas import store
+    from fenics_brainshift.cli import main
+    from fenics_brainshift.images import write_markups
+
+    points = 1e3 * store.read(small_atlas).points
+    top = points[np.argsort(points[:, 2])[-12:]]
+    moved = top + np.random.default_rng(3).normal(0.0, 5.0, top.shape)
+    if COMM.rank == 0:
+        write_markups(shared_tmp / "pre.mrk.json", [f"P{i}" for i in range(12)], top)
+        write_markups(shared_tmp / "intra.mrk.json", [f"P{i}" for i in range(12)], moved)
+    COMM.barrier()
+    out = shared_tmp / "out"
+    argv = ["update", str(small_atlas), "--pre", str(shared_tmp / "pre.mrk.json"), "--target",
+            str(shared_tmp / "intra.mrk.json"), "--noise", "1", "--keep-all", "--out", str(out)]  # fmt: skip
+    assert COMM.allgather(main(argv)) == [0] * COMM.size
+    said = capsys.readouterr()
+    if COMM.rank == 0:
+        assert said.out.count("chi-square") == 1 and "does not explain" in said.out, said.out
+    else:
+        assert "chi-square" not in said.out + said.err
+    COMM.barrier()
+    assert "chi-square" in _strict((out / "update.json").read_text())["warning"]
