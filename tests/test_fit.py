@@ -377,6 +377,16 @@ def test_a_fit_that_does_not_explain_the_data_says_so(truth):
     assert "does not explain the data" in result.as_dict()["warning"]
     clean = fit(forward, Target(measured[:20], pre[:20], [str(i) for i in range(20)]), params, noise=0.5e-3)
     assert "warning" not in clean.as_dict()
+    # another brain's shift, 3 mm per coordinate at a stated 1 mm: under 10x the noise (the old
+    # rule said nothing), far past what the noise explains (a chi-square recomputed here)
+    from scipy.stats import chi2
+
+    other = measured[:20] + np.random.default_rng(4).normal(0.0, 3e-3, (20, 3))
+    result = fit(forward, Target(other, pre[:20], [str(i) for i in range(20)]), params, noise=1e-3)
+    rms = float(np.sqrt(np.mean(result.residuals**2)))
+    assert rms < 10 * 1e-3
+    assert chi2.sf(np.sum((result.residuals / 1e-3) ** 2), 3 * 20 - 2) < 1e-3
+    assert "does not explain the data" in result.as_dict()["warning"] and "chi-square" in result.as_dict()["warning"]
     forward.destroy()
 
 

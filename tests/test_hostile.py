@@ -211,6 +211,43 @@ def test_a_scan_whose_header_is_damaged_is_refused_before_its_voxels_are_read(tm
     assert time.perf_counter() - start < 10.0 and not (tmp_path / "P").exists()
 
 
+@pytest.mark.parametrize(
+    "case, words",
+    [
+        ("nan affine", "has an affine (voxel size, origin or orientation) that is not a finite number"),
+        ("singular affine", "has a singular affine"),
+        ("huge grid", "claims 4000 x 4000 x 4000 voxels (256 GB as float)"),
+        ("huge nrrd", "claims 3000 x 3000 x 3000 voxels"),
+    ],
+)
+def test_every_image_reader_judges_the_header_before_the_voxels(tmp_path, case, words):
+    """`warp --image`, `update --image` and `mesh` read images through read_volume: a singular
+    affine was a LinAlgError traceback, a header claiming 1500^3 voxels had 3.4 GB allocated
+    before it was refused, 3000^3 an empty MemoryError; prepare alone judged the header."""
+    import tracemalloc
+
+    from fenics_brainshift.images.volumes import read_volume
+
+    if case == "nan affine":
+        scan = _nifti(tmp_path / "t1.nii", (40, 40, 40), srow_x=(np.nan, 0.0, 0.0, 0.0))
+    elif case == "singular affine":
+        scan = _nifti(tmp_path / "t1.nii", (40, 40, 40), srow_x=(0.0, 1.0, 0.0, 0.0))  # x along y
+    elif case == "huge grid":
+        scan = _nifti(tmp_path / "t1.nii", (4000, 4000, 4000), data=False)
+    else:
+        scan = tmp_path / "t1.nrrd"
+        scan.write_bytes(
+            b"NRRD0004\ntype: float\ndimension: 3\nspace: left-posterior-superior\nsizes: 3000 3000 3000\n"
+            b"space directions: (1,0,0) (0,1,0) (0,0,1)\nencoding: raw\nendian: little\n"
+            b"space origin: (0,0,0)\n\n" + b"\0" * 1000
+        )
+    tracemalloc.start()
+    with pytest.raises(InputError, match=re.escape(words)):
+        read_volume(scan, "warp: --image")
+    assert tracemalloc.get_traced_memory()[1] < 50e6  # (nothing the size of the claimed grid)
+    tracemalloc.stop()
+
+
 def _box(lo, hi, offset: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """A box's 8 corners and its 12 triangles, normals outward."""
     lo, hi = np.asarray(lo, float), np.asarray(hi, float)
@@ -256,7 +293,8 @@ def test_a_skull_of_two_shells_or_turned_triangles_is_refused_naming_that(tmp_pa
 
 
 def test_a_volume_with_nan_voxels_is_read_with_them_as_zero_and_says_so(tmp_path, caplog):
-    """A NaN voxel of a warped image spread to 9 voxels of the output without a word."""
+    """A NaN voxel of a warped image spread to 9 voxels of the output without a word; prepare
+    read a T1's as 0 and never said so."""
     import logging
 
     import nibabel as nib
@@ -276,6 +314,20 @@ def test_a_volume_with_nan_voxels_is_read_with_them_as_zero_and_says_so(tmp_path
     assert np.isfinite(volume.data).all() and volume.data[3, 4, 5] == 0 and volume.data[6, 7, 8] == 0
     assert volume.data[0, 0, 0] == data[0, 0, 0]
     assert any("holds 2 voxels that are not finite" in r.getMessage() for r in caplog.records)
+    # prepare's reader: ITK reads them as 0 without a word; said the same way
+    from fenics_brainshift.patients.series import read_t1
+
+    caplog.clear()
+    data = np.random.default_rng(0).uniform(0, 100, (40, 40, 40)).astype(np.float32)
+    data[3, 4, 5], data[6, 7, 8] = np.nan, -np.inf
+    nib.save(nib.Nifti1Image(data, np.diag([2.0, 2.0, 2.0, 1.0])), tmp_path / "scan.nii.gz")
+    logger.addHandler(caplog.handler)
+    try:
+        with caplog.at_level(logging.WARNING, logger="fenics_brainshift"):
+            read_t1(tmp_path / "scan.nii.gz")
+    finally:
+        logger.removeHandler(caplog.handler)
+    assert any("'scan.nii.gz' holds 2 voxels that are not finite" in r.getMessage() for r in caplog.records)
 
 
 def test_a_scan_header_flipped_by_a_negative_voxel_size_is_read_and_absurd_voxel_sizes_are_not(tmp_path):
@@ -338,7 +390,7 @@ def _points(folder: Path, atlas_folder: Path, nan: bool = False) -> list[str]:
         ("nan point", "control point 4 has no position of 3 numbers"),
         ("over a run", "holds a run's results"),
         ("where too deep", "nested"),
-        ("warp over its image", "is the --image being warped"),
+        ("warp over its image", "is the --image it reads"),
     ],
 )
 def test_every_rank_refuses_in_one_line_and_writes_nothing(small_atlas, shared_tmp, capsys, case, words):
@@ -423,3 +475,47 @@ def test_every_rank_fits_points_the_noise_cannot_explain_and_says_so_once(small_
         assert "chi-square" not in said.out + said.err
     COMM.barrier()
     assert "chi-square" in _strict((out / "update.json").read_text())["warning"]
+
+
+def test_mesh_and_compare_never_write_over_a_runs_files_or_their_input(tmp_path, capsys, serial_only):
+    """`mesh -o RUN/displacement.xdmf` and `compare -o RUN/summary.json` replaced a run's files
+    (warp then called the run damaged); now refused in one line, the run untouched, unless
+    --overwrite."""
+    import hashlib
+
+    import nibabel as nib
+
+    from fenics_brainshift.cli import main
+
+    run = tmp_path / "run"
+    assert main(["run", "cube", "--out", str(run), "--set", "mesh.cells=[4, 4, 2]", "--set", "time.end=0.2"]) == 0
+    before = {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in run.iterdir() if p.is_file()}
+    mask = np.zeros((12, 12, 12), np.uint8)
+    mask[3:9, 3:9, 3:9] = 1
+    nib.save(nib.Nifti1Image(mask, np.eye(4)), str(tmp_path / "mask.nii.gz"))
+    capsys.readouterr()
+    mesh = ["mesh", str(tmp_path / "mask.nii.gz"), "--voxel", "2", "-o"]
+    assert main(mesh + [str(run / "displacement.xdmf")]) == 2
+    err = capsys.readouterr().err
+    assert "-o '" in err and "is a run's displacement.xdmf: writing there would lose it" in err
+    sphere = tmp_path / "s.stl"
+    _stl_sphere(sphere)
+    compare = ["compare", str(sphere), str(sphere), str(sphere), "-o"]
+    assert main(compare + [str(run / "summary.json")]) == 2
+    assert "is a run's summary.json: writing there would lose it" in capsys.readouterr().err
+    assert main(compare + [str(sphere)]) == 2
+    assert "is the PRE surface it reads" in capsys.readouterr().err
+    after = {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in run.iterdir() if p.is_file()}
+    assert after == before
+    assert main(mesh + [str(run / "displacement.xdmf"), "--overwrite"]) == 0
+
+
+def _stl_sphere(path) -> None:
+    """A closed triangulated sphere of radius 30 mm (an STL in mm)."""
+    import meshio
+    from scipy.spatial import ConvexHull
+
+    rng = np.random.default_rng(0)
+    points = rng.normal(size=(300, 3))
+    points = 30.0 * points / np.linalg.norm(points, axis=1, keepdims=True)
+    meshio.write(str(path), meshio.Mesh(points, [("triangle", ConvexHull(points).simplices)]))

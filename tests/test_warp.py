@@ -368,17 +368,20 @@ def _image_around(body, path) -> np.ndarray:
     return affine
 
 
-def test_warp_writes_the_image_and_its_transform_both_or_neither(tmp_path, cube_run, capsys, serial_only):
-    """The transform's final move failing (a folder where the file should go) left the image
-    without its transform, and the message spoke of a run's summary.json. Now neither is
-    left, nor a temporary file, an earlier warp's image is put back, and the one line names
-    the path. A detached NRRD header (.nhdr: its data file named for the temporary file) is
-    refused."""
+def test_warp_writes_the_image_and_its_transform_both_or_neither(tmp_path, cube_run, capsys, monkeypatch, serial_only):
+    """The transform's final move failing left the image without its transform, and the
+    message spoke of a run's summary.json. Now neither is left, nor a temporary file, an
+    earlier warp's image is put back, and the one line names the path. A folder where the
+    transform should go is refused before the work. A detached NRRD header (.nhdr: its data
+    file named for the temporary file) is refused."""
+    import os
+
     from fenics_brainshift.cli import main
+    from fenics_brainshift.commands import warp as warp_command
 
     _, out = cube_run
     _image_around(DeformedMesh.from_run(out), tmp_path / "pre.nii.gz")
-    (tmp_path / "w" / "t.h5").mkdir(parents=True)  # the transform's name taken by a folder
+    (tmp_path / "w").mkdir()
     args = [
         "warp",
         str(out),
@@ -390,11 +393,23 @@ def test_warp_writes_the_image_and_its_transform_both_or_neither(tmp_path, cube_
         str(tmp_path / "w" / "t.h5"),
     ]
     (tmp_path / "w" / "intra.nii.gz").write_bytes(b"an earlier warp")
+    original = os.replace
+
+    def refuse_the_transform(src, dst):  # (the transform's move fails: a full disk, a permission)
+        if str(dst).endswith("t.h5"):
+            raise OSError(28, "No space left on device", str(dst))
+        original(src, dst)
+
+    monkeypatch.setattr(warp_command.os, "replace", refuse_the_transform)
     assert main(args) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and f"'{tmp_path / 'w' / 't.h5'}'" in err[0] and "summary.json" not in err[0], err
-    assert sorted(p.name for p in (tmp_path / "w").iterdir()) == ["intra.nii.gz", "t.h5"]  # (the folder)
+    assert sorted(p.name for p in (tmp_path / "w").iterdir()) == ["intra.nii.gz"]  # (no temporary file)
     assert (tmp_path / "w" / "intra.nii.gz").read_bytes() == b"an earlier warp"  # put back, not lost
+    monkeypatch.setattr(warp_command.os, "replace", original)
+    (tmp_path / "w" / "t.h5").mkdir()  # a folder where the transform goes: refused before the work
+    assert main(args) == 2 and "--transform '" in capsys.readouterr().err
+    assert (tmp_path / "w" / "intra.nii.gz").read_bytes() == b"an earlier warp"
     (tmp_path / "w" / "t.h5").rmdir()
     assert main(args) == 0
     assert sorted(p.name for p in (tmp_path / "w").iterdir()) == ["intra.nii.gz", "t.h5"]
@@ -472,12 +487,16 @@ def test_warp_never_writes_over_the_image_it_warps_or_a_runs_files_unless_asked(
     warp = ["warp", str(run), "--image", str(tmp_path / "pre.nii.gz")]
     assert main(warp + ["-o", str(tmp_path / "pre.nii.gz")]) == 2
     err = capsys.readouterr().err
-    assert "-o '" in err and "is the --image being warped" in err and "(or --overwrite)" in err, err
+    assert "-o '" in err and "is the --image it reads" in err and "(or --overwrite)" in err, err
     assert main(warp + ["-o", str(tmp_path / "intra.nii.gz"), "--transform", str(run / "displacement.h5")]) == 2
     err = capsys.readouterr().err
     assert "--transform '" in err and "is a run's displacement.h5: writing there would lose it" in err, err
     assert not (tmp_path / "intra.nii.gz").exists()
     assert digest(tmp_path / "pre.nii.gz") == image and digest(run / "displacement.h5") == series
+    (tmp_path / "folder.h5").mkdir()
+    assert main(warp + ["-o", str(tmp_path / "intra.nii.gz"), "--transform", str(tmp_path / "folder.h5")]) == 2
+    assert "--transform '" in (err := capsys.readouterr().err) and "folder.h5' is a folder; give a file name" in err
+    assert not (tmp_path / "intra.nii.gz").exists()
     assert main(warp + ["-o", str(tmp_path / "intra.nii.gz")]) == 0  # (anywhere else: as before)
     assert main(warp + ["-o", str(tmp_path / "intra.nii.gz")]) == 0  # over its own earlier output
     assert main(warp + ["-o", str(tmp_path / "pre.nii.gz"), "--overwrite"]) == 0

@@ -205,6 +205,21 @@ def damage(atlas: Atlas) -> str | None:
         if values is not None and not np.all(np.isfinite(values)):
             bad = int(np.size(values) - np.count_nonzero(np.isfinite(values)))
             return f"{name} hold {bad} numbers that are not finite"
+    for name, cells, corners, count in (
+        ("the mesh's tetrahedra", atlas.tetrahedra, 4, len(atlas.points)),
+        ("the fine surface's triangles", atlas.surface_triangles, 3,
+         0 if atlas.surface_points is None else len(atlas.surface_points)),
+    ):  # fmt: skip
+        if cells is None:
+            continue
+        if cells.ndim != 2 or cells.shape[1] != corners or not np.issubdtype(cells.dtype, np.integer):
+            return f"{name} are not rows of {corners} vertex numbers"
+        if len(cells) and not (0 <= cells.min() and cells.max() < count):
+            return f"{name} name vertices {cells.min()} to {cells.max()}, past the {count} there are"
+    if atlas.surface_points is not None and (
+        atlas.surface_modes is None or atlas.surface_modes.shape[1:] != atlas.surface_points.shape
+    ):
+        return "the fine surface's modes are not one value a surface point"
     stiffness = atlas.info.get("stiffness") or {}
     numbers = [stiffness.get(k) for k in ("lower", "G", "upper") if k in stiffness]
     if numbers and not (

@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InputError
+from ..images.residuals import chi_square
 from .prepared import locator
 from .rows import PointRows
 
@@ -17,12 +18,6 @@ FAR_FROM_PREDICTION = 0.25  # of the body's diagonal: the median prior residual 
 # times the noise, and said to fit better when its residual RMS is below this share
 OTHER_FRAME_NOISE = 3.0
 OTHER_FRAME_BETTER = 0.5
-# the updated residuals' chi-square against the stated noise: below this probability the noise
-# cannot explain them (the atlas does not explain the data)
-UNEXPLAINED_P = 1e-3
-# ... and only past this many times the stated noise per coordinate: a stated noise is never exact
-# (both points of a pair noisy make sqrt(2); 2000 scanned points at 1.04x the noise reach p < 1e-3)
-UNEXPLAINED_RATIO = 2.0
 AGAINST = -0.5  # cosine between the measured and the predicted shift below which the points look swapped
 
 
@@ -88,20 +83,14 @@ def warning(
     """What the update's answer does not support: residuals the stated noise cannot explain
     (their chi-square over ``coordinates`` a point, one number or one a point: 3 for a pair's
     distance, 1 for a distance to the surface), or a brain past the skull."""
-    from scipy.special import gammaincc
-
     parts = []
     rms = float(np.sqrt(np.mean(residual**2))) if len(residual) else 0.0
-    chi2 = float(np.sum((residual / noise) ** 2))
-    dof = int(np.sum(np.broadcast_to(coordinates, np.shape(residual))))
-    p = float(gammaincc(dof / 2, chi2 / 2)) if dof else 1.0  # (the chi-square's upper tail)
-    ratio = float(np.sqrt(chi2 / dof)) if dof else 0.0  # the residual per coordinate over the noise
-    if p < UNEXPLAINED_P and ratio > UNEXPLAINED_RATIO:
+    test = chi_square(residual, noise, coordinates)
+    if test.unexplained:
         parts.append(
-            f"the atlas does not explain the data: the updated residual RMS {rms * 1e3:.3g} mm, {ratio:.1f}x a "
-            f"stated noise of {noise * 1e3:g} mm per coordinate (chi-square {chi2:.0f} for {dof} coordinates, p = "
-            f"{p:.1e}); usually a frame (RAS/LPS) or unit slip, points mismatched between --pre and --target, "
-            f"another patient's points, or an operation the atlas lacks (a resection; a wider --vary)"
+            f"the atlas does not explain the data: the updated residual RMS {rms * 1e3:.3g} mm, "
+            f"{test.words(noise)}; usually a frame (RAS/LPS) or unit slip, points mismatched between --pre and "
+            f"--target, another patient's points, or an operation the atlas lacks (a resection; a wider --vary)"
         )
     if deepest > PAST_SKULL:
         how = f"after {rounds} rounds of its rows" if keep_inside else "the fit without the skull's rows"

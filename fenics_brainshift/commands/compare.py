@@ -8,10 +8,10 @@ import numpy as np
 
 from .. import json_text
 from ..errors import InputError
-from ..outputs.files import check_writable
+from ..outputs.files import check_output_file, check_writable
 from ..outputs.metrics import compare
 from ..surfaces.files import read_surface
-from .help_format import Defaults
+from .help_format import Defaults, add_overwrite
 
 
 def add(sub) -> None:
@@ -53,12 +53,15 @@ def add(sub) -> None:
     cmp.add_argument(
         "-o", "--output", default="compare.json", help="JSON result (a PNG of the surface error beside it)"
     )
+    add_overwrite(cmp, "-o")
 
 
 def main(args, comm) -> list[str]:
     """`brainshift compare`: rank 0 measures and writes; returns the report's lines."""
     out = Path(args.output)
     check_writable(out.parent, comm, "folder of -o", "-o")
+    inputs = [(args.pre, "PRE surface"), (args.intra, "INTRA surface"), (args.sim, "SIM surface")]
+    check_output_file(out, "-o", "compare", inputs, args.overwrite)
     if comm.rank != 0:
         return []
     for name in (args.pre, args.intra, args.sim):

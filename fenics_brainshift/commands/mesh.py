@@ -6,7 +6,7 @@ from pathlib import Path
 
 from .. import formats
 from ..errors import InputError
-from .help_format import Defaults
+from .help_format import Defaults, add_overwrite
 
 
 def add(sub) -> None:
@@ -38,12 +38,13 @@ def add(sub) -> None:
         "must name them)",
     )
     mesh.add_argument("-o", "--output", default="mesh.xdmf", help="output XDMF file")
+    add_overwrite(mesh, "-o")
 
 
 def main(args, comm) -> list[str]:
     """Check the arguments, mesh, write; returns the mesher's report."""
     from ..meshing import write_voxel_mesh
-    from ..outputs.files import check_writable
+    from ..outputs.files import check_output_file, check_writable
 
     if not Path(args.input).is_file():
         raise InputError(f"mesh: input '{args.input}' not found")
@@ -62,6 +63,8 @@ def main(args, comm) -> list[str]:
     if output.suffix != ".xdmf":
         raise InputError(f"mesh: -o '{output}' must end in .xdmf")
     check_writable(output.parent, comm, "folder of -o", "-o")
+    for path in (output, output.with_suffix(".h5")):  # (the mesh's XDMF and its HDF5 beside it)
+        check_output_file(path, "-o", "mesh", [(args.input, "INPUT")], args.overwrite)
     report = write_voxel_mesh(
         output, comm, args.input, args.voxel * args.scale, args.scale, args.fill, args.parts, args.labels
     )

@@ -9,7 +9,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..images.volumes import is_volume, read_volume, write_like
-from ..outputs.files import check_writable, record_holding
+from ..outputs.files import check_output_file, check_writable
 from ..outputs.run_folder import run_status
 from ..warp import DeformedMesh, Warp, check_size, write_itk_transform
 from ..warp.deformed import killed_run_time
@@ -70,8 +70,7 @@ def main(args, comm) -> list[str]:
     for path in [output] + ([Path(args.transform)] if args.transform else []):
         flag = "-o" if path == output else "--transform"
         check_writable(path.parent, comm, "folder of " + flag, flag)
-        if not args.overwrite:
-            _check_not_results(path, flag, Path(args.image))
+        check_output_file(path, flag, "warp", [(args.image, "--image")], args.overwrite)
     volume = read_volume(args.image, "warp: --image")
     body = DeformedMesh.from_run(args.run_dir, args.mesh_frame)
     check_size(body.points, volume, args.labels)
@@ -111,21 +110,6 @@ def main(args, comm) -> list[str]:
         + (f" and {args.transform}" if args.transform else "")
         + (f"; labels {sorted(np.unique(warped).tolist())[:12]}" if args.labels and comm.rank == 0 else "")
     ]
-
-
-def _check_not_results(path: Path, flag: str, image: Path) -> None:
-    """-o or --transform may not name the image being warped, nor a file of a run's, a fit's or
-    an update's results: writing there would lose them (--overwrite asks for it)."""
-    if path.exists() and image.exists() and path.resolve() == image.resolve():
-        raise InputError(
-            f"warp: {flag} '{path}' is the --image being warped: writing there would lose the "
-            f"pre-operative image; choose another {flag} (or --overwrite)"
-        )
-    held = record_holding(path)
-    if held is not None and path.exists():
-        raise InputError(
-            f"warp: {flag} '{path}' is {held}: writing there would lose it; choose another {flag} (or --overwrite)"
-        )
 
 
 def _write_both(image: Path, write_image, transform: Path | None, write_transform) -> None:

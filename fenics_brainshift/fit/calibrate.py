@@ -21,6 +21,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from ..errors import InputError, SolverError
+from ..images.residuals import chi_square
 from ..images.targets import Target
 from ..outputs.points import PointEvaluator
 from .forward import ForwardModel
@@ -33,8 +34,6 @@ UNCONSTRAINED = 0.25
 # the residual (m) of parameters with no settled state: far worse than any fit, so the trust
 # region shrinks away from them
 NO_EQUILIBRIUM = 1.0
-# a fitted residual RMS above this many times the stated noise: the model does not explain the data
-UNEXPLAINED = 10.0
 # measured points whose median distance from the prediction is past this fraction of the body's
 # diagonal (70 mm for the brain; shifts are at most 20-30 mm) are in another frame or unit
 FAR_FROM_PREDICTION = 0.25
@@ -151,11 +150,12 @@ def fit(forward: ForwardModel, target: Target, parameters: list[Parameter], nois
     constrained = [c and b is None for c, b in zip(constrained, at_bound)]
     rms = float(np.sqrt(np.mean(per_point**2)))
     warning = None
-    if rms > UNEXPLAINED * noise:
+    test = chi_square(per_point, noise, 3 if target.pre is not None else 1, fitted=len(parameters))
+    if test.unexplained:
         warning = (
-            f"the model does not explain the data: the fitted residual RMS {rms * 1e3:.3g} mm is "
-            f"{rms / noise:.0f}x the stated noise ({noise * 1e3:g} mm); a frame or unit slip (RAS or LPS, "
-            f"mm), points mismatched between --pre and --target, or a cause the parameters lack"
+            f"the model does not explain the data: the fitted residual RMS {rms * 1e3:.3g} mm, {test.words(noise)}; "
+            f"usually a frame or unit slip (RAS or LPS, mm), points mismatched between --pre and --target, another "
+            f"patient's points, or a cause the parameters lack"
         )
     return FitResult(
         parameters,

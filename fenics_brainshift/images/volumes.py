@@ -25,6 +25,7 @@ log = get_logger("images")
 NIFTI_SUFFIXES = (".nii", ".nii.gz")
 NRRD_SUFFIXES = (".nrrd", ".nhdr")  # .seg.nrrd included
 VOLUME_HELP = "use a NIfTI (.nii, .nii.gz) or NRRD (.nrrd, .seg.nrrd) volume"
+MAX_VOXELS = 500e6  # a whole head at 0.4 mm is 100 million
 
 # the NRRD ``space`` values and the sign flips that take them to RAS
 _NRRD_SPACES = {
@@ -82,7 +83,7 @@ def read_volume(path: str | Path, what: str = "--image", layered: bool = False) 
     if not is_volume(path):
         raise InputError(f"{what}: '{path.name}' is not a volume; {VOLUME_HELP}")
     try:
-        volume = _read_nifti(path) if path.name.lower().endswith(NIFTI_SUFFIXES) else _read_nrrd(path)
+        volume = _read_nifti(path, what) if path.name.lower().endswith(NIFTI_SUFFIXES) else _read_nrrd(path, what)
     except InputError:
         raise
     except Exception as exc:  # a damaged file: the reader's own words
@@ -108,16 +109,44 @@ def read_volume(path: str | Path, what: str = "--image", layered: bool = False) 
     return volume
 
 
-def _read_nifti(path: Path) -> Volume:
+def check_grid(shape, affine: np.ndarray, name: str, what: str) -> None:
+    """The grid a header claims, judged before its voxels are read: a size no scan has (a damaged
+    header: the reader would allocate it first), an affine that is not finite or is singular
+    (every mapping to and from RAS would be NaN or fail)."""
+    voxels = float(np.prod(np.asarray(shape, dtype=float)))  # (every axis: what would be allocated)
+    if voxels > MAX_VOXELS:
+        raise InputError(
+            f"{what}: '{name}' claims {' x '.join(str(int(n)) for n in shape)} voxels "
+            f"({voxels * 4 / 1e9:.0f} GB as float): not the grid of a scan (a damaged header?); export it again"
+        )
+    linear = np.asarray(affine, dtype=float)[:3, :3]
+    if not np.isfinite(affine).all():
+        raise InputError(
+            f"{what}: '{name}' has an affine (voxel size, origin or orientation) that is not a finite number: "
+            f"its header is damaged; export it again"
+        )
+    spacing = np.linalg.norm(linear, axis=0)
+    if spacing.min() <= 0.0 or abs(np.linalg.det(linear)) < 1e-3 * float(np.prod(spacing)):
+        raise InputError(
+            f"{what}: '{name}' has a singular affine (voxel sizes {', '.join(f'{v:.3g}' for v in spacing)} mm, "
+            f"its axes not independent): its header is damaged; export it again"
+        )
+
+
+def _read_nifti(path: Path, what: str) -> Volume:
     import nibabel as nib
 
-    image = nib.load(str(path))
-    return Volume(path, np.asanyarray(image.dataobj), np.array(image.affine, dtype=float), image.header)
+    image = nib.load(str(path))  # (the header only: the voxels are read below, once judged)
+    affine = np.array(image.affine, dtype=float)
+    check_grid(image.shape, affine, path.name, what)
+    return Volume(path, np.asanyarray(image.dataobj), affine, image.header)
 
 
-def _read_nrrd(path: Path) -> Volume:
+def _read_nrrd(path: Path, what: str) -> Volume:
     import nrrd
 
+    sizes = [int(n) for n in nrrd.read_header(str(path)).get("sizes", [])]
+    check_grid(sizes, np.eye(4), path.name, what)  # (its size, before the voxels are read)
     data, header = nrrd.read(str(path))  # pynrrd: data[i, j, k], the file's axis order
     space = str(header.get("space", "")).lower()
     if space not in _NRRD_SPACES:
@@ -137,6 +166,7 @@ def _read_nrrd(path: Path) -> Volume:
     affine = np.eye(4)
     affine[:3, :3] = flip @ directions.T  # columns: the i, j, k steps
     affine[:3, 3] = flip @ np.asarray(header["space origin"], dtype=float)
+    check_grid((), affine, path.name, what)
     segments, segment_layers = _segments(header)
     return Volume(path, data, affine, header, segments if layers is None else {}, layers, segment_layers)
 

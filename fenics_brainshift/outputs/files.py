@@ -172,7 +172,9 @@ def runs_results(out: Path) -> str | None:
     """Why an update may not write into ``out``: it holds a run's results, which the update would
     replace (a fit clears its folder's run on purpose: the fitted scene's run takes its place);
     an update's own folder, even one interrupted before its update.json, is not refused."""
-    if not (out / "displacement.xdmf").is_file() or (out / RECORDS["update"][0]).is_file():
+    found = [name for name in RUN_FILES if name != "summary.json" and (out / name).is_file()]
+    found += sorted(p.name for pattern in RUN_SERIES for p in out.glob(pattern))[:1]
+    if not found or (out / RECORDS["update"][0]).is_file():
         return None
     try:
         kind = json.loads((out / "summary.json").read_text()).get("kind")
@@ -181,7 +183,7 @@ def runs_results(out: Path) -> str | None:
     if kind == "update":
         return None
     return (
-        f"--out '{out}' holds a run's results (summary.json, displacement.xdmf) that the update would "
+        f"--out '{out}' holds a run's results ({', '.join(found[:3])}) that the update would "
         f"replace: choose another --out, or --overwrite to replace them"
     )
 
@@ -199,6 +201,29 @@ def record_holding(path: Path) -> str | None:
         if path.name in names:
             return f"a{'n' if kind == 'update' else ''} {kind}'s {path.name}"
     return None
+
+
+def check_output_file(path: Path, flag: str, command: str, inputs=(), overwrite: bool = False) -> None:
+    """An output file's name, judged before any work: not an existing folder; and, unless
+    ``overwrite`` (the command's --overwrite), not one of the command's own ``inputs`` (the
+    image being warped) nor a file of a run's, a fit's or an update's results, which writing
+    there would lose."""
+    path = Path(path)
+    if path.is_dir():
+        raise InputError(f"{command}: {flag} '{path}' is a folder; give a file name in it")
+    if overwrite or not path.exists():
+        return
+    for given, name in inputs:
+        if Path(given).exists() and path.resolve() == Path(given).resolve():
+            raise InputError(
+                f"{command}: {flag} '{path}' is the {name} it reads: writing there would lose it; choose another "
+                f"{flag} (or --overwrite)"
+            )
+    held = record_holding(path)
+    if held is not None:
+        raise InputError(
+            f"{command}: {flag} '{path}' is {held}: writing there would lose it; choose another {flag} (or --overwrite)"
+        )
 
 
 def write_json(path: Path, data: dict, comm) -> None:
