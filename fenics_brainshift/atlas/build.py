@@ -21,7 +21,7 @@ from .. import compat, formats
 from ..errors import SolverError
 from ..logs import get_logger
 from ..scene.body import Swelling
-from . import store
+from . import groups, store
 from .locate import MeshLocator
 from .rows import SKULL_SLACK
 from .scenarios import clip_levels, family, stiffness, swelling_modes
@@ -38,9 +38,12 @@ MODE_RTOL = 1e-4
 MAX_SKIPPED = 0.1  # of the family's modes that may be left out (settled neither way) before the atlas fails
 
 
-def build(scene, vary: dict, comm, source: str = "", sets=()) -> tuple[store.Atlas | None, dict]:
+def build(
+    scene, vary: dict, comm, source: str = "", sets=(), ranks_per_mode: int | None = None
+) -> tuple[store.Atlas | None, dict]:
     """The atlas of a quasi-static scene (on rank 0; None elsewhere) and its timings: the
-    family's drain/pose states, the scene's own (the prior) and one swelling mode a region."""
+    family's drain/pose states, the scene's own (the prior) and one swelling mode a region;
+    the ranks shared among groups of ``ranks_per_mode`` (atlas/groups.py)."""
     from ..fit.forward import ForwardModel
     from ..outputs.vertices import GlobalVertices
 
@@ -51,7 +54,8 @@ def build(scene, vary: dict, comm, source: str = "", sets=()) -> tuple[store.Atl
     solved = scene
     if not scene.swelling:  # the whole body, held at no change in the family's modes
         solved = dataclasses.replace(solved, swelling=(Swelling(volume_change=swelling[0].mode, where=WHOLE_BODY),))
-    forward = ForwardModel(solved, comm, newton_rtol=MODE_RTOL)
+    team = groups.split(comm, ranks_per_mode)
+    forward = ForwardModel(solved, team.comm, newton_rtol=MODE_RTOL)
     t_end = scene.settled_time  # the drained state, whatever [time] end says
     priors = [float(r.at(t_end)) for r in scene.swelling] if scene.swelling else [0.0]
     vertices = GlobalVertices(forward.model.mesh)
@@ -60,27 +64,61 @@ def build(scene, vary: dict, comm, source: str = "", sets=()) -> tuple[store.Atl
     grid = family(scene, vary, heights)
     if "fluid.level" not in vary and "fluid.level" in grid[0]:
         grid = clip_levels(grid, heights)
+    grid = comm.bcast(grid, root=0)  # (every group the same grid: rank 0's)
     setup_s = time.perf_counter() - start
+    if team.count > 1:
+        log.info(
+            "atlas: %d ranks in %d groups of %d, each solving whole poses on its own copy of the model",
+            comm.size,
+            team.count,
+            team.ranks_per_mode,
+        )
 
     start = time.perf_counter()
     swell = _Swelling(forward.model.growth.regions, priors)
-    family_modes, scenarios, skipped = _family_states(forward, grid, vertices)
+    dealt = groups.share(groups.chains(grid, _pose), team.count, head_start=1 + len(swelling))
     prior_values = {}  # the scene's own scenario: its final level, its pose
     if scene.fluid is not None and scene.fluid.volume is None and scene.fluid.level:
         prior_values["fluid.level"] = float(scene.fluid.level(t_end))
-    forward.from_rest = forward.sim.contact is not None
-    forward.solve(prior_values)
-    prior_vertex = vertices.values(forward.sim.u)
-    swollen = _swelling_states(forward, swelling, swell, prior_values, vertices, scenarios)
-    vertex_modes = list(family_modes)
+    family_modes, skipped, prior_vertex, swollen, scenarios = [], [], None, [], []
+    failed = None
+    try:
+        family_modes, skipped = _family_states(forward, grid, vertices, dealt[team.index])
+        if team.index == 0:  # the prior, from rest (its answer then is the same for any dealing)
+            forward.start_from_rest()
+            forward.solve(prior_values)
+            prior_vertex = vertices.values(forward.sim.u)
+            swollen = _swelling_states(forward, swelling, swell, prior_values, vertices, scenarios)
+    except SolverError as exc:
+        failed = exc
+    messages = [m for m in comm.allgather(None if failed is None else str(failed)) if m]
+    if messages:  # (one group's failure ends every group's build, each rank saying the first)
+        forward.destroy()
+        team.free()
+        raise failed if failed is not None else SolverError(messages[0])
+    family_modes = groups.to_rank_0(team, family_modes if team.root else [])
+    skipped = groups.to_rank_0(team, skipped if team.root else [])
+    left_out = comm.bcast(len(skipped) if comm.rank == 0 else 0, root=0)
+    if left_out > MAX_SKIPPED * len(grid):
+        forward.destroy()
+        team.free()
+        raise SolverError(
+            f"atlas: {left_out} of {len(grid)} modes settled neither from the last mode nor from rest "
+            f"(more than {MAX_SKIPPED:.0%})"
+        )
+    vertex_modes = []
     if comm.rank == 0:
-        vertex_modes += [v - prior_vertex for v in swollen]
+        family_modes.sort(key=lambda item: item[0])
+        skipped.sort(key=lambda item: item[0])
+        vertex_modes = [u for _, u in family_modes] + [v - prior_vertex for v in swollen]
+        scenarios = [{"kind": "family", "values": grid[i]} for i, _ in family_modes] + scenarios
     seconds = {"setup_s": setup_s, "modes_s": time.perf_counter() - start}
-    solves = forward.solves
+    solves = comm.allreduce(forward.solves if team.root else 0)
     skull = forward.sim.contact.skull if forward.sim.contact is not None else None
     compliance = _compliance(forward)
     fine_points = None if fine is None else (fine.points, fine.triangles)
     forward.destroy()
+    team.free()
     if comm.rank != 0:
         return None, seconds
     atlas = _assembled(vertices, np.array(vertex_modes), prior_vertex, scenarios, fine_points, skull)
@@ -89,6 +127,7 @@ def build(scene, vary: dict, comm, source: str = "", sets=()) -> tuple[store.Atl
         "set": list(sets),
         "scene_name": scene.name,
         "ranks": comm.size,
+        "ranks_per_mode": team.ranks_per_mode,
         "dolfinx_version": compat.DOLFINX_VERSION,
         "material": scene.material.model,
         "gravity": [float(c) for c in scene.gravity.vector],
@@ -118,22 +157,27 @@ class _Swelling:
             self.regions[i] = (self.regions[i][0], lambda t, v=value: v)
 
 
-def _family_states(forward, grid: list[dict], vertices) -> tuple[list, list[dict], list]:
-    """The settled state of every drain/pose scenario of the grid, at the vertices: (states,
-    scenarios, skipped as (index, values, why)). With the skull each pose's first level starts
-    from rest and the next ones from the last two states (predict_start); a mode that settles
-    neither way is left out, up to MAX_SKIPPED of them."""
-    free, scenarios, skipped = [], [], []
+def _family_states(forward, grid: list[dict], vertices, mine: list[int]) -> tuple[list, list]:
+    """The settled state of each scenario of the grid numbered in ``mine`` (whole chains), at
+    the vertices: ([(index, state)] on the group's root, [(index, values, why)] left out). Each
+    chain's first level starts from rest; the next ones from the last (with the skull, from the
+    last two extrapolated: predict_start); with the skull a mode that settles neither way is left
+    out, up to MAX_SKIPPED of the grid."""
+    states, skipped = [], []
     contact = forward.sim.contact is not None
     last = []  # the pose's last settled states (level, u, multipliers), for the next one's start
-    for i, values in enumerate(grid):
-        if contact:  # from rest at a new pose (a jump of the level from the bottom to the top), or after a skip
-            forward.from_rest = (
-                i == 0 or _pose(values) != _pose(grid[i - 1]) or bool(skipped and skipped[-1][0] == i - 1)
-            )
+    for i in mine:
+        values = grid[i]
+        if i == 0 or _pose(values) != _pose(grid[i - 1]):  # a chain's first: from rest, in any group
+            forward.start_from_rest()
+            last = []
+        elif contact:  # from rest after a skip too; else from the last two
+            forward.from_rest = bool(skipped and skipped[-1][0] == i - 1)
             last = [] if forward.from_rest else last
             if len(last) == 2 and not forward.continued:
                 predict_start(forward, last, values)
+        else:
+            forward.from_rest = False
         try:
             solve_family_mode(forward, values)
         except SolverError as exc:
@@ -151,10 +195,11 @@ def _family_states(forward, grid: list[dict], vertices) -> tuple[list, list[dict
         if contact:
             level = values.get("fluid.level")
             last = last[-1:] + [(level, forward.sim.u.x.array.copy(), forward.sim.contact.multipliers.copy())]
-        free.append(vertices.values(forward.sim.u))
-        scenarios.append({"kind": "family", "values": values})
+        state = vertices.values(forward.sim.u)
+        if state is not None:
+            states.append((i, state))
         log.info("atlas: mode %d of %d %s", i + 1, len(grid), values)
-    return free, scenarios, skipped
+    return states, skipped
 
 
 def _swelling_states(

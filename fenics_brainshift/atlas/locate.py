@@ -33,8 +33,8 @@ class MeshLocator:
         """(cell (n,), barycentric (n, 4), distance outside the mesh (n,), 0 inside) of points."""
         y = np.asarray(y, dtype=float).reshape(-1, 3)
         k = min(CANDIDATES, len(self._centroids))
-        _, near = self._tree.query(y, k=k)
-        near = near.reshape(len(y), k)
+        distance, near = self._tree.query(y, k=k)
+        distance, near = distance.reshape(len(y), k), near.reshape(len(y), k)
         lam = barycentric(np.repeat(y, k, axis=0), self.points[self.tetrahedra[near.ravel()]]).reshape(len(y), k, 4)
         worst = lam.min(axis=2)  # >= 0 inside the cell
         best = worst.argmax(axis=1)
@@ -42,7 +42,11 @@ class MeshLocator:
         inside = worst[np.arange(len(y)), best] >= -1e-9
         outside = np.zeros(len(y))
         if not inside.all():  # the nearest centroid's cell extrapolates (its distance measures how far out)
-            cell[~inside] = near[~inside, 0]
+            # centroids as near to a nanometre tie (a voxel's tetrahedra lie symmetric about its
+            # centre): the lowest cell number wins, not the tree's order, which round-off in
+            # the points (another partition's) can turn
+            key = np.round(distance[~inside] * 1e9) * (len(self._centroids) + 1.0) + near[~inside]
+            cell[~inside] = near[~inside][np.arange(len(key)), key.argmin(axis=1)]
             outside[~inside] = np.linalg.norm(y[~inside] - self._centroids[cell[~inside]], axis=1)
         lam = barycentric(y, self.points[self.tetrahedra[cell]])
         return cell, lam, outside

@@ -32,18 +32,27 @@ def add(sub) -> None:
         "levels x 25 poses, G from a third to three times the scene's",
     )
     atlas.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", help="scene overrides")
+    atlas.add_argument(
+        "--ranks-per-mode",
+        type=int,
+        default=None,
+        help="under mpirun: how many ranks solve each mode together (default 1: every rank solves whole "
+        "poses on its own copy of the model; more where one rank's memory cannot hold it); a divisor of -n",
+    )
 
 
 def main(args, comm) -> list[str]:
     """Build the atlas and write it; returns the report's lines."""
     from ..atlas import store
     from ..atlas.build import build
+    from ..atlas.groups import check as check_groups
     from ..atlas.scenarios import parse_vary
     from ..outputs.files import RunLock, check_writable
     from ..scene import load_scene
 
     out = Path(args.output)
     check_writable(out, comm, "atlas folder", "-o")
+    check_groups(comm.size, args.ranks_per_mode)
     vary = parse_vary(args.vary)
     scene = load_scene(args.scene, args.set + ["time.mode=quasi-static"])
     if scene.skull is not None and scene.skull.glue is not None:
@@ -61,7 +70,7 @@ def main(args, comm) -> list[str]:
     comm.barrier()
     lock = RunLock(out, comm, "-o")  # (two builds into one folder would interleave their files)
     try:
-        atlas, seconds = build(scene, vary, comm, args.scene, args.set)
+        atlas, seconds = build(scene, vary, comm, args.scene, args.set, args.ranks_per_mode)
         if comm.rank == 0:  # (arrays first, then the index: each renamed into place)
             store.write(out, atlas)
         comm.barrier()

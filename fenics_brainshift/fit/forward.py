@@ -87,6 +87,14 @@ class ForwardModel:
         self._last = dict(values)
         self.solves += 1
 
+    def start_from_rest(self) -> None:
+        """The next solve starts from rest, whatever came before (a finite-deformation body too:
+        no continuation from the last parameters), so its answer depends on its values alone."""
+        self.from_rest = True
+        self._last = None
+        if self.sim.contact is not None:  # (at rest nothing touches the skull: no pressure carried over)
+            self.sim.contact.multipliers = np.zeros_like(self.sim.contact.multipliers)
+
     def _apply(self, values: dict[str, float]) -> None:
         model = self.model
         g = rotated_gravity(self.g0, values)

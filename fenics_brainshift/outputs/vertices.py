@@ -1,8 +1,9 @@
 """The mesh's vertices and tetrahedra in one order on every number of ranks, and a
 displacement's values there, gathered to rank 0: what an atlas stores.
 
-The order is the vertices' coordinates sorted (x, then y, then z), which no partition
-changes, so an atlas built on 2 ranks is the one built on 1. A P2 displacement is stored by
+The order is the vertices' coordinates sorted (x, then y, then z), and the tetrahedra's by
+their sorted vertex numbers, which no partition changes, so an atlas built on 2 ranks is the
+one built on 1. A P2 displacement is stored by
 its vertex values (its P1 interpolant, as displacement.xdmf holds it)."""
 
 from __future__ import annotations
@@ -38,7 +39,10 @@ class GlobalVertices:
             position[ids[order]] = np.arange(len(ids))  # global dof id -> stored row
             self._position = position
             self.points = points[order]
-            self.tetrahedra = position[np.concatenate([g[2] for g in gathered])]
+            tetrahedra = position[np.concatenate([g[2] for g in gathered])]
+            # the cells in one order too (by their sorted vertices): a point outside every cell
+            # (a fine surface's, beyond the voxels) then takes the same nearest cell on any ranks
+            self.tetrahedra = tetrahedra[np.lexsort(np.sort(tetrahedra, axis=1).T[::-1])]
         else:
             self._position = self.points = self.tetrahedra = None
         # the stored row of each owned dof block (for loads placed at stored vertices)
