@@ -476,6 +476,10 @@ def test_swapped_points_a_second_update_and_the_default_noise_are_said(atlas, at
     assert (tmp_path / "a" / "update.json").read_text() == before
     assert main(right + ["--out", str(tmp_path / "a"), "--noise", "0.5", "--replace"]) == 0
     assert json.loads((tmp_path / "a" / "update.json").read_text())["noise_mm"] == 0.5
+    capsys.readouterr()
+    assert main(right + ["--out", str(atlas_folder), "--overwrite"]) == 2  # (beside the atlas: never)
+    assert "holds an atlas (atlas.h5): give the update a folder of its own" in capsys.readouterr().err
+    assert not (atlas_folder / "update.json").exists()
 
 
 @pytest.mark.parametrize(

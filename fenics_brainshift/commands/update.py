@@ -136,6 +136,8 @@ def main(args, comm) -> list[str]:
 def _check_no_earlier_update(out: Path, overwrite: bool, comm) -> None:
     """An update's folder is the record of what guided the operation at that moment: a second
     update into it, or an update into a run's results, is refused unless asked for (--overwrite)."""
+    if comm.bcast((out / "atlas.h5").is_file() if comm.rank == 0 else None, root=0):
+        raise InputError(f"--out '{out}' holds an atlas (atlas.h5): give the update a folder of its own")
     if overwrite:
         return
     earlier = None
