@@ -505,6 +505,10 @@ def test_mesh_and_compare_never_write_over_a_runs_files_or_their_input(tmp_path,
     assert "is a run's summary.json: writing there would lose it" in capsys.readouterr().err
     assert main(compare + [str(sphere)]) == 2
     assert "is the PRE surface it reads" in capsys.readouterr().err
+    (run / "deformed.png").write_bytes(b"the run's picture")  # (compare writes its PNG beside its JSON)
+    before["deformed.png"] = hashlib.sha256(b"the run's picture").hexdigest()
+    assert main(compare + [str(run / "deformed.json")]) == 2
+    assert "is a run's deformed.png: writing there would lose it" in capsys.readouterr().err
     after = {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in run.iterdir() if p.is_file()}
     assert after == before
     assert main(mesh + [str(run / "displacement.xdmf"), "--overwrite"]) == 0

@@ -547,3 +547,26 @@ def test_a_run_killed_by_sigkill_leaves_its_last_complete_state_readable(tmp_pat
     np.testing.assert_allclose(saved.points, 1e3 * points[order], atol=1e-9)  # (saved sorted so)
     np.testing.assert_allclose(saved.displacement, 1e3 * data["displacement"][order], atol=1e-9)
     assert np.abs(saved.displacement).max() > 0.5  # a state that moved (mm)
+
+
+@pytest.mark.mpi
+def test_the_saved_last_state_of_a_resection_keeps_the_cells_that_are_left(shared_tmp):
+    """last_state.npz gathered the tissue flags in the ranks' cell order and the tetrahedra in
+    the stored one: a killed resection run's warp dropped the wrong cells. The cells it keeps are
+    the XDMF's (matched by their centroids), on one rank and on two."""
+    from fenics_brainshift.outputs.run_folder import read_last_state, read_saved_state
+
+    from conftest import column_dict
+
+    data = column_dict(4, time={"mode": "dynamic", "dt": 0.01, "end": 0.03}, remove=[{"at": 0.0, "where": "z > 0.075"}])
+    out = shared_tmp / "out"
+    run(scene_from_dict(data), out, COMM)
+
+    def kept(points, tets, tissue):
+        centroids = points[tets[np.asarray(tissue) >= 0.5]].mean(axis=1)
+        return set(map(tuple, np.round(centroids * 1e9).astype(np.int64)))
+
+    series = kept(*(lambda p, t, u, tissue: (p, t, tissue))(*read_last_state(out / "displacement.xdmf")))
+    points, tets, _, tissue, _ = read_saved_state(out)
+    assert tissue is not None and 0 < int((tissue < 0.5).sum()) < len(tets)
+    assert kept(points, tets, tissue) == series

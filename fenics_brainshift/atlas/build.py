@@ -89,7 +89,7 @@ def build(
             forward.solve(prior_values)
             prior_vertex = vertices.values(forward.sim.u)
             swollen = _swelling_states(forward, swelling, swell, prior_values, vertices, scenarios)
-    except SolverError as exc:
+    except Exception as exc:  # (any: the other groups would wait for this one in the allgather below)
         failed = exc
     messages = [m for m in comm.allgather(None if failed is None else str(failed)) if m]
     if messages:  # (one group's failure ends every group's build, each rank saying the first)

@@ -61,7 +61,8 @@ def main(args, comm) -> list[str]:
     out = Path(args.output)
     check_writable(out.parent, comm, "folder of -o", "-o")
     inputs = [(args.pre, "PRE surface"), (args.intra, "INTRA surface"), (args.sim, "SIM surface")]
-    check_output_file(out, "-o", "compare", inputs, args.overwrite)
+    for path in (out, out.with_suffix(".png")):  # (the JSON and the picture beside it)
+        check_output_file(path, "-o", "compare", inputs, args.overwrite)
     if comm.rank != 0:
         return []
     for name in (args.pre, args.intra, args.sim):

@@ -72,7 +72,7 @@ def main(args, comm) -> list[str]:
         check_writable(path.parent, comm, "folder of " + flag, flag)
         check_output_file(path, flag, "warp", [(args.image, "--image")], args.overwrite)
     volume = read_volume(args.image, "warp: --image")
-    body = DeformedMesh.from_run(args.run_dir, args.mesh_frame)
+    body, status, killed_at = _run_state(Path(args.run_dir), args.mesh_frame, comm)
     check_size(body.points, volume, args.labels)
     warp = Warp.compute(volume, body, args.blend, comm, labels=args.labels)
     if not warp.inside.any():
@@ -93,8 +93,6 @@ def main(args, comm) -> list[str]:
         )
     comm.barrier()
     moved = warp.moved()
-    status = run_status(Path(args.run_dir))
-    killed_at = killed_run_time(Path(args.run_dir))
     note = []
     if killed_at is not None:
         note = [f"warp: the run was killed: this is its last complete state, t = {killed_at:g} s, not the final one"]
@@ -110,6 +108,22 @@ def main(args, comm) -> list[str]:
         + (f" and {args.transform}" if args.transform else "")
         + (f"; labels {sorted(np.unique(warped).tolist())[:12]}" if args.labels and comm.rank == 0 else "")
     ]
+
+
+def _run_state(run_dir: Path, mesh_frame: str, comm):
+    """(the deformed mesh, the run's status, the time of a killed run's last state or None),
+    read and judged on rank 0 and sent to every rank: whether a run is alive is asked once
+    (its folder can change between two ranks' looks)."""
+    found, problem = None, None
+    if comm.rank == 0:
+        try:
+            found = (DeformedMesh.from_run(run_dir, mesh_frame), run_status(run_dir), killed_run_time(run_dir))
+        except InputError as exc:
+            problem = str(exc)
+    problem = comm.bcast(problem, root=0)
+    if problem:
+        raise InputError(problem)
+    return comm.bcast(found, root=0)
 
 
 def _write_both(image: Path, write_image, transform: Path | None, write_transform) -> None:

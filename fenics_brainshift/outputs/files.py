@@ -74,7 +74,6 @@ class RunLock:
     _held: dict = {}  # folder -> how many holders in this process (a fit's run inside the fit)
 
     def __init__(self, out: Path, comm, flag: str = "--out"):
-        import fcntl
 
         self.comm, self._file, problem = comm, None, None
         self._key = str(Path(out).resolve())
@@ -84,7 +83,7 @@ class RunLock:
         if comm.rank == 0:
             f = open(out / self.NAME, "a+")
             try:
-                fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                _flock_soon(f)
             except BlockingIOError:
                 f.seek(0)
                 holder = f.read().strip() or "another process"
@@ -129,6 +128,22 @@ class RunLock:
         if self._file is not None:
             self._file.close()  # (closing drops the flock)
             self._file = None
+
+
+def _flock_soon(f) -> None:
+    """The exclusive lock, tried for a quarter second: RunLock.holder's probe (a warp asking
+    whether a run is alive) holds a shared lock for an instant, and is no writer."""
+    import fcntl
+    import time
+
+    for attempt in range(6):
+        try:
+            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            return
+        except BlockingIOError:
+            if attempt == 5:
+                raise
+            time.sleep(0.05)
 
 
 def clear_run(out: Path, comm, scene_name: str, keep=(), kind: str = "run", overwrite: bool = False) -> None:

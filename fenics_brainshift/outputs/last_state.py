@@ -36,9 +36,9 @@ class LastStateWriter:
         """Collective: every rank calls it at each output time."""
         displacement = self.vertices.values(u)
         tissue = None
-        if self.tissue is not None:  # gathered in the order GlobalVertices gathers the cells
+        if self.tissue is not None:  # gathered as GlobalVertices gathers the cells, then put in its order
             parts = self.comm.gather(self.tissue.x.array[self._tissue_dofs].copy(), root=0)
-            tissue = np.concatenate(parts) if parts is not None else None
+            tissue = np.concatenate(parts)[self.vertices.cell_order] if parts is not None else None
         if self.comm.rank == 0:
             arrays = {
                 "time": np.float64(t),
@@ -55,11 +55,15 @@ def write_atomically(path: Path, arrays: dict) -> None:
     """The arrays as one .npz: written to a temporary name, synced, renamed over ``path``, and
     the folder synced, so a kill or a power cut at any moment leaves the old file or the new."""
     tmp = path.with_name(f".tmp-{path.name}")
-    with open(tmp, "wb") as f:
-        np.savez(f, **arrays)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "wb") as f:
+            np.savez(f, **arrays)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:  # (a full disk: no mesh-sized temporary file left behind)
+        tmp.unlink(missing_ok=True)
+        raise
     folder = os.open(path.parent, os.O_RDONLY)
     try:
         os.fsync(folder)

@@ -44,6 +44,9 @@ def read_saved_state(folder: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, 
     named = len(tets) == 0 or 0 <= tets.min() <= tets.max() < len(points)
     if not (np.isfinite(points).all() and np.isfinite(u).all() and named):
         raise ValueError("its numbers are not finite or its tetrahedra name no vertex")
+    tissue = state[3]
+    if tissue is not None and (tissue.shape != (len(tets),) or not np.isfinite(tissue).all()):
+        raise ValueError("its tissue is not one number a tetrahedron")
     return state
 
 

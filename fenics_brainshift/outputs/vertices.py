@@ -42,9 +42,10 @@ class GlobalVertices:
             tetrahedra = position[np.concatenate([g[2] for g in gathered])]
             # the cells in one order too (by their sorted vertices): a point outside every cell
             # (a fine surface's, beyond the voxels) then takes the same nearest cell on any ranks
-            self.tetrahedra = tetrahedra[np.lexsort(np.sort(tetrahedra, axis=1).T[::-1])]
+            self.cell_order = np.lexsort(np.sort(tetrahedra, axis=1).T[::-1])  # gathered cell -> stored row
+            self.tetrahedra = tetrahedra[self.cell_order]
         else:
-            self._position = self.points = self.tetrahedra = None
+            self._position = self.points = self.tetrahedra = self.cell_order = None
         # the stored row of each owned dof block (for loads placed at stored vertices)
         position = self.comm.bcast(self._position, root=0)
         self.owned_rows = position[self._global[:owned]]
