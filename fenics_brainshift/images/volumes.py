@@ -100,13 +100,21 @@ def read_volume(path: str | Path, what: str = "--image", layered: bool = False) 
         data = data[0]
     if data.ndim != 3:
         raise InputError(f"{what}: '{path.name}' has {data.ndim} dimensions {data.shape}; a 3D volume is needed")
-    if np.issubdtype(data.dtype, np.floating) and not np.isfinite(data).all():
+    if say_non_finite(data, path.name, what):
         # (a processed image's background is often NaN: sampled, a NaN spreads to its neighbours)
-        bad = int(data.size - np.count_nonzero(np.isfinite(data)))
-        log.warning("%s: '%s' holds %d voxels that are not finite (NaN or infinite): read as 0", what, path.name, bad)
         data = np.where(np.isfinite(data), data, 0.0).astype(data.dtype)
     volume.data = data
     return volume
+
+
+def say_non_finite(data: np.ndarray, name: str, what: str) -> int:
+    """How many voxels are NaN or infinite, said in the log when any are (they are read as 0)."""
+    if not np.issubdtype(data.dtype, np.floating):
+        return 0
+    bad = int(data.size - np.count_nonzero(np.isfinite(data)))
+    if bad:
+        log.warning("%s: '%s' holds %d voxels that are not finite (NaN or infinite): read as 0", what, name, bad)
+    return bad
 
 
 def check_grid(shape, affine: np.ndarray, name: str, what: str) -> None:

@@ -11,7 +11,7 @@ import numpy as np
 import SimpleITK as sitk
 
 from ..errors import InputError
-from ..images.volumes import MAX_VOXELS, is_volume
+from ..images.volumes import check_grid, is_volume, say_non_finite
 
 log = logging.getLogger(__name__)
 
@@ -56,9 +56,7 @@ def _say_non_finite(path: Path, what: str) -> None:
         values = np.asanyarray(image.dataobj)
     except Exception:  # (ITK read it; nibabel's view is only for the count)
         return
-    bad = int(values.size - np.count_nonzero(np.isfinite(values)))
-    if bad:
-        log.warning("%s: '%s' holds %d voxels that are not finite (NaN or infinite): read as 0", what, path.name, bad)
+    say_non_finite(values, path.name, what)
 
 
 def _check_header(path: Path, what: str) -> None:
@@ -72,12 +70,7 @@ def _check_header(path: Path, what: str) -> None:
         reader.ReadImageInformation()
     except RuntimeError as exc:
         raise InputError(f"{what}: '{path.name}' could not be read ({_first_line(exc)})") from None
-    voxels = float(np.prod(reader.GetSize(), dtype=float))
-    if voxels > MAX_VOXELS:
-        raise InputError(
-            f"{what}: '{path.name}' claims {' x '.join(map(str, reader.GetSize()))} voxels ({voxels * 4 / 1e9:.0f} GB "
-            f"as float): not the grid of a head MRI (a damaged header?); export the scan again"
-        )
+    check_grid(reader.GetSize(), np.eye(4), path.name, what)  # (its size: the geometry is ITK's, below)
     _check_geometry(reader.GetSpacing(), reader.GetOrigin(), reader.GetDirection(), path.name, what)
 
 
