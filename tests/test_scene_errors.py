@@ -111,11 +111,6 @@ BAD = [
         "would remove every remaining cell",
     ),
     (
-        "remove when quasi-static",
-        {**column_dict(4), "remove": [{"at": 0.0, "where": "z > 0.05"}]},
-        '[[remove]] needs [time] mode = "dynamic"',
-    ),
-    (
         "remove after the end",
         {**column_dict(4), "time": DYNAMIC, "remove": [{"at": 9.0, "where": "z > 0.05"}]},
         "[[remove]] at = 9 s is not before [time] end",

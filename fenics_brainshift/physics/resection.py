@@ -98,13 +98,25 @@ class Tissue:
         self.present &= ~mask
         cells, counts = present_facet_counts(self.mesh, self.present)
         isolated = cells[np.all(counts == 1, axis=1)]
-        values = self.indicator.x.array
-        values[:] = self.present.astype(PETSc.ScalarType)
-        values[isolated] = 0.0
-        self.indicator.x.scatter_forward()  # ghosts learn what their owners removed
-        self.present = values > 0.5
+        self.take(isolated)
         self.pending[index] = None
         return removed, self.comm.allreduce(len(isolated), op=MPI.SUM)
+
+    def take(self, cells: np.ndarray) -> int:
+        """Remove these owned cells (local indices) too; returns how many, globally. Collective."""
+        values = self.indicator.x.array
+        values[:] = self.present.astype(PETSc.ScalarType)
+        values[cells] = 0.0
+        self.indicator.x.scatter_forward()  # ghosts learn what their owners removed
+        self.present = values > 0.5
+        return self.comm.allreduce(len(cells), op=MPI.SUM)
+
+    def volume(self) -> float:
+        """The present cells' volume (m^3), on every rank. Collective."""
+        X = self.mesh.geometry.x[compat.geometry_dofmap(self.mesh)[: self.n_owned]]
+        edges = X[:, 1:] - X[:, :1]
+        volumes = np.abs(np.linalg.det(edges)) / 6.0
+        return self.comm.allreduce(float(volumes[self.present[: self.n_owned]].sum()), op=MPI.SUM)
 
 
 def fill_empty_diagonal(A: PETSc.Mat) -> int:

@@ -20,9 +20,12 @@ from petsc4py import PETSc
 from .. import compat
 from ..errors import InputError
 from ..linalg import rigid_body_modes
+from ..logs import get_logger
 from ..outputs.probes import Probes, SurfaceAverages
 from ..outputs.validity import StrainMeter
 from ..physics import total_force
+from ..physics.free_pieces import unheld_cells
+from ..physics.surface import surface_facets
 from ..scene import Scene
 from ..stepping import DynamicStepper, Solves, State, StaticSolver
 from ..stepping.contact_skip import ContactWhenReached
@@ -30,6 +33,8 @@ from ..stepping.newton import NewtonStatic
 from ..stepping.newton_dynamic import NewtonDynamicStepper
 from . import build
 from .plan import make_plan
+
+log = get_logger(__name__)
 
 
 class Simulation:
@@ -67,6 +72,7 @@ class Simulation:
         self.dynamic: DynamicStepper | None = None
         self.static: StaticSolver | None = None
         self.newton_rtol = 1e-9  # settled states by Newton: |R| <= this x the loads (set before setup)
+        self._settled_removals: list[dict] = []  # the cuts settled states applied (time stepping keeps its own)
 
     # -- driving it -------------------------------------------------------------------------
     @property
@@ -87,8 +93,61 @@ class Simulation:
         return self._dynamic().step()
 
     def solve_to_settled(self, t: float) -> int:
-        """The settled (quasi-static) state for the loads at time t; returns the iterations."""
+        """The settled (quasi-static) state for the loads at time t, after the [[remove]]s due
+        by then; returns the iterations."""
+        self._resect_settled(t)
         return self._static().solve(t)
+
+    @property
+    def removals(self) -> list[dict]:
+        """Each cut made so far: its region, time, cells, and the cells taken with it."""
+        return self.dynamic.removals if self.dynamic is not None else self._settled_removals
+
+    def _resect_settled(self, t: float) -> None:
+        """The cuts due by t applied before a settled state, and every piece they cut free of
+        the supports taken out with them: a settled state cannot hold a piece nothing holds (K
+        is singular on it), where time stepping lets it fall; the operators are built again
+        on what is left."""
+        tissue = self.model.tissue
+        due = tissue.due(t, 1e-12 * max(abs(t), 1.0)) if tissue is not None else []
+        if not due:
+            return
+        V = self.model.V
+        fixed = np.unique(self.model.constraints.fixed // V.dofmap.index_map_bs)
+        for index in due:
+            cut = tissue.cuts[index]
+            count, isolated = tissue.apply(index)
+            freed = tissue.take(unheld_cells(V, tissue.present, fixed))
+            self._settled_removals.append(
+                {"at": cut.at, "t": t, "region": cut.label, "cells": count, "isolated_cells": isolated,
+                 "free_cells": freed}
+            )  # fmt: skip
+            log.info(
+                "  t=%.3f s: removed %d cells (%s) and %d left hanging by an edge or vertex; %.1f %% of the body "
+                "removed so far",
+                t,
+                count,
+                cut.label,
+                isolated,
+                100.0 * tissue.removed_fraction,
+            )
+            if freed:
+                log.warning(
+                    "  t=%.3f s: the cut (%s) left %d cells in pieces no support holds; a settled state cannot hold "
+                    "them, so they are taken out with the cut (time stepping would let them fall: [time] mode = "
+                    '"dynamic")',
+                    t,
+                    cut.label,
+                    freed,
+                )
+        self.model.tissue_changed()
+        if self.model.fluid is not None:
+            self.model.fluid.set_present(tissue.present)
+        if self.contact is not None:  # the cut faces meet the skull too
+            self.contact.set_surface(surface_facets(V, tissue.present))
+        if self.static is not None:  # K is another matrix now
+            self.static.destroy()
+            self.static = None
 
     def _dynamic(self) -> DynamicStepper:
         if self.dynamic is None:

@@ -86,6 +86,6 @@ def summary(sim, h, stopped, setup_s: float) -> dict:
     if model.constraints.labels:
         out["septa"] = sim.septa_report()
     if model.tissue is not None:
-        out["removals"] = sim.dynamic.removals if sim.dynamic is not None else []
+        out["removals"] = sim.removals
         out["removed_fraction"] = model.tissue.removed_fraction
     return out

@@ -66,11 +66,6 @@ class Scene:
                     f".nrrd); give a plane (point, normal) or a file otherwise"
                 )
         for r in self.remove:
-            if self.time.mode == "quasi-static":
-                raise InputError(
-                    '[[remove]] needs [time] mode = "dynamic" (or "auto"): a freed piece makes K '
-                    "singular, the mass matrix keeps the dynamic system solvable"
-                )
             if r.at >= self.time.end:
                 raise InputError(f"[[remove]] at = {r.at:g} s is not before [time] end = {self.time.end:g} s")
             if self.fluid is not None and self.fluid.rule == "quadrature":
