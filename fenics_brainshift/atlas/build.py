@@ -23,6 +23,7 @@ from ..logs import get_logger
 from ..scene.body import Swelling
 from . import groups, store
 from .locate import MeshLocator
+from .resection import StagedRegion, stage_surface
 from .rows import SKULL_SLACK
 from .scenarios import clip_levels, family, stiffness, swelling_modes
 
@@ -39,27 +40,41 @@ MAX_SKIPPED = 0.1  # of the family's modes that may be left out (settled neither
 
 
 def build(
-    scene, vary: dict, comm, source: str = "", sets=(), ranks_per_mode: int | None = None
+    scene, vary: dict, comm, source: str = "", sets=(), ranks_per_mode: int | None = None, resection=None
 ) -> tuple[store.Atlas | None, dict]:
     """The atlas of a quasi-static scene (on rank 0; None elsewhere) and its timings: the
     family's drain/pose states, the scene's own (the prior) and one swelling mode a region;
-    the ranks shared among groups of ``ranks_per_mode`` (atlas/groups.py)."""
+    the ranks shared among groups of ``ranks_per_mode`` (atlas/groups.py). With a resection
+    (atlas/resection.py) the same again after each of its stages, on what is left: the
+    atlas's ``stages``, each an Atlas of its own."""
     from ..fit.forward import ForwardModel
     from ..outputs.vertices import GlobalVertices
+    from ..runner.build import cell_selector
 
     start = time.perf_counter()
-    scene = _mode_tolerance(scene)
+    scene = dataclasses.replace(_mode_tolerance(scene), remove=())  # (a resection is staged here)
     swelling = swelling_modes(scene, vary)
     stiff = stiffness(scene, vary)
     solved = scene
     if not scene.swelling:  # the whole body, held at no change in the family's modes
         solved = dataclasses.replace(solved, swelling=(Swelling(volume_change=swelling[0].mode, where=WHOLE_BODY),))
     team = groups.split(comm, ranks_per_mode)
-    forward = ForwardModel(solved, team.comm, newton_rtol=MODE_RTOL)
+    cuts, staged = (), None
+    if resection is not None:
+        up = -np.asarray(scene.gravity.vector, dtype=float)
+        select = cell_selector(scene, resection.region)
+        staged = StagedRegion(select, up, resection.stages, team.comm, resection.describe())
+        cuts = staged.cuts()
+    try:
+        forward = ForwardModel(solved, team.comm, newton_rtol=MODE_RTOL, cuts=cuts)
+    except BaseException:
+        team.free()
+        raise
     t_end = scene.settled_time  # the drained state, whatever [time] end says
     priors = [float(r.at(t_end)) for r in scene.swelling] if scene.swelling else [0.0]
     vertices = GlobalVertices(forward.model.mesh)
     fine = forward._fine_surface()
+    fine_points = None if fine is None else (fine.points, fine.triangles)
     heights = forward.heights()
     grid = family(scene, vary, heights)
     if "fluid.level" not in vary and "fluid.level" in grid[0]:
@@ -73,13 +88,92 @@ def build(
             team.count,
             team.ranks_per_mode,
         )
-
-    start = time.perf_counter()
-    swell = _Swelling(forward.model.growth.regions, priors)
-    dealt = groups.share(groups.chains(grid, _pose), team.count, head_start=1 + len(swelling))
     prior_values = {}  # the scene's own scenario: its final level, its pose
     if scene.fluid is not None and scene.fluid.volume is None and scene.fluid.level:
         prior_values["fluid.level"] = float(scene.fluid.level(t_end))
+    swell = _Swelling(forward.model.growth.regions, priors)
+    stages = []
+    try:
+        for stage in range(len(cuts) + 1):
+            stage_start = time.perf_counter()
+            removal = None
+            if stage:
+                forward.sim.cut_now([stage - 1])
+                tissue = forward.model.tissue
+                removal = {
+                    **forward.sim.removals[-1],
+                    "removed_fraction": tissue.removed_fraction,
+                    "removed_ml": (tissue.total_volume - tissue.volume()) * 1e6,
+                }
+                del removal["at"], removal["t"]
+                above = float(staged.thresholds[stage - 1])  # (the region's cells above this height, m along up)
+                removal["above_m"] = above if np.isfinite(above) else None
+            modes = _modes(forward, grid, team, comm, swelling, swell, prior_values, vertices)
+            present = None
+            if forward.model.tissue is not None:
+                present = vertices.cell_values(forward.model.tissue.indicator)
+            stages.append((modes, present, removal, time.perf_counter() - stage_start))
+    finally:
+        solves = comm.allreduce(forward.solves if team.root else 0)
+        skull = forward.sim.contact.skull if forward.sim.contact is not None else None
+        compliance = _compliance(forward)
+        forward.destroy()
+        team.free()
+    seconds = {"setup_s": setup_s, "modes_s": stages[0][3]}
+    if len(stages) > 1:
+        seconds["stages_s"] = [round(s[3], 3) for s in stages[1:]]
+    if comm.rank != 0:
+        return None, seconds
+    info = {
+        "scene": str(source),
+        "set": list(sets),
+        "scene_name": scene.name,
+        "ranks": comm.size,
+        "ranks_per_mode": team.ranks_per_mode,
+        "dolfinx_version": compat.DOLFINX_VERSION,
+        "material": scene.material.model,
+        "gravity": [float(c) for c in scene.gravity.vector],
+        "prior": prior_values,
+        "stiffness": stiff,
+        "probes": {k: [float(c) for c in v] for k, v in scene.probes.items()},
+        "frame": "RAS" if scene.mesh.file and formats.is_label_volume(scene.mesh.file) else None,
+        "contact_tolerance_m": scene.skull.tolerance if scene.skull is not None else None,
+        "contact_compliance": compliance,
+    }
+    atlases = []
+    for stage, ((vertex_modes, prior_vertex, scenarios, skipped), present, removal, stage_s) in enumerate(stages):
+        tetrahedra = vertices.tetrahedra if present is None else vertices.tetrahedra[present > 0.5]
+        surface = fine_points
+        if stage:
+            surface = stage_surface(vertices.points, vertices.tetrahedra, present > 0.5, fine_points)
+        atlas = _assembled(vertices.points, tetrahedra, vertex_modes, prior_vertex, scenarios, surface, skull)
+        atlas.info = {
+            **info,
+            "left_out": [{"values": values, "why": why} for _, values, why in skipped],
+            "modes_s": round(stage_s, 3),
+        }
+        if stage:
+            atlas.info["stage"] = {"number": stage, "of": len(stages) - 1, "region": resection.describe(), **removal}
+        atlases.append(atlas)
+    atlas = atlases[0]
+    atlas.info.update({"settled_states": solves, **{k: v for k, v in seconds.items() if k != "stages_s"}})
+    atlas.info["setup_s"] = round(setup_s, 3)
+    atlas.stages = atlases[1:]
+    if atlas.stages:
+        atlas.info["resection"] = {
+            "region": resection.describe(),
+            "given_as": resection.given_as,
+            "stages": [a.info["stage"] for a in atlas.stages],
+            "stages_s": seconds["stages_s"],
+        }
+    return atlas, seconds
+
+
+def _modes(forward, grid, team, comm, swelling, swell, prior_values, vertices) -> tuple:
+    """One stage's modes on rank 0: (vertex modes (M, N, 3), the prior, scenarios, left out);
+    empty elsewhere. The family dealt among the groups by whole chains; the prior and the
+    swelling modes by group 0."""
+    dealt = groups.share(groups.chains(grid, _pose), team.count, head_start=1 + len(swelling))
     family_modes, skipped, prior_vertex, swollen, scenarios = [], [], None, [], []
     failed = None
     try:
@@ -93,55 +187,22 @@ def build(
         failed = exc
     messages = [m for m in comm.allgather(None if failed is None else str(failed)) if m]
     if messages:  # (one group's failure ends every group's build, each rank saying the first)
-        forward.destroy()
-        team.free()
         raise failed if failed is not None else SolverError(messages[0])
     family_modes = groups.to_rank_0(team, family_modes if team.root else [])
     skipped = groups.to_rank_0(team, skipped if team.root else [])
     left_out = comm.bcast(len(skipped) if comm.rank == 0 else 0, root=0)
     if left_out > MAX_SKIPPED * len(grid):
-        forward.destroy()
-        team.free()
         raise SolverError(
             f"atlas: {left_out} of {len(grid)} modes settled neither from the last mode nor from rest "
             f"(more than {MAX_SKIPPED:.0%})"
         )
-    vertex_modes = []
-    if comm.rank == 0:
-        family_modes.sort(key=lambda item: item[0])
-        skipped.sort(key=lambda item: item[0])
-        vertex_modes = [u for _, u in family_modes] + [v - prior_vertex for v in swollen]
-        scenarios = [{"kind": "family", "values": grid[i]} for i, _ in family_modes] + scenarios
-    seconds = {"setup_s": setup_s, "modes_s": time.perf_counter() - start}
-    solves = comm.allreduce(forward.solves if team.root else 0)
-    skull = forward.sim.contact.skull if forward.sim.contact is not None else None
-    compliance = _compliance(forward)
-    fine_points = None if fine is None else (fine.points, fine.triangles)
-    forward.destroy()
-    team.free()
     if comm.rank != 0:
-        return None, seconds
-    atlas = _assembled(vertices, np.array(vertex_modes), prior_vertex, scenarios, fine_points, skull)
-    atlas.info = {
-        "scene": str(source),
-        "set": list(sets),
-        "scene_name": scene.name,
-        "ranks": comm.size,
-        "ranks_per_mode": team.ranks_per_mode,
-        "dolfinx_version": compat.DOLFINX_VERSION,
-        "material": scene.material.model,
-        "gravity": [float(c) for c in scene.gravity.vector],
-        "prior": prior_values,
-        "stiffness": stiff,
-        "probes": {k: [float(c) for c in v] for k, v in scene.probes.items()},
-        "frame": "RAS" if scene.mesh.file and formats.is_label_volume(scene.mesh.file) else None,
-        "settled_states": solves,
-        "left_out": [{"values": values, "why": why} for _, values, why in skipped],
-        "contact_tolerance_m": scene.skull.tolerance if scene.skull is not None else None,
-        "contact_compliance": compliance,
-        **{k: round(v, 3) for k, v in seconds.items()},
-    }
-    return atlas, seconds
+        return None, None, [], []
+    family_modes.sort(key=lambda item: item[0])
+    skipped.sort(key=lambda item: item[0])
+    vertex_modes = np.array([u for _, u in family_modes] + [v - prior_vertex for v in swollen])
+    scenarios = [{"kind": "family", "values": grid[i]} for i, _ in family_modes] + scenarios
+    return vertex_modes, prior_vertex, scenarios, skipped
 
 
 class _Swelling:
@@ -233,16 +294,16 @@ def _swelling_states(
 
 
 def _assembled(
-    vertices, U: np.ndarray, prior_vertex: np.ndarray, scenarios: list[dict], fine_points, skull
+    points, tetrahedra, U: np.ndarray, prior_vertex: np.ndarray, scenarios: list[dict], fine_points, skull
 ) -> store.Atlas:
     """The atlas's arrays from its modes U (M, N, 3) at the vertices: the Gram matrices the
     update solves with, the fine surface's modes (P1: barycentric in each point's cell) and the
     skull's triangles."""
     flat = U.reshape(len(U), -1)
-    n = len(vertices.points)
+    n = len(points)
     atlas = store.Atlas(
-        vertices.points,
-        vertices.tetrahedra,
+        points,
+        tetrahedra,
         U,
         prior_vertex,
         flat @ flat.T / n,

@@ -27,6 +27,7 @@ from .. import json_text
 from ..errors import InputError
 
 FORMAT = 1
+STAGES = "stages"  # the folder of a resection's stages, each an atlas of its own
 
 
 @dataclass
@@ -50,6 +51,8 @@ class Atlas:
     skull_triangles: np.ndarray | None = None  # (T, 3, 3) m
     skull_gap: float | None = None  # a gap skull: the brain's surface dilated by this (its triangles)
     info: dict = field(default_factory=dict)  # the rest of atlas.json
+    # the resection's stages (atlas/resection.py), each an atlas of what is left: ATLAS/stages/K
+    stages: list = field(default_factory=list, repr=False, compare=False)
     # what every update of this atlas needs and none changes (the point locator, the prior's
     # weights): made by the first update, in theatre before the measurements arrive
     once: dict = field(default_factory=dict, repr=False, compare=False)
@@ -81,10 +84,18 @@ def mesh_id(points: np.ndarray, tetrahedra: np.ndarray) -> str:
     return digest.hexdigest()[:16]
 
 
-def write(folder: Path, atlas: Atlas) -> None:
+def write(folder: Path, atlas: Atlas) -> str:
+    """The atlas's files (its stages' first, in ATLAS/stages/K); returns its build's id."""
+    import shutil
+
     import h5py
 
     folder.mkdir(parents=True, exist_ok=True)
+    shutil.rmtree(folder / STAGES, ignore_errors=True)  # (an earlier build's stages)
+    if atlas.stages:
+        ids = [write(folder / STAGES / str(k), stage) for k, stage in enumerate(atlas.stages, 1)]
+        for record, stage_id in zip(atlas.info["resection"]["stages"], ids):
+            record["build_id"] = stage_id
     h5, index = folder / "atlas.h5", folder / "atlas.json"
     tmp = folder / ".atlas.h5.tmp"
     build_id = os.urandom(8).hex()  # in both files: an index of another build is told apart
@@ -118,6 +129,28 @@ def write(folder: Path, atlas: Atlas) -> None:
     tmp_index.write_text(json_text.dumps(info, indent=1) + "\n")
     os.replace(tmp, h5)
     os.replace(tmp_index, index)
+    return build_id
+
+
+def stage_count(atlas: Atlas) -> int:
+    """How many resection stages the atlas holds (0: none)."""
+    return len((atlas.info.get("resection") or {}).get("stages", []))
+
+
+def read_stage(folder: str | Path, atlas: Atlas, number: int) -> Atlas:
+    """Resection stage ``number`` (1, 2, ...) of the atlas read from ``folder``."""
+    count = stage_count(atlas)
+    if not 1 <= number <= count:
+        have = f"stages 1 to {count} (0: before the resection)" if count else "no resection stages"
+        raise InputError(f"--stage {number}: the atlas in '{folder}' has {have}")
+    stage = read(Path(folder) / STAGES / str(number))
+    expected = atlas.info["resection"]["stages"][number - 1].get("build_id")
+    if stage.info.get("build_id") != expected:
+        raise InputError(
+            f"ATLAS: '{folder}/{STAGES}/{number}' is not the stage its atlas.json names (another build's); "
+            f"build it again"
+        )
+    return stage
 
 
 def read(folder: str | Path) -> Atlas:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ..atlas.resection import DEFAULT_STAGES
 from ..errors import InputError
 from .help_format import Defaults
 
@@ -33,6 +34,21 @@ def add(sub) -> None:
     )
     atlas.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", help="scene overrides")
     atlas.add_argument(
+        "--resect",
+        default=None,
+        metavar="REGION",
+        help="the tumour to take out in stages, from the craniotomy inwards: label=N (or a segment's name) of "
+        'the scene\'s label volume, or a condition on the cell centroid ("(x-0.02)**2 + ... < 0.01**2", m); '
+        "default: the scene's [[remove]], if any (docs/update.md, Resection)",
+    )
+    atlas.add_argument(
+        "--stages",
+        type=int,
+        default=None,
+        help=f"the resection's stages, each a fraction of the region's volume, the deepest last (default "
+        f"{DEFAULT_STAGES}); each costs about what the atlas before the resection costs",
+    )
+    atlas.add_argument(
         "--ranks-per-mode",
         type=int,
         default=None,
@@ -46,6 +62,7 @@ def main(args, comm) -> list[str]:
     from ..atlas import store
     from ..atlas.build import build
     from ..atlas.groups import check as check_groups
+    from ..atlas.resection import parse_resect
     from ..atlas.scenarios import parse_vary
     from ..outputs.files import RunLock, check_writable
     from ..scene import load_scene
@@ -59,10 +76,11 @@ def main(args, comm) -> list[str]:
         raise InputError(
             "atlas: a [skull] with glue (fixed_where) holds the body by contact: give the support as [[fixed]] instead"
         )
-    if scene.remove:
+    resection = parse_resect(args.resect, scene.remove, args.stages)
+    if resection is not None and scene.fluid is not None and scene.fluid.rule == "quadrature":
         raise InputError(
-            "atlas: [[remove]] (a resection) is not an atlas scenario; build the atlas of the scene "
-            "before the resection"
+            'atlas --resect: the fluid must act on the cavity\'s walls too: use [fluid] rule = "consistent" '
+            '("quadrature" acts on the original surface only)'
         )
     created = comm.bcast(not out.exists(), root=0)
     if comm.rank == 0:
@@ -70,7 +88,7 @@ def main(args, comm) -> list[str]:
     comm.barrier()
     lock = RunLock(out, comm, "-o")  # (two builds into one folder would interleave their files)
     try:
-        atlas, seconds = build(scene, vary, comm, args.scene, args.set, args.ranks_per_mode)
+        atlas, seconds = build(scene, vary, comm, args.scene, args.set, args.ranks_per_mode, resection)
         if comm.rank == 0:  # (arrays first, then the index: each renamed into place)
             store.write(out, atlas)
         comm.barrier()
@@ -114,4 +132,18 @@ def main(args, comm) -> list[str]:
             else []
         )
         + span
+        + (_stage_lines(atlas, out) if comm.rank == 0 and atlas.stages else [])
     )
+
+
+def _stage_lines(atlas, out: Path) -> list[str]:
+    """A line a resection stage: what it removed and what it cost."""
+    lines = [f"  resection of {atlas.info['resection']['region']} in {len(atlas.stages)} stages ({out}/stages/):"]
+    for stage in atlas.stages:
+        s = stage.info["stage"]
+        lines.append(
+            f"    stage {s['number']}: {s['removed_ml']:.1f} ml removed ({s['cells']} cells"
+            + (f", {s['free_cells']} cut free with them" if s.get("free_cells") else "")
+            + f"), {len(stage.scenarios)} modes in {stage.info['modes_s']:.1f} s"
+        )
+    return lines

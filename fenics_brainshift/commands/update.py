@@ -11,8 +11,9 @@ from pathlib import Path
 import numpy as np
 
 from ..atlas import store
+from ..atlas.stages import fit_stages, parse_stage
 from ..errors import InputError
-from ..images.targets import check_noise, read_target
+from ..images.targets import check_noise, read_surface_points, read_target, with_surface_points
 from ..outputs.files import RunLock, check_writable, clear_run, runs_results, write_json
 from ..theatre.case import Case
 from .help_format import Defaults, add_overwrite
@@ -68,6 +69,18 @@ def add(sub) -> None:
         help="fit every point: none set aside as an outlier (by default a point whose "
         "left-out error is far past the noise and the others' is set aside and reported)",
     )
+    update.add_argument(
+        "--stage",
+        default=None,
+        help="an atlas with resection stages (atlas --resect): the stage to fit, 0 (before the resection), 1, 2, "
+        "...; default auto: every stage fitted, the one that explains the points best kept (update.json says "
+        "why)",
+    )
+    update.add_argument(
+        "--cavity",
+        help="points on the resection cavity's wall (intra-operative ultrasound; mm: .mrk.json, .csv or a "
+        "surface), fitted to the stage's surface, the cavity's wall included",
+    )
     update.add_argument("--image", help="a volume (.nii.gz, .nrrd) on whose grid to write OUT/uncertainty.nii.gz")
     update.add_argument("--out", default="out_update", help="output folder")
     add_overwrite(update, "the update's folder", "--replace")
@@ -89,11 +102,34 @@ def main(args, comm) -> list[str]:
         from ..images.volumes import read_volume
 
         image = read_volume(args.image, "update: --image")
+    told = parse_stage(args.stage)
     atlas = store.read(args.atlas)  # every rank: the update is small, each computes it, rank 0 writes
+    staged = store.stage_count(atlas) > 0
+    if args.cavity is not None and not staged:
+        raise InputError(
+            f"--cavity: the atlas in '{args.atlas}' has no resection stages, so no cavity to fit the points to; "
+            f"build them with brainshift atlas SCENE --resect REGION"
+        )
     target = read_target(args.target, args.pre, args.frame)
-    # (the case prepares the atlas once, as `brainshift serve` keeps it prepared)
-    case = Case(atlas, noise=args.noise * 1e-3, grid=None, samples=args.bootstrap, set_aside=not args.keep_all)
-    answer = case.update(target)
+    if args.cavity is not None:
+        target = with_surface_points(target, read_surface_points(args.cavity, args.frame, "--cavity"), "cavity")
+    cases = []
+
+    def fit(stage_atlas):  # (the case prepares the atlas once, as `brainshift serve` keeps it prepared)
+        case = Case(
+            stage_atlas, noise=args.noise * 1e-3, grid=None, samples=args.bootstrap, set_aside=not args.keep_all
+        )
+        cases.append(case)
+        return case.update(target)
+
+    if staged or told:
+        number, atlas, answer, evidence = fit_stages(args.atlas, atlas, told, fit, args.noise * 1e-3)
+        case = cases[number if told is None else 0]
+        args.stage_report = {"number": number, "told": told is not None, "evidence": evidence, **_removed(atlas)}
+    else:
+        answer = fit(atlas)
+        case = cases[0]
+        args.stage_report = None
     result = answer.result
     result.seconds["atlas_prepare_ms"] = case.prepare_s * 1e3
     args.noise_stated = noise_stated
@@ -125,7 +161,7 @@ def main(args, comm) -> list[str]:
         )
     finally:
         lock.release()
-    lines = _lines(atlas, target, result, out, image is not None)
+    lines = _lines(atlas, target, result, out, image is not None, args)
     if not noise_stated:
         lines.insert(
             1, f"  noise: {DEFAULT_NOISE_MM:g} mm per coordinate, the default (--noise to state the measurement's own)"
@@ -197,14 +233,16 @@ def _write_outputs(out: Path, atlas, target, result, image, spread_image) -> Non
         index, weight, _ = MeshLocator(atlas.points, atlas.tetrahedra).weights(points)
         moved = points + np.einsum("nj,njd->nd", weight, u[index])
         write_markups(out / "probes_final.mrk.json", names, moved * 1e3)
-    if target.pre is not None:  # the pre-operative points where the update puts them
+    pairs = target.pairs
+    if len(pairs):  # the pre-operative points where the update puts them (points to the surface have none)
         from ..atlas.locate import MeshLocator
 
-        index, weight, _ = MeshLocator(atlas.points, atlas.tetrahedra).weights(target.pre)
+        pre = target.pre[pairs]
+        index, weight, _ = MeshLocator(atlas.points, atlas.tetrahedra).weights(pre)
         write_markups(
             out / "targets_updated.mrk.json",
-            target.labels,
-            (target.pre + np.einsum("nj,njd->nd", weight, u[index])) * 1e3,
+            [target.labels[i] for i in pairs],
+            (pre + np.einsum("nj,njd->nd", weight, u[index])) * 1e3,
         )
     if image is not None:
         from ..atlas.update_picture import write_update_picture
@@ -294,7 +332,17 @@ def _report(atlas, target, result, args, seconds: float) -> dict:
         "timings_ms": result.seconds,
         "command_s": seconds,
         "warning": result.warning,
+        "resection_stage": args.stage_report,
     }
+
+
+def _removed(atlas) -> dict:
+    """What a stage's atlas removed (its region, ml, fraction), empty before the resection."""
+    stage = atlas.info.get("stage")
+    if not stage:
+        return {"removed_ml": 0.0}
+    return {"of": stage["of"], "region": stage["region"], "removed_ml": stage["removed_ml"],
+            "removed_fraction": stage["removed_fraction"]}  # fmt: skip
 
 
 def _suggestion(answer, case) -> dict | None:
@@ -310,7 +358,25 @@ def _suggestion(answer, case) -> dict | None:
     }
 
 
-def _lines(atlas, target, result, out: Path, image: bool) -> list[str]:
+def _stage_line(report: dict) -> str:
+    """Which resection stage was fitted, and why."""
+    number, evidence = report["number"], report["evidence"]
+    removed = f"{report['removed_ml']:.1f} ml removed" if number else "before the resection"
+    if report["told"]:
+        return f"  resection stage {number} ({removed}), as told"
+    others = ", ".join(
+        f"{e['stage']}: {e['residual_rms_mm']:.2f} mm (chi-square +{e['delta_chi_square']:.3g})"
+        for e in evidence
+        if e["stage"] != number
+    )
+    return (
+        f"  resection stage {number} ({removed}), chosen by the data: residual "
+        f"{evidence[number]['residual_rms_mm']:.2f} mm, chi-square {evidence[number]['chi_square']:.4g}; "
+        f"the other stages {others}"
+    )
+
+
+def _lines(atlas, target, result, out: Path, image: bool, args=None) -> list[str]:
     rms = lambda r: float(np.sqrt(np.mean(r**2))) * 1e3  # noqa: E731
     keep = _kept(result)
     drained = (atlas.info.get("prior") or {}).get("fluid.level")
@@ -340,6 +406,8 @@ def _lines(atlas, target, result, out: Path, image: bool) -> list[str]:
         )
     for name, theta in result.volume_changes(atlas).items():
         lines.append(f"  swelling {name}: volume change {theta:+.3%}")
+    if args is not None and args.stage_report is not None:
+        lines.append(_stage_line(args.stage_report))
     if result.skull:
         lines.append(
             f"  skull: {result.skull['nodes_with_rows']} nodes held inside by the fit's rows, deepest past "

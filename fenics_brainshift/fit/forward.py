@@ -38,15 +38,16 @@ class ForwardModel:
     """The scene's settled state re-solved in place for new values of the fitted parameters
     (the level, G, the head's pose): one model and one factorisation for every evaluation."""
 
-    def __init__(self, scene: Scene, comm: MPI.Intracomm = MPI.COMM_WORLD, newton_rtol: float | None = None):
-        """newton_rtol: Newton's relative residual for settled states (None: a run's)."""
-        from ..runner import Simulation
+    def __init__(self, scene: Scene, comm: MPI.Intracomm = MPI.COMM_WORLD, newton_rtol: float | None = None, cuts=()):
+        """newton_rtol: Newton's relative residual for settled states (None: a run's); cuts:
+        resection.Cuts made when asked (Simulation.cut_now: an atlas's resection stages)."""
+        from ..runner import Simulation, build_model
 
         if scene.fluid is not None and scene.fluid.follower_tol > FOLLOWER_TOL:
             # finite differences of the residuals need the answers tighter than a run does
             scene = dataclasses.replace(scene, fluid=dataclasses.replace(scene.fluid, follower_tol=FOLLOWER_TOL))
         self.scene = scene
-        self.sim = Simulation(scene, comm)
+        self.sim = Simulation(scene, comm, model=build_model(scene, comm, cuts) if cuts else None)
         if newton_rtol is not None:
             self.sim.newton_rtol = newton_rtol
         self.sim.setup()

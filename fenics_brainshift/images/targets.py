@@ -130,6 +130,30 @@ def read_target(target: str | Path, pre: str | Path | None = None, frame: str | 
     )
 
 
+def read_surface_points(path: str | Path, frame: str | None, option: str) -> Target:
+    """Points to fit to a surface alone (``option``: the flag named in messages, e.g.
+    --cavity): a point list, a CSV of positions or a surface file, never pairs."""
+    try:
+        target = read_target(path, None, frame)
+    except InputError as exc:
+        raise InputError(str(exc).replace("--target", option, 1)) from None
+    if target.pre is not None:
+        raise InputError(
+            f"{option}: '{Path(path).name}' holds point pairs; give positions alone (they are fitted to the surface)"
+        )
+    return target
+
+
+def with_surface_points(target: Target, more: Target, name: str) -> Target:
+    """The target with ``more`` points fitted to the surface (labelled NAME-1, NAME-2, ...)."""
+    n = len(more.measured)
+    labels = list(target.labels) + [f"{name}-{i + 1}" for i in range(n)]
+    measured = np.concatenate([target.measured, more.measured])
+    if target.pre is None:
+        return Target(measured, None, labels)
+    return Target(measured, np.concatenate([target.pre, np.full((n, 3), np.nan)]), labels)
+
+
 def _read_csv(path: Path, frame: str | None) -> Target:
     try:  # utf-8-sig: a byte-order mark, as Excel writes one, is not part of the first column's name
         with open(path, newline="", encoding="utf-8-sig") as f:

@@ -15,7 +15,6 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import compat
 from .vertices import GlobalVertices
 
 NAME = "last_state.npz"
@@ -28,17 +27,11 @@ class LastStateWriter:
         self.vertices = GlobalVertices(mesh)
         self.comm = mesh.comm
         self.tissue = tissue
-        if tissue is not None:
-            owned_cells = mesh.topology.index_map(3).size_local
-            self._tissue_dofs = compat.dofmap_array(tissue.function_space)[:owned_cells, 0]
 
     def write(self, t: float, u) -> None:
         """Collective: every rank calls it at each output time."""
         displacement = self.vertices.values(u)
-        tissue = None
-        if self.tissue is not None:  # gathered as GlobalVertices gathers the cells, then put in its order
-            parts = self.comm.gather(self.tissue.x.array[self._tissue_dofs].copy(), root=0)
-            tissue = np.concatenate(parts)[self.vertices.cell_order] if parts is not None else None
+        tissue = self.vertices.cell_values(self.tissue) if self.tissue is not None else None
         if self.comm.rank == 0:
             arrays = {
                 "time": np.float64(t),

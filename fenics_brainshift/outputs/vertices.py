@@ -62,6 +62,14 @@ class GlobalVertices:
             out[self._position[ids]] = values
         return out
 
+    def cell_values(self, f) -> np.ndarray | None:
+        """(C,) a DG0 function's values (the tissue indicator) in the stored cells' order, on
+        rank 0 (None elsewhere)."""
+        owned = f.function_space.mesh.topology.index_map(3).size_local
+        dofs = compat.dofmap_array(f.function_space)[:owned, 0]
+        parts = self.comm.gather(f.x.array[dofs].copy(), root=0)
+        return np.concatenate(parts)[self.cell_order] if parts is not None else None
+
     def place(self, rows: np.ndarray, vectors: np.ndarray, b) -> None:
         """b (a PETSc vector on the P1 space) <- the vectors (n, 3) at the stored rows (the
         same on every rank; each rank sets the entries it owns)."""

@@ -53,6 +53,7 @@ class Tissue:
         self.indicator.x.array[:] = 1.0
         self.present = np.ones(len(self.indicator.x.array), dtype=bool)
         self.total = self._count(self.present)
+        self.total_volume = self.volume()
         self.cuts = sorted(cuts, key=lambda c: c.at)
         self.pending = list(self.cuts)
         centroids = cell_centroids(mesh)

@@ -204,7 +204,7 @@ def cuts(scene: Scene) -> list[Cut]:
     return out
 
 
-def _cell_selector(scene: Scene, region):
+def cell_selector(scene: Scene, region):
     """centroids (N, 3) -> bool (N,) of a region given by `where` or by `label`."""
     if region.predicate is not None:
         return lambda centroids: region.predicate(centroids.T)
@@ -213,7 +213,7 @@ def _cell_selector(scene: Scene, region):
 
 def swelling(scene: Scene) -> list:
     """The [[swelling]] regions as (cell selector, t -> volume change) pairs."""
-    return [(_cell_selector(scene, r), r.at) for r in scene.swelling]
+    return [(cell_selector(scene, r), r.at) for r in scene.swelling]
 
 
 def _check_swelling(scene: Scene, model: Model) -> None:
@@ -249,8 +249,9 @@ def septa(scene: Scene) -> list[Septum]:
     return out
 
 
-def build_model(scene: Scene, comm: MPI.Intracomm) -> Model:
-    """Mesh, space, supports, material and loads of a scene; every input check happens here."""
+def build_model(scene: Scene, comm: MPI.Intracomm, more_cuts: tuple | list = ()) -> Model:
+    """Mesh, space, supports, material and loads of a scene; every input check happens here.
+    more_cuts: resection.Cuts beside the scene's [[remove]]s (an atlas's resection stages)."""
     mesh = build_mesh(scene, comm)
     _check_body_size(scene, mesh)
     check_loads(scene, mesh)
@@ -264,7 +265,7 @@ def build_model(scene: Scene, comm: MPI.Intracomm) -> Model:
         scene.gravity.vector,
         supports(scene),
         fluid_settings(scene),
-        cuts(scene),
+        cuts(scene) + list(more_cuts),
         lumped=scene.element.mass == "lumped",
         material_model=mat.model,
         swelling=swelling(scene),

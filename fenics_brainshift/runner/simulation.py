@@ -110,11 +110,17 @@ class Simulation:
         on what is left."""
         tissue = self.model.tissue
         due = tissue.due(t, 1e-12 * max(abs(t), 1.0)) if tissue is not None else []
-        if not due:
-            return
+        if due:
+            self.cut_now(due, t)
+
+    def cut_now(self, indices: list[int], t: float | None = None) -> None:
+        """Apply these pending cuts (indices into model.tissue.cuts) before the next settled
+        state, whatever their time (an atlas's resection stages), with the pieces they free."""
+        tissue = self.model.tissue
+        t = self.state.t if t is None else t
         V = self.model.V
         fixed = np.unique(self.model.constraints.fixed // V.dofmap.index_map_bs)
-        for index in due:
+        for index in indices:
             cut = tissue.cuts[index]
             count, isolated = tissue.apply(index)
             freed = tissue.take(unheld_cells(V, tissue.present, fixed))
