@@ -18,9 +18,17 @@
 #
 #     python demos/update.py                          # 5 mm brain, writes out_update/
 #     python demos/update.py --set mesh.voxel=0.01    # quicker
+#     python demos/update.py --resection              # after the tumour comes out: out_update_resection/
 #
 # out_update/: atlas/ (atlas.h5, atlas.json), pre.mrk.json, intra.mrk.json, the update's run
 # folder (displacement.xdmf, update.json, ...), update.png (the error before and after).
+#
+# With --resection the atlas holds the tumour's resection in 3 stages (`--resect`); the truth
+# removes half of it (not one of the stages: the cells above its centre) from a neo-Hookean
+# brain with the fluid in the cavity, and is measured by 15 landmark pairs within 40 mm of the
+# cavity (1 mm noise) and 10 points on its wall (0.5 mm). The error within 10 mm of the wall:
+# the prediction, the update of the atlas before the resection (--stage 0) and the update
+# across the stages, as a table and as a sagittal slice through the cavity (cavity.png).
 
 # +
 import argparse
@@ -40,6 +48,9 @@ from fenics_brainshift.outputs.vertices import GlobalVertices
 from fenics_brainshift.runner import Simulation
 
 TRUTH = {"fluid.level": 0.035, "material.G": 3000.0, "gravity.angle_z": 8.0, "gravity.angle_x": -4.0}
+TUMOUR = "(x-0.03)**2 + (y-0.045)**2 + (z-0.02)**2 < 0.02**2"  # under the supine brain's top (y up)
+RESECTED = {"where": f"{TUMOUR} and y >= 0.045", "fluid.level": 0.052, "gravity.angle_z": 3.0}
+RESECTION_VARY = ["fluid.level=0.0:0.06:7", "gravity.angle_z=-6,0,6"]
 NOISE_MM = 0.5
 POINTS = 20
 DEEP_MM = 40.0  # the deep tissue: interior nodes this close to the craniotomy's centre
@@ -54,7 +65,11 @@ def parse_args(argv=None):
     p.add_argument("--out", default="out_update", help="output folder")
     p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", help="scene overrides")
     p.add_argument("--seed", type=int, default=1, help="of the points' choice and noise")
-    return p.parse_args(argv)
+    p.add_argument("--resection", action="store_true", help="an atlas with resection stages, a resected truth")
+    args = p.parse_args(argv)
+    if args.resection and args.out == "out_update":
+        args.out = "out_update_resection"
+    return args
 
 
 # ## Before surgery, the truth, what is measured, the update
@@ -70,6 +85,8 @@ def main(argv=None) -> int:
         return 2
     out = Path(args.out)
     sets = [a for s in args.set for a in ("--set", s)]
+    if args.resection:
+        return resection(args, out, sets)
     try:
         code = brainshift(["--log-level", "WARNING", "atlas", "brain", "-o", str(out / "atlas"), *sets])
         if code:
@@ -193,6 +210,123 @@ def picture(out: Path, atlas, errors: dict) -> None:
         fontsize=10,
     )
     fig.savefig(out / "update.png", dpi=90)
+    plt.close(fig)
+
+
+# -
+
+
+# ## After the tumour comes out (--resection)
+
+
+# +
+def resection(args, out: Path, sets: list[str]) -> int:
+    from fenics_brainshift.fit.synthetic import resected_truth
+
+    quiet = ["--log-level", "WARNING"]
+    vary = [a for v in RESECTION_VARY for a in ("--vary", v)]
+    try:
+        code = brainshift(quiet + ["atlas", "brain", "-o", str(out / "atlas"), *sets, *vary, "--resect", TUMOUR])
+        if code:
+            return code
+        values = {k: v for k, v in RESECTED.items() if k != "where"}
+        truth = resected_truth(args.set + ["material.model=neo-hookean"], values, RESECTED["where"])
+        pre, intra, wall = resection_points(truth, args.seed)
+        labels = [f"L{i + 1}" for i in range(len(pre))]
+        write_markups(out / "pre.mrk.json", labels, pre * 1e3)
+        write_markups(out / "intra.mrk.json", labels, intra * 1e3)
+        write_markups(out / "wall.mrk.json", [f"W{i + 1}" for i in range(len(wall))], wall * 1e3)
+        points = ["--pre", str(out / "pre.mrk.json"), "--target", str(out / "intra.mrk.json")]
+        points += ["--cavity", str(out / "wall.mrk.json"), "--noise", "1", "--overwrite"]
+        for folder, stage in (("stages", "auto"), ("no_stages", "0")):
+            code = brainshift(
+                quiet + ["update", str(out / "atlas"), *points, "--stage", stage, "--out", str(out / folder)]
+            )
+            if code:
+                return code
+    except (InputError, SolverError) as exc:
+        print(f"update.py: error: {exc}", file=sys.stderr)
+        return 2 if isinstance(exc, InputError) else 3
+    from fenics_brainshift.outputs.run_folder import read_last_state
+
+    atlas = store.read(out / "atlas")
+    chosen = json.loads((out / "stages" / "update.json").read_text())["resection_stage"]
+    _, cells, staged, tissue = read_last_state(out / "stages" / "displacement.xdmf")
+    shifts = {
+        "prediction": atlas.prior_vertex,
+        "update, no stages": read_last_state(out / "no_stages" / "displacement.xdmf")[2],
+        "update, stages": staged,
+    }
+    # (a node the chosen stage removed has no shift of its own there: left out of the comparison)
+    kept = np.zeros(len(truth.points), dtype=bool)
+    kept[np.unique(cells if tissue is None else cells[tissue > 0.5])] = True
+    near = near_wall(truth) & kept
+    print(
+        f"resection: {truth.removed_ml:.1f} ml removed; stage chosen {chosen['number']} "
+        f"({chosen['removed_ml']:.1f} ml); {int(near.sum())} nodes within 10 mm of the wall "
+        f"({int((near_wall(truth) & ~kept).sum())} more the stage removed)\n{'mean error there (mm)':44s}"
+    )
+    errors = {name: np.linalg.norm(u - truth.displacement, axis=1) * 1e3 for name, u in shifts.items()}
+    for name, e in errors.items():
+        print(f"  {name:42s} {e[near].mean():6.2f}")
+    cavity_picture(out, truth, errors, near)
+    print(f"  wrote {out}/cavity.png")
+    return 0
+
+
+def resection_points(truth, seed: int):
+    """15 landmark pairs within 40 mm of the cavity (1 mm noise) and 10 points on its wall (0.5 mm)."""
+    rng = np.random.default_rng(seed)
+    points, u = truth.points, truth.displacement
+    alive = np.unique(truth.present)
+    centre = points[np.unique(truth.removed)].mean(axis=0)
+    near = alive[np.linalg.norm(points[alive] - centre, axis=1) < 0.04]
+    picked = rng.choice(near, 15, replace=False)
+    touched = rng.choice(truth.wall, 10, replace=False)
+    intra = points[picked] + u[picked] + rng.normal(0.0, 1e-3, (15, 3))
+    return points[picked], intra, points[touched] + u[touched] + rng.normal(0.0, 0.5e-3, (10, 3))
+
+
+def near_wall(truth) -> np.ndarray:
+    """The nodes left within 10 mm of the cavity's wall."""
+    from scipy.spatial import cKDTree
+
+    alive = np.unique(truth.present)
+    distance, _ = cKDTree(truth.points[truth.wall]).query(truth.points[alive])
+    mask = np.zeros(len(truth.points), dtype=bool)
+    mask[alive[distance < 0.01]] = True
+    return mask
+
+
+def cavity_picture(out: Path, truth, errors: dict, near: np.ndarray) -> None:
+    """The error in the sagittal slice through the cavity's centre, each way (near: the nodes
+    the means are over)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    points = truth.points * 1e3
+    centre = points[np.unique(truth.removed)].mean(axis=0)
+    planes = np.unique(points[:, 0])
+    x = planes[np.argmin(np.abs(planes - centre[0]))]
+    alive = np.zeros(len(points), dtype=bool)
+    alive[np.unique(truth.present)] = True
+    plane = (np.abs(points[:, 0] - x) < 1e-6) & alive
+    gone = (np.abs(points[:, 0] - x) < 1e-6) & ~alive
+    vmax = float(np.ceil(max(errors["prediction"][plane].max(), 1.0)))
+    fig, axes = plt.subplots(1, len(errors), figsize=(5.5 * len(errors), 5), layout="constrained")
+    for ax, (name, e) in zip(axes, errors.items()):
+        s = ax.scatter(points[plane, 2], points[plane, 1], c=e[plane], cmap="magma_r", vmin=0, vmax=vmax, s=14)
+        ax.scatter(points[gone, 2], points[gone, 1], marker="x", c="tab:blue", s=14, label="removed")
+        ax.set_title(f"{name}\nwithin 10 mm of the wall: mean {e[near].mean():.2f} mm", fontsize=10)
+        ax.set_xlabel("z (S, mm)")
+        ax.set_ylabel("y (A, up, mm)")
+        ax.set_aspect("equal")
+    axes[0].legend(loc="lower left", fontsize=8)
+    fig.colorbar(s, ax=axes, shrink=0.8).set_label("error against the truth (mm)")
+    fig.suptitle(f"sagittal slice x = {x:.0f} mm through the cavity ({truth.removed_ml:.1f} ml removed)", fontsize=10)
+    fig.savefig(out / "cavity.png", dpi=90)
     plt.close(fig)
 
 

@@ -9,6 +9,7 @@ import json
 import subprocess
 import sys
 from dataclasses import replace as dataclass_replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -170,8 +171,10 @@ def test_an_operation_of_a_stage_is_found_and_recovered_near_the_cavity(staged, 
     chi = {e["stage"]: e["chi_square"] for e in stage["evidence"]}
     # (the wall's points tell the stages apart: before the resection there is no wall where they lie)
     assert chi[0] - chi[1] > 4 and chi[2] > chi[1]
-    _, cells, _, _ = read_last_state(out / "displacement.xdmf")
-    assert len(cells) == len(atlas.tetrahedra)  # (the cavity's cells are not in it)
+    _, cells, _, tissue = read_last_state(out / "displacement.xdmf")
+    assert len(cells) == len(staged.tetrahedra)  # (every cell, the cavity's marked, as a run's after a resection)
+    assert np.array_equal(_cells(cells[tissue > 0.5]), _cells(atlas.tetrahedra))
+    _warped_cavity(out, atlas, tmp_path)
     target = Target(
         np.concatenate([intra, touched]), np.concatenate([pre, np.full((10, 3), np.nan)]), labels + ["c"] * 10
     )
@@ -284,3 +287,51 @@ def test_stages_built_on_two_ranks_are_those_built_on_one(staged, tmp_path, per_
 def _cells(t):  # the set of tetrahedra (a partition orders cells and their corners its own way)
     t = np.sort(t, axis=1)
     return t[np.lexsort(t.T[::-1])]
+
+
+def _warped_cavity(out: Path, atlas, tmp_path: Path) -> None:
+    """warp of the update's folder: the cavity's voxels (outside the deformed tissue, their source
+    in the removed cells) take the fill value, a label map a new label; checked voxel by voxel
+    against the meshes located independently."""
+    from fenics_brainshift.atlas.locate import MeshLocator
+    from fenics_brainshift.images.volumes import read_volume
+
+    mask = Path(__file__).parents[1] / "fenics_brainshift" / "data" / "meshes" / "mni152_brain_mask_2mm.nii.gz"
+    assert cli(["warp", str(out), "--image", str(mask), "-o", str(tmp_path / "w.nii.gz"), "--cavity-value", "7"]) == 0
+    warped = read_volume(tmp_path / "w.nii.gz")
+    cavity = np.argwhere(warped.data == 7)
+    assert len(cavity) > 100
+    y = warped.index_to_ras(cavity.astype(float)) * 1e-3  # m
+    points, cells, u, tissue = read_last_state(out / "displacement.xdmf")
+    removed = cells[tissue < 0.5]
+    assert len(removed) == atlas.info["stage"]["cells"] + atlas.info["stage"]["isolated_cells"]
+    _, _, off_deformed = MeshLocator(points + u, atlas.tetrahedra).locate(y)
+    assert np.mean(off_deformed > 0) > 0.95  # (outside the tissue after the shift, to the voxel's rounding)
+    removed_ml = atlas.info["stage"]["removed_ml"]
+    assert 0.3 * removed_ml < len(cavity) * 8e-3 < 1.1 * removed_ml  # (2 mm voxels; the tissue above sags in)
+    assert cli(["warp", str(out), "--image", str(mask), "-o", str(tmp_path / "l.nii.gz"), "--labels"]) == 0
+    labels = read_volume(tmp_path / "l.nii.gz").data
+    assert labels.max() == 2 and np.count_nonzero(labels == 2) == len(cavity)
+
+
+def test_the_live_service_serves_the_stage_told(staged, staged_folder):
+    """`brainshift serve ATLAS --stage K` holds stage K's atlas (its cells, its cavity's wall);
+    its options (kept in a record, which replay checks) name the stage."""
+    from types import SimpleNamespace
+
+    from fenics_brainshift.commands.serve import session_factory
+    from fenics_brainshift.errors import InputError
+
+    def args(stage):
+        return SimpleNamespace(
+            atlas=str(staged_folder), pre=None, targets=None, grid=0.0, structure=[], noise=1.0, share=False,
+            frame="RAS", stage=stage,
+        )  # fmt: skip
+
+    new_session, options = session_factory(args(2))
+    assert options["stage"] == 2
+    held = new_session().case.atlas
+    assert len(held.tetrahedra) == len(staged.stages[1].tetrahedra) < len(staged.tetrahedra)
+    assert session_factory(args(0))[0]().case.atlas.info.get("stage") is None
+    with pytest.raises(InputError, match="has stages 1 to 2"):
+        session_factory(args(3))

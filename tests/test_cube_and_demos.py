@@ -315,6 +315,25 @@ def test_update_demo(tmp_path):
     assert (out / "update.png").stat().st_size > 10_000 and (out / "update.json").is_file()
 
 
+def test_update_demo_after_a_resection(tmp_path):
+    """demos/update.py --resection on a coarse brain: near the cavity's wall the update across
+    the atlas's stages is nearer the full model's resected truth than the update without them,
+    and both than the prediction; the slice through the cavity is drawn."""
+    import re
+
+    out = tmp_path / "resection"
+    stdout = _run(
+        out, 1, str(ROOT / "demos" / "update.py"), "--resection", "--out", str(out), "--set", "mesh.voxel=0.01"
+    )
+    error = {
+        name: float(re.search(rf"{name} +([\d.]+)", stdout).group(1))
+        for name in ("prediction", "update, no stages", "update, stages")
+    }
+    assert error["update, stages"] < 0.7 * error["update, no stages"] < 0.7 * error["prediction"], error
+    assert re.search(r"stage chosen [1-3] ", stdout)
+    assert (out / "cavity.png").stat().st_size > 10_000 and (out / "stages" / "update.json").is_file()
+
+
 def test_brain_demo_shrinks_the_brain_towards_its_supports(tmp_path):
     """--shrink 2: the whole brain loses 2 % of its volume over the drain; settled, the frontal
     pole (far from the occipital and brain-stem supports) moves further back (-y) than without,

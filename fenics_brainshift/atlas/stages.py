@@ -62,3 +62,11 @@ def _evidence(number: int, atlas: store.Atlas, result, noise: float) -> dict:
         "residual_rms_mm": float(np.sqrt(np.mean(result.residual**2))) * 1e3,
         "chi_square": float(np.sum(result.residual**2) / noise**2),
     }
+
+
+def present_in(whole: np.ndarray, stage: np.ndarray) -> np.ndarray:
+    """(len(whole),) bool: which of the mesh's cells a stage's atlas still holds."""
+    keys = np.sort(whole, axis=1)
+    kept = np.sort(stage, axis=1)
+    view = lambda a: np.ascontiguousarray(a, dtype=np.int64).view([("", np.int64)] * 4).ravel()  # noqa: E731
+    return np.isin(view(keys), view(kept))

@@ -26,6 +26,7 @@ def add(sub) -> None:
     replay.add_argument("--noise", type=float, default=1.0, help="as given to serve, mm")
     replay.add_argument("--grid", type=float, default=4.0, help="as given to serve, mm")
     replay.add_argument("--share", action="store_true", help="as given to serve")
+    replay.add_argument("--stage", type=int, default=0, help="as given to serve")
     replay.add_argument("--structure", action="append", default=[], metavar="NAME=FILE", help="as given to serve")
 
 

@@ -60,6 +60,13 @@ def add(sub) -> None:
     serve.add_argument("--grid", type=float, default=4.0, help="the displacement image's spacing, mm (0: none)")
     serve.add_argument("--share", action="store_true", help="every client updates one case (else one each)")
     serve.add_argument(
+        "--stage",
+        type=int,
+        default=0,
+        help="an atlas with resection stages (atlas --resect): the stage to serve (0: before the resection; "
+        "`brainshift update` chooses among them)",
+    )
+    serve.add_argument(
         "--record", help="a folder to append every message received and every update sent to (resumed on a restart)"
     )
     serve.add_argument("--seconds", type=float, default=0.0, help="stop after this long (0: at Ctrl-C); for scripts")
@@ -130,6 +137,11 @@ def session_factory(args):
     from ..theatre.session import Session
 
     atlas = store.read(args.atlas)
+    stage = getattr(args, "stage", 0)
+    if stage < 0:
+        raise InputError(f"--stage {stage}: stages are numbered 0 (before the resection), 1, 2, ...")
+    if stage:
+        atlas = store.read_stage(args.atlas, atlas, stage)
     pre = targets = None
     digest = {}
     for name in ("pre", "targets"):
@@ -165,6 +177,7 @@ def session_factory(args):
 
     options = {"frame": args.frame, "noise": args.noise, "grid": args.grid, "share": bool(args.share), **digest}
     options["atlas"] = atlas.info.get("build_id") or atlas.mesh_id()
+    options["stage"] = stage
     return new_session, options
 
 

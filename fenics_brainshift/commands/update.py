@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from ..atlas import store
-from ..atlas.stages import fit_stages, parse_stage
+from ..atlas.stages import fit_stages, parse_stage, present_in
 from ..errors import InputError
 from ..images.targets import check_noise, read_surface_points, read_target, with_surface_points
 from ..outputs.files import RunLock, check_writable, clear_run, runs_results, write_json
@@ -122,8 +122,11 @@ def main(args, comm) -> list[str]:
         cases.append(case)
         return case.update(target)
 
+    whole = None  # (a stage's atlas holds the cells left: the whole mesh's are the atlas's before)
     if staged or told:
+        whole = atlas.tetrahedra
         number, atlas, answer, evidence = fit_stages(args.atlas, atlas, told, fit, args.noise * 1e-3)
+        whole = whole if number else None
         case = cases[number if told is None else 0]
         args.stage_report = {"number": number, "told": told is not None, "evidence": evidence, **_removed(atlas)}
     else:
@@ -143,7 +146,7 @@ def main(args, comm) -> list[str]:
         scene_name = atlas.info.get("scene_name", "atlas")
         clear_run(out, comm, scene_name, kind="update", overwrite=args.overwrite)  # (an earlier update's files too)
         if comm.rank == 0:
-            _write_outputs(out, atlas, target, result, image, spread_image)
+            _write_outputs(out, atlas, target, result, image, spread_image, whole)
         comm.barrier()
         report = _report(atlas, target, result, args, time.perf_counter() - start)
         report["suggestion"] = _suggestion(answer, case)
@@ -197,7 +200,8 @@ def _check_no_earlier_update(out: Path, overwrite: bool, comm) -> None:
         )
 
 
-def _write_outputs(out: Path, atlas, target, result, image, spread_image) -> None:
+def _write_outputs(out: Path, atlas, target, result, image, spread_image, whole=None) -> None:
+    """OUT's files; whole: the mesh's every cell when the atlas is a resection stage's."""
     import meshio
 
     from ..images.frames import write_markups
@@ -209,9 +213,12 @@ def _write_outputs(out: Path, atlas, target, result, image, spread_image) -> Non
     here = os.getcwd()
     os.chdir(out)
     try:
+        cells, cell_data = atlas.tetrahedra, {}
+        if whole is not None:  # a resection stage: every cell, the removed ones marked (as a run's)
+            cells, cell_data = whole, {"tissue": [present_in(whole, atlas.tetrahedra).astype(float)]}
         with meshio.xdmf.TimeSeriesWriter(".displacement.xdmf") as writer:
-            writer.write_points_cells(atlas.points, [("tetra", atlas.tetrahedra)])
-            writer.write_data(0.0, point_data={"displacement": u, "uncertainty": spread})
+            writer.write_points_cells(atlas.points, [("tetra", cells)])
+            writer.write_data(0.0, point_data={"displacement": u, "uncertainty": spread}, cell_data=cell_data)
         text = Path(".displacement.xdmf").read_text().replace(".displacement.h5", "displacement.h5")
         os.replace(".displacement.h5", "displacement.h5")
         Path(".displacement.xdmf").write_text(text)
@@ -328,6 +335,9 @@ def _report(atlas, target, result, args, seconds: float) -> dict:
             "max": float(result.spread.max()) * mm,
         },
         "largest_displacement_mm": float(np.linalg.norm(result.displacement, axis=1).max()) * mm,
+        "largest_displacement_at_mm": [  # (the pre-operative position of the node that moves most, RAS)
+            float(c) * mm for c in atlas.points[np.argmax(np.linalg.norm(result.displacement, axis=1))]
+        ],
         "skull": result.skull,
         "timings_ms": result.seconds,
         "command_s": seconds,

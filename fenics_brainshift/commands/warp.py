@@ -48,6 +48,13 @@ def add(sub) -> None:
         help="store the transform's values in single precision: half the file, 1e-7 relative",
     )
     warp.add_argument("--blend", type=float, default=10.0, help="mm over which the shift fades outside the brain")
+    warp.add_argument(
+        "--cavity-value",
+        type=float,
+        default=None,
+        help="after a resection, the value of the cavity's voxels (default: the image's background, its 1st "
+        "percentile; with --labels a new label, one above the largest)",
+    )
     add_overwrite(warp, "-o and --transform")
     warp.add_argument(
         "--mesh-frame",
@@ -80,8 +87,11 @@ def main(args, comm) -> list[str]:
             f"warp: the run's brain does not overlap '{Path(args.image).name}' (mesh {body.points.min(0)} "
             f"to {body.points.max(0)} mm RAS); is the image in the mesh's frame? (--mesh-frame)"
         )
+    cavity_value = None
+    if warp.cavity is not None and warp.cavity.any():
+        cavity_value = args.cavity_value if args.cavity_value is not None else _background(volume, args.labels)
     if comm.rank == 0:  # both or neither: each to a temporary file, then both moved into place
-        warped = warp.apply(labels=args.labels)
+        warped = warp.apply(labels=args.labels, cavity_value=cavity_value)
         transform = Path(args.transform) if args.transform else None
         for path in [output] + ([transform] if transform else []):  # (check_writable allowed new folders)
             path.parent.mkdir(parents=True, exist_ok=True)
@@ -101,13 +111,34 @@ def main(args, comm) -> list[str]:
             f"warp: the run did not end well (summary.json: {status[:100]}): "
             f"this is its last good state, not the final one"
         ]
-    return note + [
-        f"warp: {int(moved.sum())} of {moved.size} voxels moved (largest {warp.largest_mm():.2f} mm, "
-        f"{int(warp.inside.sum())} inside the deformed brain); {'nearest' if args.labels else 'linear'} "
-        f"sampling; wrote {output}"
-        + (f" and {args.transform}" if args.transform else "")
-        + (f"; labels {sorted(np.unique(warped).tolist())[:12]}" if args.labels and comm.rank == 0 else "")
-    ]
+    return (
+        note
+        + [
+            f"warp: {int(moved.sum())} of {moved.size} voxels moved (largest {warp.largest_mm():.2f} mm, "
+            f"{int(warp.inside.sum())} inside the deformed brain); {'nearest' if args.labels else 'linear'} "
+            f"sampling; wrote {output}"
+            + (f" and {args.transform}" if args.transform else "")
+            + (f"; labels {sorted(np.unique(warped).tolist())[:12]}" if args.labels and comm.rank == 0 else "")
+        ]
+        + (
+            [
+                f"  the resection's cavity: {int(warp.cavity.sum())} voxels "
+                f"({warp.cavity.sum() * abs(np.linalg.det(volume.affine[:3, :3])) / 1e3:.1f} ml) set to "
+                f"{cavity_value:g}" + ("" if args.cavity_value is not None else " (--cavity-value to choose)")
+            ]
+            if cavity_value is not None
+            else []
+        )
+    )
+
+
+def _background(volume, labels: bool) -> float:
+    """A cavity's default value: a label one above the largest, else the image's darkest (its
+    1st percentile: an MR's background, a CT's air)."""
+    data = np.asarray(volume.data)
+    if labels:
+        return float(data.max()) + 1.0
+    return float(np.percentile(data.ravel()[::7].astype(np.float64), 1))
 
 
 def _run_state(run_dir: Path, mesh_frame: str, comm):

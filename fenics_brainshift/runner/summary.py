@@ -88,4 +88,5 @@ def summary(sim, h, stopped, setup_s: float) -> dict:
     if model.tissue is not None:
         out["removals"] = sim.removals
         out["removed_fraction"] = model.tissue.removed_fraction
+        out["removed_ml"] = (model.tissue.total_volume - model.tissue.volume()) * 1e6
     return out

@@ -21,16 +21,19 @@ class DeformedMesh:
     points: np.ndarray  # (n, 3) reference positions, RAS mm
     tets: np.ndarray  # (m, 4), the tissue still present
     displacement: np.ndarray  # (n, 3), RAS mm
+    removed: np.ndarray | None = None  # (r, 4) the cells a resection took (the cavity's, before the shift)
 
     @classmethod
     def from_run(cls, run_dir: str | Path, mesh_frame: str = "RAS") -> DeformedMesh:
         """The last state a run wrote (RUN_DIR/displacement.xdmf; metres, the scene's frame), or
         of a run that was killed, its last complete one (RUN_DIR/last_state.npz)."""
         points, tets, u, tissue = read_run_state(Path(run_dir))
+        removed = None
         if tissue is not None:  # a resection: the removed cells are not there any more
-            tets = tets[np.asarray(tissue) >= 0.5]
+            present = np.asarray(tissue) >= 0.5
+            tets, removed = tets[present], np.asarray(tets[~present], dtype=np.int64)
         flip = LPS_TO_RAS if mesh_frame.upper() == "LPS" else np.eye(3)
-        return cls(1e3 * points[:, :3] @ flip, np.asarray(tets, dtype=np.int64), 1e3 * u[:, :3] @ flip)
+        return cls(1e3 * points[:, :3] @ flip, np.asarray(tets, dtype=np.int64), 1e3 * u[:, :3] @ flip, removed)
 
 
 def killed_run_time(run_dir: Path) -> float | None:

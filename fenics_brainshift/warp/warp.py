@@ -8,7 +8,10 @@ positions over the *deformed* mesh. So the deformed mesh is laid on the grid (ra
 and inside it x = sum_i lambda_i(y) X_i, exact to round-off. Outside the deformed brain the
 inverse displacement v = x - y of the nearest voxel inside is carried over and blended to
 zero over ``blend_mm`` (Euclidean distance transform; the CSF space and the skull beyond do
-not move). Removed tissue (a resection) is not part of the mesh: its cavity is outside.
+not move). Removed tissue (a resection) is not part of the mesh: its cavity is outside. The
+voxels outside the deformed tissue whose source point lies in the removed cells before the
+shift are the cavity: the warped image gives them a value of the user's (the image's
+background by default: what is removed is not there to be moved), a label map a label.
 
 The same v, in LPS millimetres on the input's grid, is an ITK displacement-field transform
 (output point -> input point, what resampling needs): 3D Slicer applies it to any volume,
@@ -44,6 +47,7 @@ class Warp:
     inside: np.ndarray  # (ni, nj, nk) bool: y in the deformed tissue (v exact there)
     seconds: float = 0.0
     before: np.ndarray | None = None  # (ni, nj, nk) bool: y in the tissue before the shift
+    cavity: np.ndarray | None = None  # (ni, nj, nk) bool: y in what a resection left empty
 
     @classmethod
     def compute(
@@ -78,7 +82,10 @@ class Warp:
             v.reshape(-1, 3)[voxel] = x - y
             inside.reshape(-1)[voxel] = True
             _blend_outside(v, inside, volume.spacing, blend_mm)
-        return cls(volume, v, inside, time.perf_counter() - t0, before)
+        cavity = None
+        if body.removed is not None and len(body.removed):
+            cavity = _cavity(X, body.removed, v, inside, part, parts, comm)
+        return cls(volume, v, inside, time.perf_counter() - t0, before, cavity)
 
     def moved(self) -> np.ndarray:
         """Voxels whose source point is not themselves."""
@@ -87,12 +94,15 @@ class Warp:
     def largest_mm(self) -> float:
         return float(np.linalg.norm(self.v @ self.volume.affine[:3, :3].T, axis=-1).max(initial=0.0))
 
-    def apply(self, data: np.ndarray | None = None, labels: bool = False) -> np.ndarray:
+    def apply(
+        self, data: np.ndarray | None = None, labels: bool = False, cavity_value: float | None = None
+    ) -> np.ndarray:
         """The warped volume: linear interpolation (intensities) or nearest voxel (labels) of the
         input at x = y + v(y); voxels that do not move keep their value exactly. Labels change
         only where the tissue is after the shift or was before it (what it left is filled from
         beyond it, by the blend): the skull, the scalp, a ventricle's label outside the mesh stay
-        where they are (the blend dragged 58 % of a skull label's voxels along)."""
+        where they are (the blend dragged 58 % of a skull label's voxels along). A resection's
+        cavity takes ``cavity_value`` (None: as it was sampled)."""
         data = self.volume.data if data is None else data
         out = np.array(data, copy=True, order="C")  # reshape(-1) below must be a view
         moving = self.moved()
@@ -115,6 +125,8 @@ class Warp:
             else:
                 values = ndimage.map_coordinates(source, x, order=1, mode="nearest")
                 out.reshape(-1)[flat] = _cast(values, data.dtype)
+        if self.cavity is not None and cavity_value is not None:
+            out[self.cavity] = _cast(np.array([cavity_value], dtype=np.float64), data.dtype)[0]
         return out
 
     def displacement_lps_mm(self) -> np.ndarray:
@@ -196,6 +208,25 @@ def check_size(points: np.ndarray, volume: Volume, labels: bool = False) -> None
             f"in '{volume.path.name}' {object_mm:.0f} mm: is it the run of this image's object, in its "
             f"unit? (of a part of it: crop the image to that part first)"
         )
+
+
+def _cavity(X: np.ndarray, removed: np.ndarray, v: np.ndarray, inside: np.ndarray, part, parts, comm) -> np.ndarray:
+    """The voxels outside the deformed tissue whose source point (y + v, nearest voxel) lies in
+    the removed cells before the shift (X: the reference positions, index units)."""
+    shape = inside.shape
+    voxels = rasterize(X, removed, shape, part, parts)[0]
+    if comm is not None and comm.size > 1:
+        voxels = np.concatenate(comm.allgather(voxels))
+    was_removed = np.zeros(shape, dtype=bool)
+    was_removed.reshape(-1)[voxels] = True
+    outside = np.flatnonzero(~inside)
+    y = np.stack(np.unravel_index(outside, shape), axis=0).astype(float)
+    source = np.floor(y + v.reshape(-1, 3)[outside].T + 0.5).astype(np.int64)
+    for a in range(3):
+        np.clip(source[a], 0, shape[a] - 1, out=source[a])
+    cavity = np.zeros(shape, dtype=bool)
+    cavity.reshape(-1)[outside] = was_removed[tuple(source)]
+    return cavity
 
 
 def _blend_outside(v: np.ndarray, inside: np.ndarray, spacing: np.ndarray, blend_mm: float) -> None:
