@@ -257,15 +257,19 @@ def test_a_piece_cut_free_mid_run_falls_with_g(model):
 
 @pytest.mark.parametrize("model", ["linear", "neo-hookean"])
 @pytest.mark.parametrize("fluid", [None, {"density": 1000.0, "level": 0.015, "rule": "consistent"}])
-def test_a_settled_state_after_a_cut_is_the_block_that_never_had_a_top(model, fluid):
-    """Quasi-static: the cut frees the piece above, which nothing holds (K singular on it):
+@pytest.mark.parametrize("pinned", [False, True])
+def test_a_settled_state_after_a_cut_is_the_block_that_never_had_a_top(model, fluid, pinned):
+    """Quasi-static: the cut frees the piece above, which nothing holds against every rigid
+    motion (K singular on it; pinned: held at one corner node, about which it still turns):
     it is taken out with the cut and said so, and what is left settles as a 20 mm block built
     without it."""
     probes = {f"p{i}": [x, y, z] for i, (x, y, z) in enumerate([(0, 0, 0.02), (W, W, 0.02), (W / 2, 0, 0.01)])}
     quasi = {"mode": "quasi-static", "end": 1.0}
     material = {"E": 3000.0, "nu": 0.45, "density": RHO_S, "model": model}
+    fixed = [{"where": "z < 1e-9"}] + ([{"where": "x < 1e-9 and y < 1e-9 and z > 0.06 - 1e-9"}] if pinned else [])
     cut = Simulation(
-        scene_from_dict(block(0.06, 6, fluid, remove=[CUT], probes=probes, time=quasi, material=material)), COMM
+        scene_from_dict(block(0.06, 6, fluid, remove=[CUT], probes=probes, time=quasi, material=material, fixed=fixed)),
+        COMM,
     )
     cut.setup()
     cut.solve_to_settled(1.0)
@@ -277,3 +281,12 @@ def test_a_settled_state_after_a_cut_is_the_block_that_never_had_a_top(model, fl
     assert np.abs(expected).max() > 1e-5
     assert np.allclose(cut.probe_values(), expected, rtol=1e-9, atol=1e-12)
     assert cut.model.tissue.removed_fraction == pytest.approx(4 / 6)
+
+
+def test_a_settled_cut_that_takes_the_supports_is_one_line():
+    """The floor's layer cut away: nothing holds what is left, so there is no settled state."""
+    data = block(0.06, 6, remove=[{"at": 0.0, "where": "z < 0.01"}], time={"mode": "quasi-static", "end": 1.0})
+    sim = Simulation(scene_from_dict(data), COMM)
+    sim.setup()
+    with pytest.raises(InputError, match=r'\[\[remove\]\] where = "z < 0.01": no piece of what is left is held'):
+        sim.solve_to_settled(1.0)

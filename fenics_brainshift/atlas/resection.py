@@ -108,7 +108,10 @@ class StagedRegion:
 
     def _band(self, k: int):
         def select(centroids: np.ndarray) -> np.ndarray:
-            inside = np.asarray(self.select(centroids), dtype=bool)
+            try:
+                inside = np.asarray(self.select(centroids), dtype=bool)
+            except InputError as exc:  # (a label the scene's label volume does not have, say)
+                raise InputError(f"--resect {self.describe}: {exc}") from None
             if self.thresholds is None:  # (collective: Tissue asks every cut on every rank, in order)
                 self.thresholds = self._find_thresholds(centroids, inside)
             return inside & (centroids @ self.up >= self.thresholds[k])

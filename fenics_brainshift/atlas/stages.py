@@ -2,12 +2,18 @@
 explains the points best.
 
 Every stage's update is the same problem (the same scenarios, as many modes) on another
-brain, so their fits are compared by the chi-square of the points at each: the sum over the
+brain, so their fits are compared by the chi-square of every point at each: the sum over the
 points of their squared error over the noise's variance (a pair's error is over its three
-coordinates, a distance to the surface over one). The stage of the smallest is chosen; the
-others are reported with their difference, and exp(-difference / 2) is the likelihood of the
-points under each stage's fit relative to the chosen one's (the weights at their fits, the
-regularisation alike for all).
+coordinates, a distance to the surface over one), each point's term capped where the update
+calls a point an outlier (OUTLIER x the noise per coordinate). So a pointer slip weighs the
+same, the cap, in every stage, while a point on the cavity's wall that a stage without that
+wall cannot explain still counts against it (had the points each stage set aside been left
+out of every sum, the wall's points, set aside by the stage before the resection, would have
+been the evidence dropped). The stage of the smallest is chosen; the others are reported with
+their difference, and exp(-difference / 2) is the likelihood of the points under each stage's
+fit relative to the chosen one's (the weights at their fits, the regularisation alike for
+all). A stage that cannot take the points at all (a landmark in the tissue it removed) is
+left out and says why.
 """
 
 from __future__ import annotations
@@ -18,6 +24,9 @@ import numpy as np
 
 from ..errors import InputError
 from . import store
+from .update import OUTLIER
+
+AMBIGUOUS = 2.0  # chi-square difference below which two stages explain the points about equally
 
 
 def parse_stage(text: str | None) -> int | None:
@@ -35,33 +44,61 @@ def parse_stage(text: str | None) -> int | None:
     return number
 
 
-def fit_stages(folder: str | Path, atlas: store.Atlas, told: int | None, fit, noise: float) -> tuple:
-    """(the stage's number, its atlas, fit(its atlas), the evidence [{stage, ...}]): the stage
-    told, or of every stage (0: the atlas before the resection) the one whose fit's chi-square
-    is the smallest. fit(atlas) -> an object with .result (atlas.update.UpdateResult)."""
+def load_stages(folder: str | Path, atlas: store.Atlas, told: int | None) -> list[tuple[int, store.Atlas]]:
+    """[(number, atlas)]: the stage told, or every stage (0: the atlas before the resection)."""
     if told is not None:
-        chosen = atlas if told == 0 else store.read_stage(folder, atlas, told)
-        answer = fit(chosen)
-        return told, chosen, answer, [_evidence(told, chosen, answer.result, noise)]
-    count = store.stage_count(atlas)
-    candidates = [atlas] + [store.read_stage(folder, atlas, k) for k in range(1, count + 1)]
-    answers = [fit(a) for a in candidates]
-    evidence = [_evidence(k, a, answer.result, noise) for k, (a, answer) in enumerate(zip(candidates, answers))]
-    best = int(np.argmin([e["chi_square"] for e in evidence]))
+        return [(told, atlas if told == 0 else store.read_stage(folder, atlas, told))]
+    return [(0, atlas)] + [(k, store.read_stage(folder, atlas, k)) for k in range(1, store.stage_count(atlas) + 1)]
+
+
+def fit_stages(stages: list[tuple[int, store.Atlas]], fit, noise: float, dims: np.ndarray) -> tuple:
+    """(the stage's number, its atlas, fit(its atlas), the evidence [{stage, ...}]) of the
+    stage whose fit's chi-square is the smallest (of one stage: that one). fit(atlas) -> an
+    object with .result (atlas.update.UpdateResult); an InputError it raises for a stage
+    leaves that stage out (and is raised when every stage raises one); dims: the coordinates
+    each point measures (3 a pair, 1 a distance to the surface)."""
+    answers, reasons = [], []
+    for _, atlas in stages:
+        try:
+            answers.append(fit(atlas))
+            reasons.append(None)
+        except InputError as exc:
+            if len(stages) == 1:
+                raise
+            answers.append(None)
+            reasons.append(str(exc))
+    usable = [i for i, a in enumerate(answers) if a is not None]
+    if not usable:
+        raise InputError(reasons[0])
+    evidence = []
+    for i, (number, atlas) in enumerate(stages):
+        e = {"stage": number, "removed_ml": float((atlas.info.get("stage") or {}).get("removed_ml", 0.0))}
+        if answers[i] is None:
+            e["left_out"] = reasons[i]
+        else:
+            result = answers[i].result
+            e["residual_rms_mm"] = float(np.sqrt(np.mean(result.residual**2))) * 1e3  # (every point, as judged)
+            e["chi_square"] = chi_square(result.residual, dims, noise)
+        evidence.append(e)
+    best = min(usable, key=lambda i: evidence[i]["chi_square"])
+    for i in usable:
+        evidence[i]["delta_chi_square"] = evidence[i]["chi_square"] - evidence[best]["chi_square"]
+        evidence[i]["relative_likelihood"] = float(np.exp(-0.5 * evidence[i]["delta_chi_square"]))
     for e in evidence:
-        e["delta_chi_square"] = e["chi_square"] - evidence[best]["chi_square"]
-        e["relative_likelihood"] = float(np.exp(-0.5 * e["delta_chi_square"]))
-    return best, candidates[best], answers[best], evidence
+        e["points_judged"] = len(answers[best].result.residual)
+    return stages[best][0], stages[best][1], answers[best], evidence
 
 
-def _evidence(number: int, atlas: store.Atlas, result, noise: float) -> dict:
-    stage = atlas.info.get("stage") or {}
-    return {
-        "stage": number,
-        "removed_ml": float(stage.get("removed_ml", 0.0)),
-        "residual_rms_mm": float(np.sqrt(np.mean(result.residual**2))) * 1e3,
-        "chi_square": float(np.sum(result.residual**2) / noise**2),
-    }
+def chi_square(residual: np.ndarray, dims: np.ndarray, noise: float) -> float:
+    """The points' chi-square at a fit, each term capped at OUTLIER^2 x its coordinates."""
+    return float(np.minimum((residual / noise) ** 2, OUTLIER**2 * dims).sum())
+
+
+def runner_up(evidence: list[dict], chosen: int) -> dict | None:
+    """The stage nearest the chosen one's chi-square when within AMBIGUOUS of it, else None."""
+    others = [e for e in evidence if e["stage"] != chosen and "delta_chi_square" in e]
+    close = [e for e in others if e["delta_chi_square"] < AMBIGUOUS]
+    return min(close, key=lambda e: e["delta_chi_square"]) if close else None
 
 
 def present_in(whole: np.ndarray, stage: np.ndarray) -> np.ndarray:

@@ -86,12 +86,10 @@ def mesh_id(points: np.ndarray, tetrahedra: np.ndarray) -> str:
 
 def write(folder: Path, atlas: Atlas) -> str:
     """The atlas's files (its stages' first, in ATLAS/stages/K); returns its build's id."""
-    import shutil
-
     import h5py
 
     folder.mkdir(parents=True, exist_ok=True)
-    shutil.rmtree(folder / STAGES, ignore_errors=True)  # (an earlier build's stages)
+    _remove_stages(folder)
     if atlas.stages:
         ids = [write(folder / STAGES / str(k), stage) for k, stage in enumerate(atlas.stages, 1)]
         for record, stage_id in zip(atlas.info["resection"]["stages"], ids):
@@ -132,6 +130,23 @@ def write(folder: Path, atlas: Atlas) -> str:
     return build_id
 
 
+def _remove_stages(folder: Path) -> None:
+    """An earlier build's stage atlases (ATLAS/stages/K holding atlas.h5 or atlas.json, and the
+    build's temporary files), and the stages folder if nothing else is left in it."""
+    import shutil
+
+    stages = folder / STAGES
+    if not stages.is_dir():
+        return
+    for stage in stages.iterdir():
+        names = {p.name for p in stage.iterdir()} if stage.is_dir() and stage.name.isdigit() else set()
+        ours = {"atlas.h5", "atlas.json", ".atlas.h5.tmp", ".atlas.json.tmp"}
+        if names and names <= ours | {STAGES}:
+            shutil.rmtree(stage)
+    if not any(stages.iterdir()):
+        stages.rmdir()
+
+
 def stage_count(atlas: Atlas) -> int:
     """How many resection stages the atlas holds (0: none)."""
     return len((atlas.info.get("resection") or {}).get("stages", []))
@@ -141,9 +156,19 @@ def read_stage(folder: str | Path, atlas: Atlas, number: int) -> Atlas:
     """Resection stage ``number`` (1, 2, ...) of the atlas read from ``folder``."""
     count = stage_count(atlas)
     if not 1 <= number <= count:
-        have = f"stages 1 to {count} (0: before the resection)" if count else "no resection stages"
+        have = (
+            f"stages 1 to {count} (0: before the resection)"
+            if count
+            else "no resection stages (build them with brainshift atlas SCENE --resect REGION)"
+        )
         raise InputError(f"--stage {number}: the atlas in '{folder}' has {have}")
-    stage = read(Path(folder) / STAGES / str(number))
+    where = Path(folder) / STAGES / str(number)
+    if not (where / "atlas.h5").is_file() or not (where / "atlas.json").is_file():
+        raise InputError(
+            f"ATLAS: '{folder}' names {count} resection stages but '{where}' holds no atlas (a build interrupted, "
+            f"or the folder copied without it); build the atlas again with --resect"
+        )
+    stage = read(where)
     expected = atlas.info["resection"]["stages"][number - 1].get("build_id")
     if stage.info.get("build_id") != expected:
         raise InputError(

@@ -136,7 +136,7 @@ def update(
     result = _update(atlas, target, noise, samples, keep_inside, alpha)
     if not set_aside:
         return result
-    dims = _coordinates(target)
+    dims = coordinates(target)
     loo = result.leave_one_out
     limit = np.maximum(OUTLIER * noise * np.sqrt(dims), OUTLIER_MEDIAN * float(np.nanmedian(loo)))
     # a point not left out (a scan's thousands: a sample is) is judged by its error at the
@@ -188,7 +188,7 @@ def _errors(atlas, target, u: np.ndarray, surface_u) -> np.ndarray:
     return out
 
 
-def _coordinates(target) -> np.ndarray:
+def coordinates(target) -> np.ndarray:
     """(n,) the coordinates each point measures: 3 for a pair, 1 for a distance to the surface."""
     dims = np.ones(len(target.measured))
     dims[target.pairs] = 3.0
@@ -360,7 +360,7 @@ def _update(atlas, target, noise: float, samples: int, keep_inside: bool, alpha:
                 answer_warning(
                     residual,
                     noise,
-                    _coordinates(target),
+                    coordinates(target),
                     skull_report.get("deepest_past_mm", 0.0) * 1e-3,
                     keep_inside,
                     ROUNDS,

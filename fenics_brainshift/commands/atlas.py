@@ -138,7 +138,8 @@ def main(args, comm) -> list[str]:
 
 def _stage_lines(atlas, out: Path) -> list[str]:
     """A line a resection stage: what it removed and what it cost."""
-    lines = [f"  resection of {atlas.info['resection']['region']} in {len(atlas.stages)} stages ({out}/stages/):"]
+    count = len(atlas.stages)
+    lines = [f"  resection of {atlas.info['resection']['region']} in {count} stage{'s' * (count > 1)} ({out}/stages/):"]
     for stage in atlas.stages:
         s = stage.info["stage"]
         lines.append(

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ..errors import InputError
 from .help_format import Defaults, add_overwrite
 
 
@@ -63,6 +64,12 @@ def main(args, comm) -> list[str]:
     target = read_target(args.target, args.pre, args.frame)
     check_enough(target, len(names))  # (before the model is built: nothing else is said first)
     scene = load_scene(args.scene, args.set)
+    if scene.remove:  # (its settled states would measure the points against the surface before the cut)
+        raise InputError(
+            "fit: a scene with [[remove]] is not fitted (the points would be measured against the brain before the "
+            "cut); fit the scene before the resection, or build an atlas with its resection stages (brainshift "
+            "atlas SCENE --resect REGION) and update it"
+        )
     forward = ForwardModel(load_scene(args.scene, args.set + ["time.mode=quasi-static"]), comm)
     params = fit_parameters(scene, names, forward.heights())
     result = fit(forward, target, params, args.noise * 1e-3)

@@ -101,7 +101,8 @@ def main(args, comm) -> list[str]:
             + ("" if args.allow else " and name the clients with --allow")
         )
     _log(
-        f"serving {args.atlas} on {args.host}:{server.port} ({args.frame}, mm), ready in "
+        f"serving {args.atlas}{f' (resection stage {args.stage})' if args.stage else ''} on {args.host}:"
+        f"{server.port} ({args.frame}, mm), ready in "
         f"{time.perf_counter() - started:.2f} s; Ctrl-C to stop"
     )
     stop = {"now": False}
@@ -140,6 +141,7 @@ def session_factory(args):
     stage = getattr(args, "stage", 0)
     if stage < 0:
         raise InputError(f"--stage {stage}: stages are numbered 0 (before the resection), 1, 2, ...")
+    atlas_id = atlas.info.get("build_id") or atlas.mesh_id()  # (the folder's atlas; the stage is its own option)
     if stage:
         atlas = store.read_stage(args.atlas, atlas, stage)
     pre = targets = None
@@ -176,7 +178,7 @@ def session_factory(args):
         return Session(shared[id(case)][1], args.frame)
 
     options = {"frame": args.frame, "noise": args.noise, "grid": args.grid, "share": bool(args.share), **digest}
-    options["atlas"] = atlas.info.get("build_id") or atlas.mesh_id()
+    options["atlas"] = atlas_id
     options["stage"] = stage
     return new_session, options
 

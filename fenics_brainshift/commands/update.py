@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from ..atlas import store
-from ..atlas.stages import fit_stages, parse_stage, present_in
+from ..atlas.stages import fit_stages, load_stages, parse_stage, present_in, runner_up
+from ..atlas.update import coordinates
 from ..errors import InputError
 from ..images.targets import check_noise, read_surface_points, read_target, with_surface_points
 from ..outputs.files import RunLock, check_writable, clear_run, runs_results, write_json
@@ -81,6 +82,13 @@ def add(sub) -> None:
         help="points on the resection cavity's wall (intra-operative ultrasound; mm: .mrk.json, .csv or a "
         "surface), fitted to the stage's surface, the cavity's wall included",
     )
+    update.add_argument(
+        "--cavity-frame",
+        type=str.upper,
+        choices=["RAS", "LPS"],
+        default=None,
+        help="frame of a CSV or untagged surface --cavity (default: --frame's, else RAS)",
+    )
     update.add_argument("--image", help="a volume (.nii.gz, .nrrd) on whose grid to write OUT/uncertainty.nii.gz")
     update.add_argument("--out", default="out_update", help="output folder")
     add_overwrite(update, "the update's folder", "--replace")
@@ -105,6 +113,11 @@ def main(args, comm) -> list[str]:
     told = parse_stage(args.stage)
     atlas = store.read(args.atlas)  # every rank: the update is small, each computes it, rank 0 writes
     staged = store.stage_count(atlas) > 0
+    if told == 0 and args.cavity is not None:
+        raise InputError(
+            "--cavity with --stage 0: before the resection there is no cavity's wall to fit the points to; give "
+            "the stage (--stage K) or let the update choose (--stage auto)"
+        )
     if args.cavity is not None and not staged:
         raise InputError(
             f"--cavity: the atlas in '{args.atlas}' has no resection stages, so no cavity to fit the points to; "
@@ -112,7 +125,8 @@ def main(args, comm) -> list[str]:
         )
     target = read_target(args.target, args.pre, args.frame)
     if args.cavity is not None:
-        target = with_surface_points(target, read_surface_points(args.cavity, args.frame, "--cavity"), "cavity")
+        frame = args.cavity_frame or args.frame
+        target = with_surface_points(target, read_surface_points(args.cavity, frame, "--cavity"), "cavity")
     cases = []
 
     def fit(stage_atlas):  # (the case prepares the atlas once, as `brainshift serve` keeps it prepared)
@@ -125,9 +139,10 @@ def main(args, comm) -> list[str]:
     whole = None  # (a stage's atlas holds the cells left: the whole mesh's are the atlas's before)
     if staged or told:
         whole = atlas.tetrahedra
-        number, atlas, answer, evidence = fit_stages(args.atlas, atlas, told, fit, args.noise * 1e-3)
+        stages = load_stages(args.atlas, atlas, told)
+        number, atlas, answer, evidence = fit_stages(stages, fit, args.noise * 1e-3, coordinates(target))
         whole = whole if number else None
-        case = cases[number if told is None else 0]
+        case = next(c for c in cases if c.atlas is atlas)
         args.stage_report = {"number": number, "told": told is not None, "evidence": evidence, **_removed(atlas)}
     else:
         answer = fit(atlas)
@@ -369,21 +384,33 @@ def _suggestion(answer, case) -> dict | None:
 
 
 def _stage_line(report: dict) -> str:
-    """Which resection stage was fitted, and why."""
+    """Which resection stage was fitted, and why (and whether the points can tell)."""
     number, evidence = report["number"], report["evidence"]
     removed = f"{report['removed_ml']:.1f} ml removed" if number else "before the resection"
     if report["told"]:
         return f"  resection stage {number} ({removed}), as told"
-    others = ", ".join(
+    chosen = next(e for e in evidence if e["stage"] == number)
+    others = "; ".join(
         f"{e['stage']}: {e['residual_rms_mm']:.2f} mm (chi-square +{e['delta_chi_square']:.3g})"
+        if "left_out" not in e
+        else f"{e['stage']}: left out ({e['left_out'][:120]})"
         for e in evidence
         if e["stage"] != number
     )
-    return (
-        f"  resection stage {number} ({removed}), chosen by the data: residual "
-        f"{evidence[number]['residual_rms_mm']:.2f} mm, chi-square {evidence[number]['chi_square']:.4g}; "
+    line = (
+        f"  resection stage {number} ({removed}), chosen by the data: residual {chosen['residual_rms_mm']:.2f} mm, "
+        f"chi-square {chosen['chi_square']:.4g} over all {chosen['points_judged']} points (each capped where a point "
+        f"is an outlier); "
         f"the other stages {others}"
     )
+    close = runner_up(evidence, number)
+    if close is not None:
+        line += (
+            f"\n  AMBIGUOUS: stage {close['stage']} explains the points about as well (relative likelihood "
+            f"{close['relative_likelihood']:.2f}); points on the cavity's wall (--cavity) tell the stages apart, or "
+            f"give the stage (--stage)"
+        )
+    return line
 
 
 def _lines(atlas, target, result, out: Path, image: bool, args=None) -> list[str]:

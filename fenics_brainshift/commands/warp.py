@@ -90,6 +90,7 @@ def main(args, comm) -> list[str]:
     cavity_value = None
     if warp.cavity is not None and warp.cavity.any():
         cavity_value = args.cavity_value if args.cavity_value is not None else _background(volume, args.labels)
+        _check_representable(cavity_value, volume, args.cavity_value is not None)
     if comm.rank == 0:  # both or neither: each to a temporary file, then both moved into place
         warped = warp.apply(labels=args.labels, cavity_value=cavity_value)
         transform = Path(args.transform) if args.transform else None
@@ -127,9 +128,25 @@ def main(args, comm) -> list[str]:
                 f"{cavity_value:g}" + ("" if args.cavity_value is not None else " (--cavity-value to choose)")
             ]
             if cavity_value is not None
+            else [f"  --cavity-value {args.cavity_value:g} unused: the state warped has no cavity"]
+            if args.cavity_value is not None
             else []
         )
     )
+
+
+def _check_representable(value: float, volume, given: bool) -> None:
+    """The cavity's value must be one the image's type holds (a uint8 label map's 300 became 255)."""
+    dtype = np.asarray(volume.data).dtype
+    if not np.issubdtype(dtype, np.integer):
+        return
+    info = np.iinfo(dtype)
+    if value != int(value) or not info.min <= value <= info.max:
+        what = f"--cavity-value {value:g}" if given else f"the cavity's default label {value:g}"
+        raise InputError(
+            f"warp: {what} is not a value '{volume.path.name}' can hold ({dtype}: whole numbers {info.min} to "
+            f"{info.max}); give --cavity-value within them"
+        )
 
 
 def _background(volume, labels: bool) -> float:

@@ -80,6 +80,10 @@ class Tissue:
                     f"remaining cell; nothing would be left to simulate"
                 )
 
+    def count_present(self) -> int:
+        """The cells still present, globally. Collective."""
+        return self._count(self.present)
+
     @property
     def removed_fraction(self) -> float:
         return 1.0 - self._count(self.present) / self.total

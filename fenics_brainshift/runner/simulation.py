@@ -119,11 +119,19 @@ class Simulation:
         tissue = self.model.tissue
         t = self.state.t if t is None else t
         V = self.model.V
-        fixed = np.unique(self.model.constraints.fixed // V.dofmap.index_map_bs)
         for index in indices:
             cut = tissue.cuts[index]
             count, isolated = tissue.apply(index)
-            freed = tissue.take(unheld_cells(V, tissue.present, fixed))
+            left = tissue.count_present()
+            freed = tissue.take(unheld_cells(V, tissue.present, self.model.constraints.fixed))
+            if freed == left:
+                who = f"--resect: {cut.label}" if cut.label.startswith("resection stage") else f"[[remove]] {cut.label}"
+                raise InputError(
+                    f"{who}: no piece of what "
+                    f"is left is held by the supports against every rigid motion (the cut takes them, or leaves "
+                    f"them on a point or a line), so it has no settled state; cut less, or hold what is left "
+                    f"([[fixed]])"
+                )
             self._settled_removals.append(
                 {"at": cut.at, "t": t, "region": cut.label, "cells": count, "isolated_cells": isolated,
                  "free_cells": freed}
