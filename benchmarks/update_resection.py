@@ -5,12 +5,13 @@ One process, one rank.
 The atlas: the bundled brain at --voxel with a rigid skull --skull out, linear, levels 0 to 60 mm
 (7) x the head turned -6, 0, 6 degrees about z, the whole-brain swelling mode; the tumour TUMOUR
 (a sphere under the supine brain's top) taken out in --stages stages from the top down. Each
-operation is the settled state of a scene built on its own by the full model: neo-Hookean, the
+operation is the settled state of a scene built on its own by the full model: neo-Hookean (the
+first; the others' neo-Hookean settled states were not found, so linear: see OPERATIONS), the
 skull, a resection that is not one of the stages (another extent: the tumour's cells above
 another height, or a smaller sphere), the fluid at a level between the atlas's (in the cavity
-for two of them: a cavity part filled), another pose or stiffness. Measured, as ultrasound and a
-pointer give them: 15 landmark pairs at nodes within 40 mm of the cavity (1 mm noise per axis)
-and 10 points on the exposed cortex near the craniotomy (0.5 mm, fitted to the surface).
+for two of them: a cavity part filled), another pose or stiffness. Measured, as ultrasound and
+a pointer give them: 15 landmark pairs at nodes within 40 mm of the cavity (1 mm noise per
+axis) and 10 points on the exposed cortex near the craniotomy (0.5 mm, fitted to the surface).
 Held out: every node within 10 mm of the cavity's wall but the 15 measured ones.
 
 Compared: the update across the stages (atlas/stages.py: each stage fitted, the stage of the
@@ -68,14 +69,19 @@ OPERATIONS = {
         ["material.model=neo-hookean"],
         {"fluid.level": 0.052, "gravity.angle_z": 3.0},
     ),
-    "a smaller sphere, drained below it": (
+    # (neo-Hookean this one found no settled state on the 5 mm or the 10 mm brain, at a level of
+    # 25 or 35 mm: Newton stalled with the load step cut to 1/1024; its thin roof over the
+    # cavity, 5-10 mm of tissue, falls in. The linear model settles.)
+    "a smaller sphere, drained below it, linear": (
         "(x-0.03)**2 + (y-0.047)**2 + (z-0.02)**2 < 0.015**2",
-        ["material.model=neo-hookean"],
+        [],
         {"fluid.level": 0.025, "gravity.angle_z": -4.0},
     ),
-    "the top 80 %, softer (G x 0.8)": (
+    # (neo-Hookean, at G x 0.8 or the scene's G, levels 45 or 52 mm: no settled state found on the
+    # 5 mm brain either, Newton stalled with the load step cut to 1/1024)
+    "the top 80 %, softer (G x 0.8), linear": (
         f"{TUMOUR} and y >= 0.033",
-        ["material.model=neo-hookean", "material.G=1896"],
+        ["material.G=1896"],
         {"fluid.level": 0.045, "gravity.angle_z": 0.0},
     ),
 }
