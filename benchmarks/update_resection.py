@@ -151,7 +151,12 @@ def main() -> None:
         for _ in range(REPEATS):  # (the update across the stages, as `brainshift update` makes it)
             t = time.perf_counter()
             runs.append(
-                fit_stages(numbered, lambda a: SimpleNamespace(result=update(a, target, PAIR_NOISE)), PAIR_NOISE, dims)
+                fit_stages(
+                    numbered,
+                    lambda a, alpha: SimpleNamespace(result=update(a, target, PAIR_NOISE, alpha=alpha)),
+                    PAIR_NOISE,
+                    dims,
+                )
             )
             across.append(time.perf_counter() - t)
         chosen, _, answer, evidence = runs[-1]
@@ -214,11 +219,12 @@ def main() -> None:
         "across stages ms | within the stage ms |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
-    for r in rows + [dict(mean, operation="**mean**", chosen_stage="", chi_square="", chosen_removed_ml=np.nan)]:
+    for r in rows + [dict(mean, operation="**mean**", chosen_stage="", chi_square="", chosen_removed_ml=None)]:
+        chosen = "" if r["chosen_removed_ml"] is None else f"{r['chosen_stage']} ({r['chosen_removed_ml']:.1f})"
         lines.append(
             f"| {r['operation']} | {r['removed_ml']:.1f} | {r['level_mm']:.0f} | {r['truth_shift_near_mm']:.2f} | "
             f"{r['prediction_mm']:.2f} | {r['stage_prediction_mm']:.2f} | {r['update_no_stages_mm']:.2f} | "
-            f"**{r['update_stages_mm']:.2f}** | {r['chosen_stage']} ({r['chosen_removed_ml']:.1f}) | "
+            f"**{r['update_stages_mm']:.2f}** | {chosen} | "
             f"{r['chi_square']} | {r['across_stages_ms']:.0f} | {r['within_stage_ms']:.0f} |"
         )
     lines += [

@@ -317,8 +317,9 @@ def test_update_demo(tmp_path):
 
 def test_update_demo_after_a_resection(tmp_path):
     """demos/update.py --resection on a coarse brain: near the cavity's wall the update across
-    the atlas's stages is nearer the full model's resected truth than the update without them,
-    and both than the prediction; the slice through the cavity is drawn."""
+    the atlas's stages (pairs and the wall's points) is nearer the full model's resected truth
+    than the update without them (the pairs alone), and both far nearer than the prediction;
+    the slice through the cavity is drawn."""
     import re
 
     out = tmp_path / "resection"
@@ -329,9 +330,9 @@ def test_update_demo_after_a_resection(tmp_path):
         name: float(re.search(rf"{name} +([\d.]+)", stdout).group(1))
         for name in ("prediction", "update, no stages", "update, stages")
     }
-    assert error["update, stages"] < 0.7 * error["update, no stages"] < 0.7 * error["prediction"], error
+    assert error["update, stages"] < error["update, no stages"] < 0.5 * error["prediction"], error
     assert re.search(r"stage chosen [1-3] ", stdout)
-    assert (out / "cavity.png").stat().st_size > 10_000 and (out / "stages" / "update.json").is_file()
+    assert (out / "cavity.png").stat().st_size > 10_000 and (out / "update_stages" / "update.json").is_file()
 
 
 def test_brain_demo_shrinks_the_brain_towards_its_supports(tmp_path):

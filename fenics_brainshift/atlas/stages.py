@@ -12,8 +12,9 @@ out of every sum, the wall's points, set aside by the stage before the resection
 been the evidence dropped). The stage of the smallest is chosen; the others are reported with
 their difference, and exp(-difference / 2) is the likelihood of the points under each stage's
 fit relative to the chosen one's (the weights at their fits, the regularisation alike for
-all). A stage that cannot take the points at all (a landmark in the tissue it removed) is
-left out and says why.
+all: its weight alpha is chosen by cross-validation at the first stage that takes the points
+and used by the others, which also spares each stage its cross-validation). A stage that
+cannot take the points at all (a landmark in the tissue it removed) is left out and says why.
 """
 
 from __future__ import annotations
@@ -53,15 +54,17 @@ def load_stages(folder: str | Path, atlas: store.Atlas, told: int | None) -> lis
 
 def fit_stages(stages: list[tuple[int, store.Atlas]], fit, noise: float, dims: np.ndarray) -> tuple:
     """(the stage's number, its atlas, fit(its atlas), the evidence [{stage, ...}]) of the
-    stage whose fit's chi-square is the smallest (of one stage: that one). fit(atlas) -> an
-    object with .result (atlas.update.UpdateResult); an InputError it raises for a stage
+    stage whose fit's chi-square is the smallest (of one stage: that one). fit(atlas, alpha)
+    -> an object with .result (atlas.update.UpdateResult), alpha None: chosen by
+    cross-validation, else the first stage's given; an InputError it raises for a stage
     leaves that stage out (and is raised when every stage raises one); dims: the coordinates
     each point measures (3 a pair, 1 a distance to the surface)."""
-    answers, reasons = [], []
+    answers, reasons, alpha = [], [], None
     for _, atlas in stages:
         try:
-            answers.append(fit(atlas))
+            answers.append(fit(atlas, alpha))
             reasons.append(None)
+            alpha = answers[-1].result.alpha
         except InputError as exc:
             if len(stages) == 1:
                 raise

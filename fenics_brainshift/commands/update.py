@@ -129,12 +129,12 @@ def main(args, comm) -> list[str]:
         target = with_surface_points(target, read_surface_points(args.cavity, frame, "--cavity"), "cavity")
     cases = []
 
-    def fit(stage_atlas):  # (the case prepares the atlas once, as `brainshift serve` keeps it prepared)
+    def fit(stage_atlas, alpha=None):  # (the case prepares the atlas once, as `brainshift serve` keeps it prepared)
         case = Case(
             stage_atlas, noise=args.noise * 1e-3, grid=None, samples=args.bootstrap, set_aside=not args.keep_all
         )
         cases.append(case)
-        return case.update(target)
+        return case.update(target, alpha)
 
     whole = None  # (a stage's atlas holds the cells left: the whole mesh's are the atlas's before)
     if staged or told:

@@ -166,13 +166,14 @@ class Case:
         pre = np.vstack([pre, np.full((len(s.touches) + len(s.scan), 3), np.nan)])
         return Target(measured, pre if np.isfinite(pre).any() else None, labels)
 
-    def update(self, target: Target | None = None) -> Answer:
+    def update(self, target: Target | None = None, alpha: float | None = None) -> Answer:
         """The update to the points held now (alpha kept from the last cross-validation while
-        the points are near as many: ALPHA_KEPT), or to `target` (alpha chosen anew)."""
+        the points are near as many: ALPHA_KEPT), or to `target` (alpha chosen anew, or the
+        one given: another resection stage's on the same points)."""
         live = target is None
         target = self.target() if live else target
         started = time.perf_counter()
-        alpha = self._kept_alpha(target) if live else None
+        alpha = self._kept_alpha(target) if live else alpha
         result = update(self.atlas, target, self.noise, self.samples, set_aside=self.set_aside, alpha=alpha)
         if result.curve:
             self._alpha = (result.alpha, len(target.measured), target.kind)
@@ -247,7 +248,11 @@ class Case:
             "set_aside": [answer.target.labels[i] for i in r.outliers],
             "noise_mm": self.noise * mm,
             "alpha": r.alpha,
-            "alpha_from": "cross-validation" if r.curve else f"kept (cross-validated on {self._alpha[1]} points)",
+            "alpha_from": "cross-validation"
+            if r.curve
+            else f"kept (cross-validated on {self._alpha[1]} points)"
+            if self._alpha is not None
+            else "given (cross-validated on these points at another resection stage)",
             "stiffness_G_Pa": r.stiffness(self.atlas),
             "fluid_level_m": (
                 float(
