@@ -70,8 +70,7 @@ OPERATIONS = {
         {"fluid.level": 0.052, "gravity.angle_z": 3.0},
     ),
     # (neo-Hookean this one found no settled state on the 5 mm or the 10 mm brain, at a level of
-    # 25 or 35 mm: Newton stalled with the load step cut to 1/1024; its thin roof over the
-    # cavity, 5-10 mm of tissue, falls in. The linear model settles.)
+    # 25 or 35 mm: Newton stalled with the load step cut to 1/1024. The linear model settles.)
     "a smaller sphere, drained below it, linear": (
         "(x-0.03)**2 + (y-0.047)**2 + (z-0.02)**2 < 0.015**2",
         [],
