@@ -74,7 +74,9 @@ def test_a_stage_mode_is_the_settled_state_of_the_scene_with_that_resection(stag
         if s["kind"] == "family" and s["values"] == {"gravity.angle_z": 8.0, "fluid.level": 0.04}
     )
     g = rotated_gravity(np.array([0.0, -9.81, 0.0]), {"gravity.angle_z": 8.0})
-    points, u, removal = _resected_state([f"gravity.vector=[{g[0]!r},{g[1]!r},{g[2]!r}]", "fluid.level=0.04"], where)
+    points, u, removal = _resected_state(
+        [f"gravity.vector=[{float(g[0])!r},{float(g[1])!r},{float(g[2])!r}]", "fluid.level=0.04"], where
+    )
     assert np.allclose(points, atlas.points)
     assert removal["cells"] == sum(s.info["stage"]["cells"] for s in staged.stages[:stage])
     present = np.unique(atlas.tetrahedra)
