@@ -196,6 +196,13 @@ def test_an_operation_of_a_stage_is_found_and_recovered_near_the_cavity(staged, 
     assert told["resection_stage"]["told"] and told["resection_stage"]["number"] == 1
     # (told, the stage's own cross-validation chooses alpha; chosen among the stages, stage 0's did)
     assert told["residual_rms_mm"] == pytest.approx(report["residual_rms_mm"], rel=0.2)
+    # the uncertainty's headline: the nodes within 20 mm of a pair's pre-operative point or of a wall
+    # point's measured one (it has no other), by brute force
+    assert not told["set_aside"]  # (result fits every point too)
+    places = np.concatenate([pre, touched])
+    distance = np.linalg.norm(atlas.points[:, None] - places[None], axis=2).min(axis=1)
+    expected = result.spread[distance < 0.02].mean() * 1e3
+    assert told["uncertainty_mm"]["near_points"] == pytest.approx(expected, rel=1e-2)  # (markups: rounded)
 
 
 @pytest.mark.parametrize(

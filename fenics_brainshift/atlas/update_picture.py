@@ -50,7 +50,7 @@ def write_update_picture(path: Path, image, atlas, target, result) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    points_mm = (target.pre if target.pre is not None else target.measured) * 1e3
+    points_mm = target.places * 1e3
     centre = points_mm.mean(axis=0)
     planes = _sampled_planes(image, atlas, result, centre)
     # one colour scale and one arrow scale for the three planes (each its own misled)

@@ -299,7 +299,7 @@ def _spread_near(atlas, target, result) -> float:
     error near the craniotomy on a prepared patient)."""
     from scipy.spatial import cKDTree
 
-    where = target.pre if target.pre is not None else target.measured
+    where = target.places  # (a point to the surface has no pre-operative point: a NaN row)
     near = cKDTree(where).query(atlas.points, distance_upper_bound=NEAR_MM * 1e-3)[0] < np.inf
     return float(result.spread[near].mean()) if near.any() else float(result.spread.mean())
 

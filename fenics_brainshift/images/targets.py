@@ -69,6 +69,14 @@ class Target:
             return "point-to-point"
         return "point-to-surface" if not pairs else "point-to-point and point-to-surface"
 
+    @property
+    def places(self) -> np.ndarray:
+        """(n, 3) where each point is on the pre-operative brain, near enough: a pair's
+        pre-operative point, a point to the surface's measured one (it has no other)."""
+        if self.pre is None:
+            return self.measured
+        return np.where(np.isfinite(self.pre).all(axis=1)[:, None], self.pre, self.measured)
+
     def subset(self, keep) -> Target:
         """The same kind of target over these points."""
         keep = np.asarray(keep, dtype=np.int64)
