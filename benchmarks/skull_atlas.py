@@ -36,7 +36,8 @@ sys.path.insert(0, str(ROOT))
 
 from fenics_brainshift import load_scene, logs  # noqa: E402
 from fenics_brainshift.atlas import build as building  # noqa: E402
-from fenics_brainshift.atlas.build import WHOLE_BODY, build, solve_from_prior  # noqa: E402
+from fenics_brainshift.atlas.build import WHOLE_BODY, build  # noqa: E402
+from fenics_brainshift.atlas.mode_solves import solve_from_prior  # noqa: E402
 from fenics_brainshift.atlas.rows import SKULL_SLACK  # noqa: E402
 from fenics_brainshift.atlas.scenarios import parse_vary  # noqa: E402
 from fenics_brainshift.bench import machine_line  # noqa: E402

@@ -17,7 +17,8 @@ from mpi4py import MPI
 
 from fenics_brainshift import load_scene
 from fenics_brainshift.atlas import store
-from fenics_brainshift.atlas.build import build, solve_family_mode, solve_from_prior
+from fenics_brainshift.atlas.build import build
+from fenics_brainshift.atlas.mode_solves import solve_family_mode, solve_from_prior
 from fenics_brainshift.atlas.scenarios import parse_vary
 from fenics_brainshift.atlas.update import update
 from fenics_brainshift.data import scene_path
@@ -946,7 +947,7 @@ def test_a_poses_next_level_starts_from_its_last_two_extrapolated():
     or far ahead, or a scenario without a level, keeps the last state."""
     from types import SimpleNamespace
 
-    from fenics_brainshift.atlas.build import predict_start
+    from fenics_brainshift.atlas.mode_solves import predict_start
 
     def forward():
         return SimpleNamespace(

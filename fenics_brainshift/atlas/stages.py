@@ -110,3 +110,42 @@ def present_in(whole: np.ndarray, stage: np.ndarray) -> np.ndarray:
     kept = np.sort(stage, axis=1)
     view = lambda a: np.ascontiguousarray(a, dtype=np.int64).view([("", np.int64)] * 4).ravel()  # noqa: E731
     return np.isin(view(keys), view(kept))
+
+
+def removed(atlas) -> dict:
+    """What a stage's atlas removed (its region, ml, fraction), empty before the resection."""
+    stage = atlas.info.get("stage")
+    if not stage:
+        return {"removed_ml": 0.0}
+    return {"of": stage["of"], "region": stage["region"], "removed_ml": stage["removed_ml"],
+            "removed_fraction": stage["removed_fraction"]}  # fmt: skip
+
+
+def stage_line(report: dict) -> str:
+    """Which resection stage was fitted, and why (and whether the points can tell)."""
+    number, evidence = report["number"], report["evidence"]
+    removed = f"{report['removed_ml']:.1f} ml removed" if number else "before the resection"
+    if report["told"]:
+        return f"  resection stage {number} ({removed}), as told"
+    chosen = next(e for e in evidence if e["stage"] == number)
+    others = "; ".join(
+        f"{e['stage']}: {e['residual_rms_mm']:.2f} mm (chi-square +{e['delta_chi_square']:.3g})"
+        if "left_out" not in e
+        else f"{e['stage']}: left out ({e['left_out'][:120]})"
+        for e in evidence
+        if e["stage"] != number
+    )
+    line = (
+        f"  resection stage {number} ({removed}), chosen by the data: residual {chosen['residual_rms_mm']:.2f} mm, "
+        f"chi-square {chosen['chi_square']:.4g} over all {chosen['points_judged']} points (each capped where a point "
+        f"is an outlier); "
+        f"the other stages {others}"
+    )
+    close = runner_up(evidence, number)
+    if close is not None:
+        line += (
+            f"\n  AMBIGUOUS: stage {close['stage']} explains the points about as well (relative likelihood "
+            f"{close['relative_likelihood']:.2f}); points on the cavity's wall (--cavity) tell the stages apart, or "
+            f"give the stage (--stage)"
+        )
+    return line

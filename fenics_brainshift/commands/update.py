@@ -4,15 +4,15 @@ fine surface, the probes and the measured markups moved), and OUT/update.json.""
 
 from __future__ import annotations
 
-import os
 import time
 from pathlib import Path
 
 import numpy as np
 
 from ..atlas import store
-from ..atlas.stages import fit_stages, load_stages, parse_stage, present_in, runner_up
+from ..atlas.stages import fit_stages, load_stages, parse_stage, removed, stage_line
 from ..atlas.update import coordinates
+from ..atlas.update_files import uncertainty_grid, write_outputs
 from ..errors import InputError
 from ..images.targets import check_noise, read_surface_points, read_target, with_surface_points
 from ..outputs.files import RunLock, check_writable, clear_run, runs_results, write_json
@@ -143,7 +143,7 @@ def main(args, comm) -> list[str]:
         number, atlas, answer, evidence = fit_stages(stages, fit, args.noise * 1e-3, coordinates(target))
         whole = whole if number else None
         case = next(c for c in cases if c.atlas is atlas)
-        args.stage_report = {"number": number, "told": told is not None, "evidence": evidence, **_removed(atlas)}
+        args.stage_report = {"number": number, "told": told is not None, "evidence": evidence, **removed(atlas)}
     else:
         answer = fit(atlas)
         case = cases[0]
@@ -152,7 +152,7 @@ def main(args, comm) -> list[str]:
     result.seconds["atlas_prepare_ms"] = case.prepare_s * 1e3
     args.noise_stated = noise_stated
     # what can fail is done on every rank before a file is touched
-    spread_image = _uncertainty_grid(atlas, result.spread, image) if image is not None else None
+    spread_image = uncertainty_grid(atlas, result.spread, image) if image is not None else None
     if comm.rank == 0:
         out.mkdir(parents=True, exist_ok=True)
     comm.barrier()
@@ -161,7 +161,7 @@ def main(args, comm) -> list[str]:
         scene_name = atlas.info.get("scene_name", "atlas")
         clear_run(out, comm, scene_name, kind="update", overwrite=args.overwrite)  # (an earlier update's files too)
         if comm.rank == 0:
-            _write_outputs(out, atlas, target, result, image, spread_image, whole)
+            write_outputs(out, atlas, target, result, image, spread_image, whole)
         comm.barrier()
         report = _report(atlas, target, result, args, time.perf_counter() - start)
         report["suggestion"] = _suggestion(answer, case)
@@ -213,84 +213,6 @@ def _check_no_earlier_update(out: Path, overwrite: bool, comm) -> None:
             f"--out '{out}' holds an earlier update ({earlier}): give each update its own --out "
             f"(out_update_2, ...), or --overwrite to replace it"
         )
-
-
-def _write_outputs(out: Path, atlas, target, result, image, spread_image, whole=None) -> None:
-    """OUT's files; whole: the mesh's every cell when the atlas is a resection stage's."""
-    import meshio
-
-    from ..images.frames import write_markups
-    from ..surfaces.files import write_slicer_stl
-
-    u, spread = result.displacement, result.spread
-    # meshio writes the .h5 into the working directory, named after the .xdmf: written as
-    # hidden files from inside OUT, then the .h5 and the .xdmf (pointing at it) renamed in
-    here = os.getcwd()
-    os.chdir(out)
-    try:
-        cells, cell_data = atlas.tetrahedra, {}
-        if whole is not None:  # a resection stage: every cell, the removed ones marked (as a run's)
-            cells, cell_data = whole, {"tissue": [present_in(whole, atlas.tetrahedra).astype(float)]}
-        with meshio.xdmf.TimeSeriesWriter(".displacement.xdmf") as writer:
-            writer.write_points_cells(atlas.points, [("tetra", cells)])
-            writer.write_data(0.0, point_data={"displacement": u, "uncertainty": spread}, cell_data=cell_data)
-        text = Path(".displacement.xdmf").read_text().replace(".displacement.h5", "displacement.h5")
-        os.replace(".displacement.h5", "displacement.h5")
-        Path(".displacement.xdmf").write_text(text)
-        os.replace(".displacement.xdmf", "displacement.xdmf")
-    finally:
-        os.chdir(here)
-    if atlas.surface_points is not None:
-        moved = atlas.surface_points + result.surface_displacement
-        meshio.Mesh(
-            moved, [("triangle", atlas.surface_triangles)], point_data={"displacement": result.surface_displacement}
-        ).write(out / "surface_final.vtk")
-        write_slicer_stl(out / "surface_final.stl", moved * 1e3, atlas.surface_triangles)
-    probes = atlas.info.get("probes") or {}
-    if probes:
-        from ..atlas.locate import MeshLocator
-
-        names = list(probes)
-        points = np.array([probes[k] for k in names])
-        index, weight, _ = MeshLocator(atlas.points, atlas.tetrahedra).weights(points)
-        moved = points + np.einsum("nj,njd->nd", weight, u[index])
-        write_markups(out / "probes_final.mrk.json", names, moved * 1e3)
-    pairs = target.pairs
-    if len(pairs):  # the pre-operative points where the update puts them (points to the surface have none)
-        from ..atlas.locate import MeshLocator
-
-        pre = target.pre[pairs]
-        index, weight, _ = MeshLocator(atlas.points, atlas.tetrahedra).weights(pre)
-        write_markups(
-            out / "targets_updated.mrk.json",
-            [target.labels[i] for i in pairs],
-            (pre + np.einsum("nj,njd->nd", weight, u[index])) * 1e3,
-        )
-    if image is not None:
-        from ..atlas.update_picture import write_update_picture
-        from ..images.volumes import write_like
-
-        write_like(
-            image,
-            spread_image,
-            out / "uncertainty.nii.gz",
-            f"uncertainty of the updated shift, mm ({result.spread_from} RMS spread)",
-        )
-        write_update_picture(out / "update.png", image, atlas, target, result)
-
-
-def _uncertainty_grid(atlas, spread: np.ndarray, image) -> np.ndarray:
-    """The per-node spread (mm) interpolated on the image's grid inside the pre-operative
-    brain (0 outside), for a NIfTI beside the image (Slicer)."""
-    from ..images.rasterize import rasterize
-
-    X = image.ras_to_index(atlas.points * 1e3)
-    voxel, tet, lam = rasterize(X, atlas.tetrahedra, image.data.shape)
-    if not len(voxel):
-        raise InputError("update: --image does not overlap the atlas's brain (is it the scene's image, RAS mm?)")
-    data = np.zeros(image.data.shape, dtype=np.float32)
-    data.reshape(-1)[voxel] = np.einsum("ni,ni->n", lam, spread[atlas.tetrahedra[tet]]) * 1e3
-    return data
 
 
 def _spread_near(atlas, target, result) -> float:
@@ -361,15 +283,6 @@ def _report(atlas, target, result, args, seconds: float) -> dict:
     }
 
 
-def _removed(atlas) -> dict:
-    """What a stage's atlas removed (its region, ml, fraction), empty before the resection."""
-    stage = atlas.info.get("stage")
-    if not stage:
-        return {"removed_ml": 0.0}
-    return {"of": stage["of"], "region": stage["region"], "removed_ml": stage["removed_ml"],
-            "removed_fraction": stage["removed_fraction"]}  # fmt: skip
-
-
 def _suggestion(answer, case) -> dict | None:
     """Where a touch of the cortex would most lower the spread at the atlas's probes."""
     s = answer.suggestion
@@ -381,36 +294,6 @@ def _suggestion(answer, case) -> dict | None:
         "targets_spread_mm": s.spread * 1e3,
         "expected_spread_mm": s.expected * 1e3,
     }
-
-
-def _stage_line(report: dict) -> str:
-    """Which resection stage was fitted, and why (and whether the points can tell)."""
-    number, evidence = report["number"], report["evidence"]
-    removed = f"{report['removed_ml']:.1f} ml removed" if number else "before the resection"
-    if report["told"]:
-        return f"  resection stage {number} ({removed}), as told"
-    chosen = next(e for e in evidence if e["stage"] == number)
-    others = "; ".join(
-        f"{e['stage']}: {e['residual_rms_mm']:.2f} mm (chi-square +{e['delta_chi_square']:.3g})"
-        if "left_out" not in e
-        else f"{e['stage']}: left out ({e['left_out'][:120]})"
-        for e in evidence
-        if e["stage"] != number
-    )
-    line = (
-        f"  resection stage {number} ({removed}), chosen by the data: residual {chosen['residual_rms_mm']:.2f} mm, "
-        f"chi-square {chosen['chi_square']:.4g} over all {chosen['points_judged']} points (each capped where a point "
-        f"is an outlier); "
-        f"the other stages {others}"
-    )
-    close = runner_up(evidence, number)
-    if close is not None:
-        line += (
-            f"\n  AMBIGUOUS: stage {close['stage']} explains the points about as well (relative likelihood "
-            f"{close['relative_likelihood']:.2f}); points on the cavity's wall (--cavity) tell the stages apart, or "
-            f"give the stage (--stage)"
-        )
-    return line
 
 
 def _lines(atlas, target, result, out: Path, image: bool, args=None) -> list[str]:
@@ -444,7 +327,7 @@ def _lines(atlas, target, result, out: Path, image: bool, args=None) -> list[str
     for name, theta in result.volume_changes(atlas).items():
         lines.append(f"  swelling {name}: volume change {theta:+.3%}")
     if args is not None and args.stage_report is not None:
-        lines.append(_stage_line(args.stage_report))
+        lines.append(stage_line(args.stage_report))
     if result.skull:
         lines.append(
             f"  skull: {result.skull['nodes_with_rows']} nodes held inside by the fit's rows, deepest past "
