@@ -226,8 +226,11 @@ class Model:
         return out
 
     def tissue_changed(self) -> None:
-        """After a resection: the loads that carry the tissue indicator, assembled again."""
+        """After a resection: the loads that carry the tissue indicator, assembled again, and the
+        fluid on the surface of the cells still present."""
         self.gravity.refresh()
+        if self.fluid is not None:
+            self.fluid.set_present(self.tissue.present)
         if self._growth_vector is not None:
             assemble_into(self._growth_vector, self._growth_form)
             self._growth_scale = (None, 0.0)

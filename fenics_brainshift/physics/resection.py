@@ -23,7 +23,10 @@ from petsc4py import PETSc
 
 from .. import compat
 from ..errors import InputError
+from ..logs import get_logger
 from ..meshing.facets import present_facet_counts
+
+log = get_logger("stepping")  # (the time loop's log, where cuts were said before)
 
 
 def cell_centroids(mesh) -> np.ndarray:
@@ -106,6 +109,22 @@ class Tissue:
         self.take(isolated)
         self.pending[index] = None
         return removed, self.comm.allreduce(len(isolated), op=MPI.SUM)
+
+    def cut(self, index: int, t: float) -> dict:
+        """Apply pending removal ``index`` at time t (apply), say so in the log, and return its
+        record: {at, t, region, cells, isolated_cells}. Collective."""
+        cut = self.cuts[index]
+        count, isolated = self.apply(index)
+        log.info(
+            "  t=%.3f s: removed %d cells (%s) and %d left hanging by an edge or vertex; %.1f %% of the body "
+            "removed so far",
+            t,
+            count,
+            cut.label,
+            isolated,
+            100.0 * self.removed_fraction,
+        )
+        return {"at": cut.at, "t": t, "region": cut.label, "cells": count, "isolated_cells": isolated}
 
     def take(self, cells: np.ndarray) -> int:
         """Remove these owned cells (local indices) too; returns how many, globally. Collective."""

@@ -121,7 +121,7 @@ class Simulation:
         V = self.model.V
         for index in indices:
             cut = tissue.cuts[index]
-            count, isolated = tissue.apply(index)
+            record = tissue.cut(index, t)
             left = tissue.count_present()
             freed = tissue.take(unheld_cells(V, tissue.present, self.model.constraints.fixed))
             if freed == left:
@@ -132,19 +132,7 @@ class Simulation:
                     f"them on a point or a line), so it has no settled state; cut less, or hold what is left "
                     f"([[fixed]])"
                 )
-            self._settled_removals.append(
-                {"at": cut.at, "t": t, "region": cut.label, "cells": count, "isolated_cells": isolated,
-                 "free_cells": freed}
-            )  # fmt: skip
-            log.info(
-                "  t=%.3f s: removed %d cells (%s) and %d left hanging by an edge or vertex; %.1f %% of the body "
-                "removed so far",
-                t,
-                count,
-                cut.label,
-                isolated,
-                100.0 * tissue.removed_fraction,
-            )
+            self._settled_removals.append({**record, "free_cells": freed})
             if freed:
                 log.warning(
                     "  t=%.3f s: the cut (%s) left %d cells in pieces no support holds; a settled state cannot hold "
@@ -155,8 +143,6 @@ class Simulation:
                     freed,
                 )
         self.model.tissue_changed()
-        if self.model.fluid is not None:
-            self.model.fluid.set_present(tissue.present)
         if self.contact is not None:  # the cut faces meet the skull too
             self.contact.set_surface(surface_facets(V, tissue.present))
         if self.static is not None:  # K is another matrix now

@@ -165,23 +165,8 @@ class DynamicStepper:
         if not due:
             return False
         for index in due:
-            cut = tissue.cuts[index]
-            count, isolated = tissue.apply(index)
-            self.removals.append(
-                {"at": cut.at, "t": self.state.t, "region": cut.label, "cells": count, "isolated_cells": isolated}
-            )
-            log.info(
-                "  t=%.3f s: removed %d cells (%s) and %d left hanging by an edge or vertex; %.1f %% of "
-                "the body removed so far",
-                self.state.t,
-                count,
-                cut.label,
-                isolated,
-                100.0 * tissue.removed_fraction,
-            )
+            self.removals.append(tissue.cut(index, self.state.t))
         self.model.tissue_changed()
-        if self.model.fluid is not None:
-            self.model.fluid.set_present(tissue.present)
         return True
 
     def _resect(self) -> None:
