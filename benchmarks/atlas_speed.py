@@ -18,7 +18,6 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from types import SimpleNamespace
 
 from mpi4py import MPI
 
@@ -26,7 +25,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from fenics_brainshift import logs  # noqa: E402
-from fenics_brainshift.bench import machine_line  # noqa: E402
+from fenics_brainshift.bench import atlas_arguments, machine_line  # noqa: E402
 from fenics_brainshift.commands.atlas import main as atlas_command  # noqa: E402
 
 ANGLES = "-12,-6,0,6,12"
@@ -34,7 +33,7 @@ ISSUE = ["fluid.level=-0.015:0.05:8", f"gravity.angle_x={ANGLES}", f"gravity.ang
 
 
 def timed(sets: list[str], vary: list[str], out: Path) -> dict:
-    args = SimpleNamespace(scene="brain", output=str(out), vary=vary, set=sets)
+    args = atlas_arguments("brain", out, vary, sets)
     start = time.perf_counter()
     atlas_command(args, MPI.COMM_WORLD)
     wall = time.perf_counter() - start

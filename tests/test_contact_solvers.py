@@ -499,3 +499,55 @@ def test_a_diverging_fixed_point_with_the_skull_stops_early():
     with pytest.raises(SolverError, match="follower-load iteration did not settle in 80 iterations"):
         follower(x, rhs, solve, 0.0, scale=0.0, same_problem=False)
     assert len(calls) == 80
+
+
+@pytest.mark.parametrize("septa, degree", [(False, 1), (True, 1), (True, 2)])
+def test_the_tangent_as_an_action_is_the_assembled_tangent(shared_tmp, septa, degree):
+    """Newton's tangent of a linear body against the skull, as flexible GMRES multiplies by it
+    (stepping/tangent_action.py: K with the constraints once, the follower load's and the
+    pressed nodes' blocks applied to S x), against the matrix assembled for the same state
+    (K copied, the blocks added, PETSc's PtAP at the septa and the supports' rows and columns
+    replaced): the same product for random vectors, on every rank's share. A block clamped
+    at x = 0, in a draining fluid with a slanting weight, sagging onto the floor of a box 1
+    mm under it (and, with septa, sliding on two tilted ones, and held along y on its y = 0
+    face: a support holding one axis at septum nodes); P1 and P2."""
+    box = _box_surface((-0.1, -0.1, -0.001), (0.15, 0.15, 0.2), shared_tmp / "floor.stl")
+    data = {
+        "mesh": {"shape": "box", "size": [0.04, 0.03, 0.02], "cells": [4, 3, 2]},
+        "material": {"E": 3000.0, "nu": 0.45, "density": 1100.0},
+        "gravity": {"vector": [-3.0, 2.0, -9.0]},
+        "fluid": {"level": [[0.0, 0.03], [1.0, 0.012]], "follower": True},
+        "fixed": [{"where": "x < 1e-9"}],
+        "time": {"mode": "quasi-static", "end": 1.0},
+        "solver": {"kind": "cholesky"},
+        "skull": {"file": str(box), "tolerance": 1e-6},
+    }
+    if septa:
+        data["septum"] = [
+            {"name": "a", "point": [0.0, 0.0, 0.0], "normal": [0.0, 1.0, 0.3]},
+            {"name": "b", "point": [0.04, 0.03, 0.02], "normal": [0.2, 1.0, 0.0]},
+        ]
+        data["fixed"].append({"where": "y < 1e-9", "axes": "y"})
+    data["element"] = {"degree": degree}
+    sim = Simulation(scene_from_dict(data), COMM)
+    sim.solve_to_settled(1.0)
+    solver = sim.static.engaged
+    assert solver is not None and solver._exact is not None and solver._action is not None  # Newton used it
+    assert COMM.allreduce(len(sim.contact.pressed_dofs(sim.state.u)), op=MPI.SUM) > 0
+    if septa:
+        assert sim.model.constraints.has_septa
+    action = solver._tangent_action(0.7)
+    matrix = solver._tangent_matrix(0.7)
+    rng = np.random.default_rng(COMM.rank)
+    x, y, z = matrix.createVecRight(), matrix.createVecLeft(), matrix.createVecLeft()
+    for _ in range(3):
+        x.array[:] = rng.standard_normal(len(x.array))
+        action.mult(x, y)
+        matrix.mult(x, z)
+        scale = COMM.allreduce(float(np.abs(z.array).max()), op=MPI.MAX)
+        difference = COMM.allreduce(float(np.abs(y.array - z.array).max()), op=MPI.MAX)
+        assert difference <= 1e-12 * scale
+    # the blocks matter: the action without them differs (the test can see a missing term)
+    solver._action.set(None, None)
+    action.mult(x, y)
+    assert COMM.allreduce(float(np.abs(y.array - z.array).max()), op=MPI.MAX) > 1e-6 * scale

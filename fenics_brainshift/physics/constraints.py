@@ -109,6 +109,16 @@ class Constraints:
             values = b.array.reshape(-1, 3)
             values[self.nodes[owned]] = np.einsum("nij,nj->ni", self.P[owned], values[self.nodes[owned]])
 
+    def restrict(self, values: np.ndarray, owned_only: bool = False) -> np.ndarray:
+        """S v for a flat array of local scalar values (owned and ghosts, or the owned alone):
+        zero where the supports hold, P_s v_s at the septum nodes (in place; returned)."""
+        values[self.fixed[self.fixed < len(values)]] = 0.0
+        nodes = self.nodes[3 * self.nodes < len(values)] if owned_only else self.nodes
+        if len(nodes):
+            v = values.reshape(-1, 3)
+            v[nodes] = np.einsum("nij,nj->ni", self.P[self._index[nodes]], v[nodes])
+        return values
+
     def blocks(self, dofs: np.ndarray, blocks: np.ndarray) -> np.ndarray:
         """Nodal 3x3 blocks (a contact stiffness) at local block ``dofs``: P_s B P_s at the
         septum nodes, so that a matrix they are added to stays projected."""

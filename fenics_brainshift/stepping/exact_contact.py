@@ -65,9 +65,11 @@ class ExactContactSolve:
             self.compliance.set(scalar, B)
         self.pressed = len(scalar) // 3
 
-    def __call__(self, A: PETSc.Mat, rhs: PETSc.Vec, x: PETSc.Vec, rtol: float, t: float) -> int:
+    def __call__(self, A: PETSc.Mat, rhs: PETSc.Vec, x: PETSc.Vec, rtol: float, t: float, assembled=None) -> int:
         """x = A^-1 rhs to the relative tolerance rtol by flexible GMRES (x starts from zero),
-        or, where it does not converge, by an LU of A; counted in the Solves like any solve."""
+        or, where it does not converge, by an LU of A; counted in the Solves like any solve.
+        A may be an action (tangent_action.py): ``assembled()`` then gives it as a matrix for
+        the LU."""
         start = time.perf_counter()
         self.ksp.setOperators(A)
         self.ksp.setTolerances(rtol=rtol)
@@ -75,7 +77,7 @@ class ExactContactSolve:
         self.ksp.solve(rhs, x)
         reason, its = self.ksp.getConvergedReason(), self.ksp.getIterationNumber()
         if reason < 0:  # (a concave corner can make the tangent far from K + C): its own LU, once
-            its += self._by_lu(A, rhs, x)
+            its += self._by_lu(A if assembled is None else assembled(), rhs, x)
         self.solves.record(its, time.perf_counter() - start, x, t)
         return its
 

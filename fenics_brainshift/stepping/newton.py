@@ -24,13 +24,14 @@ from .. import compat
 from ..errors import SolverError
 from ..linalg import solve_preconditioned_by
 from ..logs import get_logger
-from ..physics.load_tangent import add_load_tangent
+from ..physics.load_tangent import add_load_tangent, load_tangent_blocks
 from .contact_preconditioner import ContactPreconditioner
 from .exact_contact import FACTOR_KINDS, ExactContactSolve
 from .newton_iteration import newton_iterate, round_off_floor
 from .solves import Solves
 from .state import State
 from .tangent import reassemble, tangent_settings, tangent_type
+from .tangent_action import TangentAction
 
 log = get_logger("newton")
 MIN_FRACTION = 1.0 / 1024.0
@@ -77,6 +78,7 @@ class NewtonStatic:
         self._K0 = None  # a linear material's stiffness, in the tangent's storage
         self._K = None  # K with supports: the preconditioner at rest
         self._P = None  # an LU copy of a tangent, when GMRES failed with the factor it had
+        self._action: TangentAction | None = None  # a linear body's tangent as an action (exact contact)
         self._stale = False  # GMRES needed many iterations with it: rebuild before the next solve
         self._fixed = model.constraints.fixed
         self.follower = model.fluid is not None and model.fluid.follower
@@ -127,9 +129,8 @@ class NewtonStatic:
         else:  # the linear material's part never changes: copied, not assembled again
             if self._K0 is None:
                 self._K0 = reassemble(None, self._tangent, tangent_type(self.model))
-                self._A = reassemble(
-                    None, self._tangent, tangent_type(self.model)
-                )  # (a duplicate lacks the local numbering)
+            if self._A is None:  # (a duplicate of K0 lacks the local numbering)
+                self._A = reassemble(None, self._tangent, tangent_type(self.model))
             A = self._A
             self._K0.copy(A, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
         fluid = self.model.fluid
@@ -140,6 +141,25 @@ class NewtonStatic:
             self.contact.add_tangent(A, None, blocks=self._contact_blocks)
         self.model.constraints.matrix(A)
         return A
+
+    def _tangent_action(self, factor: float) -> PETSc.Mat:
+        """The tangent of a linear body as an action (stepping/tangent_action.py): K with the
+        constraints (the matrix K's factor was made of) and this iteration's load and contact
+        blocks."""
+        if self._K0 is None:  # (the residual's K u product)
+            self._K0 = reassemble(None, self._tangent, tangent_type(self.model))
+        if self._action is None or self._action.K is not self._K:  # on K with the constraints, the factor's own
+            if self._action is not None:
+                self._action.free()
+            self._action = TangentAction(self._K, self.model.constraints, self.model.V)
+        load = None
+        fluid = self.model.fluid
+        if self.follower and self.load_tangent and fluid.level == fluid.level:  # a level is known
+            rows, cols, blocks = load_tangent_blocks(fluid.hydro, fluid.level, self.state.u)
+            load = (rows, cols, (-factor * self.model.load_scale) * blocks)
+        self._contact_blocks = self.contact.tangent_blocks(self.state.u)
+        self._action.set(load, self._contact_blocks)
+        return self._action.mat
 
     def _preconditioner_at_rest(self) -> None:
         """The factor (or AMG) of K with supports, built once; with contact, of K and the
@@ -210,15 +230,16 @@ class NewtonStatic:
         """du = -K_T^-1 R to the relative tolerance ``forcing``, by GMRES on the full tangent."""
         if self._K is None:
             self._preconditioner_at_rest()
-        A = self._tangent_matrix(factor)
         if self._exact is not None and self._exact.factored is not self.solves.solver:
             self._start_exact()  # K was factored anew
-        if self._exact is not None:
+        if self._exact is not None:  # the tangent as an action: flexible GMRES only multiplies by it
             du = compat.petsc_vec(self._du)
+            action = self._tangent_action(factor)
             self._exact.prepare(self._contact_blocks)
-            self._exact(A, self._R, du, forcing, t)
+            self._exact(action, self._R, du, forcing, t, lambda: self._tangent_matrix(factor))
             du.scale(-1.0)
             return
+        A = self._tangent_matrix(factor)
         if self._stale:
             self._refreshed_preconditioner(A)
         du = compat.petsc_vec(self._du)
@@ -413,6 +434,8 @@ class NewtonStatic:
         for matrix in (self._A, self._P, self._K0, self._K):
             if matrix is not None:
                 matrix.destroy()
+        if self._action is not None:
+            self._action.free()
         if self._contact_pc is not None:
             self._contact_pc.destroy()
         if self._exact is not None:
