@@ -205,12 +205,24 @@ def label_occupancy(path: Path, voxel: float, scale: float, labels=None):
     fine_volume = abs(np.linalg.det(A[:3, :3])) * scale**3
     half = 0.5 * np.abs(A[:3, :3]).sum(axis=1) * scale  # half an image voxel's extent
     origin = centres.min(axis=0) - half
-    index = np.floor((centres - origin) / voxel).astype(np.int64)
-    shape = index.max(axis=0) + 1
+    shape = np.floor((centres.max(axis=0) + half - origin) / voxel).astype(np.int64) + 1
     check_grid(shape, voxel, GRID_BYTES_PER_VOXEL, float(np.linalg.norm(np.ptp(centres, axis=0) + 2 * half)), scale)
     counts = np.zeros(shape)
-    np.add.at(counts, tuple(index.T), 1.0)
+    steps = A[:3, :3].T * scale  # row k: one image voxel along the image's axis k (m)
+    # an image voxel longer than half a coarse voxel along an axis (a 2-D series' 6.5 mm slices
+    # at 5 mm) is counted at that many points along it: its centre alone would leave whole
+    # layers of coarse voxels empty between slices
+    splits = np.maximum(np.ceil(2.0 * np.linalg.norm(steps, axis=1) / voxel), 1).astype(int)
+    for offset in _sub_points(splits) @ steps:
+        index = np.clip(np.floor((centres + offset - origin) / voxel).astype(np.int64), 0, shape - 1)
+        np.add.at(counts, tuple(index.T), 1.0 / splits.prod())
     return np.minimum(counts * fine_volume / voxel**3, 1.0), origin, len(ijk) * fine_volume
+
+
+def _sub_points(splits: np.ndarray) -> np.ndarray:
+    """Offsets (in image voxels) of the centres of an image voxel split splits[k] times along axis k."""
+    axes = [(np.arange(n) + 0.5) / n - 0.5 for n in splits]
+    return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
 
 
 # ----------------------------------------------------------------- surfaces
