@@ -8,13 +8,14 @@ numbers are also measured with the registration deliberately moved (10 mm along 
 turn, and turned 10 degrees about each axis): what a failed registration scores, against which
 prepare's thresholds (patients/gate.py MIN_RATIO, MIN_PEAK) are set.
 
-    OMP_NUM_THREADS=1 python benchmarks/prepare_cases.py --data DATA [--cases vs001,chris_t1] [--chain]
+    OMP_NUM_THREADS=1 python benchmarks/prepare_cases.py --data DATA [--cases vs001,chris_t1] [--chain [--ranks 2]]
 
 --chain: also (after prepare, or on the folder an earlier call prepared) `brainshift run` of a
 synthetic operation (the scene drained 12 mm further, the brain 0.8 times as stiff), the default
 `brainshift atlas` (5 mm), `brainshift update` from 20 cortex points of the operation near the
 craniotomy plus 0.5 mm noise, and `brainshift warp` of the T1 by the update; the update's and
-the scene's error against the operation on the cortex near the craniotomy. Each case writes
+the scene's error against the operation on the cortex near the craniotomy; --ranks N builds the
+atlas under `mpirun -n N` (its modes shared among the ranks). Each case writes
 benchmarks/results/prepare_cases/NAME.json;
 --report merges them into benchmarks/results/prepare_cases.md.
 """
@@ -91,13 +92,14 @@ CASES = {
 MOVES = [("x", 10.0, 0.0), ("y", 10.0, 0.0), ("z", 10.0, 0.0), ("x", 0.0, 10.0), ("y", 0.0, 10.0), ("z", 0.0, 10.0)]
 
 
-def brainshift(argv: list[str], log: Path) -> tuple[int, float]:
+def brainshift(argv: list[str], log: Path, ranks: int = 1) -> tuple[int, float]:
     began = time.perf_counter()
+    launch = ["mpirun", "-n", str(ranks), "--oversubscribe"] if ranks > 1 else []
     with open(log, "a") as out:
-        out.write(f"$ brainshift {' '.join(argv)}\n")
+        out.write(f"$ {' '.join(launch)}{' ' if launch else ''}brainshift {' '.join(argv)}\n")
         out.flush()
         code = subprocess.call(
-            BRAINSHIFT + argv,
+            launch + BRAINSHIFT + argv,
             stdout=out,
             stderr=subprocess.STDOUT,
             cwd=ROOT,
@@ -188,7 +190,7 @@ def cortex_points(run: Path, centre_mm: np.ndarray, count: int = 20, noise_mm: f
     return pre[picked], moved[picked] + rng.normal(0.0, noise_mm, (len(picked), 3))
 
 
-def one_case(name: str, data: Path, chain: bool, work: Path) -> dict:
+def one_case(name: str, data: Path, chain: bool, work: Path, ranks: int = 1) -> dict:
     path, extra, what, source = CASES[name]
     extra = [str(data / a) if a.startswith("t1gd_tumour/") else a for a in extra]
     if "SEG" in extra:  # the DICOM-SEG of VS-SEG-001 is not public beside its T1: no tumour then
@@ -197,7 +199,7 @@ def one_case(name: str, data: Path, chain: bool, work: Path) -> dict:
     log = work / f"{name}.log"
     earlier = RESULTS / f"{name}.json"
     if chain and (folder / "scene.toml").is_file() and earlier.is_file():  # prepared by an earlier call: on from there
-        return chain_steps(json.loads(earlier.read_text()), folder, log)
+        return chain_steps(json.loads(earlier.read_text()), folder, log, ranks)
     log.unlink(missing_ok=True)
     record = {"case": name, "what": what, "source": source}
     code, seconds = brainshift(["prepare", str(data / path), "-o", str(folder), *extra], log)
@@ -219,19 +221,19 @@ def one_case(name: str, data: Path, chain: bool, work: Path) -> dict:
         return record
     record["gate_when_moved"] = gate_when_moved(folder)
     record["labels_carried"] = carried_both_ways(folder)
-    return chain_steps(record, folder, log) if chain else record
+    return chain_steps(record, folder, log, ranks) if chain else record
 
 
 TRUTH_BELOW_RIM_M = 0.012  # the synthetic operation: drained this far below the scene's level,
 TRUTH_SOFTER = 0.8  # with a brain this much softer than the scene's
 
 
-def chain_steps(record: dict, folder: Path, log: Path) -> dict:
+def chain_steps(record: dict, folder: Path, log: Path, ranks: int = 1) -> dict:
     """The synthetic operation (the full model drained TRUTH_BELOW_RIM_M further, G times
     TRUTH_SOFTER: not the scene's own prediction), the default atlas (kept if an earlier call
     built it), an update from 20 pointer points of the operation's cortex near the craniotomy
     with 0.5 mm noise, the warp; and the update's error against the operation on the cortex
-    within 25 mm of the craniotomy."""
+    within 25 mm of the craniotomy. The atlas on ``ranks`` MPI ranks (its modes shared among them)."""
     import tomllib
 
     prepared = json.loads((folder / "prepare.json").read_text())
@@ -254,12 +256,15 @@ def chain_steps(record: dict, folder: Path, log: Path) -> dict:
     )
     if code:
         return {**record, "chain": f"run exit {code}"}
-    if (folder / "atlas" / "atlas.json").is_file() and record.get("atlas_s"):
-        steps["atlas_s"] = record["atlas_s"]  # (built by an earlier call: its time kept)
+    if (folder / "atlas" / "atlas.json").is_file() and record.get("atlas_s") and record.get("atlas_ranks", 1) == ranks:
+        steps["atlas_s"] = record["atlas_s"]  # (built by an earlier call on as many ranks: its time kept)
     else:
-        code, steps["atlas_s"] = brainshift(["atlas", str(folder / "scene.toml"), "-o", str(folder / "atlas")], log)
+        code, steps["atlas_s"] = brainshift(
+            ["atlas", str(folder / "scene.toml"), "-o", str(folder / "atlas")], log, ranks
+        )
         if code:
             return {**record, "chain": f"atlas exit {code}", **steps}
+        record["atlas_ranks"] = ranks
     from fenics_brainshift.images.frames import write_markups
 
     centre = np.asarray(cut["centre_mm"])
@@ -333,6 +338,14 @@ def _update_cell(u: dict | None, r: dict) -> str:
     return f"{u['prior_residual_rms_mm']:.2f} -> {u['residual_rms_mm']:.2f} mm, {r['update_fit_ms']:.0f} ms"
 
 
+def _atlas_cell(r: dict) -> str:
+    """The atlas's seconds, and on how many ranks it was built."""
+    if r.get("atlas_s") is None:
+        return "-"
+    ranks = r.get("atlas_ranks", 1)
+    return f"{r['atlas_s']} ({ranks} rank{'s' if ranks > 1 else ''})"
+
+
 def report() -> None:
     from fenics_brainshift.bench import machine_line
 
@@ -341,7 +354,8 @@ def report() -> None:
         "# Real scans through `brainshift prepare` (and on)",
         "",
         f"Machine: {machine_line()}. Command: `OMP_NUM_THREADS=1 python benchmarks/prepare_cases.py --data DATA "
-        f"--chain` then `--report` (one process, one thread a step).",
+        f"--chain [--ranks 2]` then `--report` (one thread a process; the atlas on the ranks its cell "
+        f"names, every other step one process).",
         "",
         "| case | contrast (said / measured) | result | brain l | template explains (moved 10 mm) | correlation "
         "| prepare s | run s | atlas s | update: residual, fit | warp s |",
@@ -354,7 +368,7 @@ def report() -> None:
             f"| {r['case']} | {c.get('given') or '-'} / {c.get('measured', '-')} | {r['status']} "
             f"| {r['brain_litres'] or '-'} | {100 * r['correlation_ratio']:.0f} % "
             f"({100 * (r.get('correlation_ratio_moved') or 0):.0f} %) | {r['correlation']} "
-            f"| {r['prepare_s']} | {r.get('run_s', '-')} | {r.get('atlas_s', '-')} "
+            f"| {r['prepare_s']} | {r.get('run_s', '-')} | {_atlas_cell(r)} "
             f"| {_update_cell(u, r)} "
             f"| {r.get('warp_s', '-')} |"
             if r.get("correlation_ratio") is not None
@@ -399,6 +413,7 @@ def main(argv=None) -> int:
     p.add_argument("--cases", default=",".join(CASES), help="comma-separated case names")
     p.add_argument("--chain", action="store_true", help="also run, atlas, update and warp")
     p.add_argument("--work", default="/tmp/prepare_cases", help="where the prepared folders go")
+    p.add_argument("--ranks", type=int, default=1, help="the atlas under mpirun -n RANKS (its modes shared)")
     p.add_argument("--report", action="store_true", help="merge the results into prepare_cases.md")
     p.add_argument(
         "--regate",
@@ -428,7 +443,7 @@ def main(argv=None) -> int:
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
     for name in args.cases.split(","):
-        record = one_case(name, Path(args.data), args.chain, work)
+        record = one_case(name, Path(args.data), args.chain, work, args.ranks)
         (RESULTS / f"{name}.json").write_text(json.dumps(record, indent=2) + "\n")
         print(
             json.dumps(
