@@ -25,7 +25,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from fenics_brainshift import logs  # noqa: E402
-from fenics_brainshift.bench import atlas_arguments, machine_line  # noqa: E402
+from fenics_brainshift.bench import machine_line  # noqa: E402
+from fenics_brainshift.commands.atlas import arguments as atlas_arguments  # noqa: E402
 from fenics_brainshift.commands.atlas import main as atlas_command  # noqa: E402
 
 ANGLES = "-12,-6,0,6,12"

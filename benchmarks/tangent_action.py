@@ -35,7 +35,8 @@ sys.path.insert(0, str(ROOT))
 
 from fenics_brainshift import load_scene, logs  # noqa: E402
 from fenics_brainshift.atlas import scenarios  # noqa: E402
-from fenics_brainshift.bench import atlas_arguments, machine_line  # noqa: E402
+from fenics_brainshift.bench import machine_line  # noqa: E402
+from fenics_brainshift.commands.atlas import arguments as atlas_arguments  # noqa: E402
 from fenics_brainshift.commands.atlas import main as atlas_command  # noqa: E402
 from fenics_brainshift.stepping.newton import NewtonStatic  # noqa: E402
 

@@ -3,6 +3,7 @@ levels, head poses and swelling (atlas/build.py), written for `brainshift update
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 
 from ..atlas.resection import DEFAULT_STAGES
@@ -55,6 +56,16 @@ def add(sub) -> None:
         help="under mpirun: how many ranks solve each mode together (default 1: every rank solves whole "
         "poses on its own copy of the model; more where one rank's memory cannot hold it); a divisor of -n",
     )
+
+
+def arguments(scene: str, output, vary: list[str], sets: list[str]) -> argparse.Namespace:
+    """`brainshift atlas SCENE -o OUTPUT --vary ... --set ...` as this command's parser makes
+    it, every other option its default (for a benchmark that calls main in process)."""
+    parser = argparse.ArgumentParser()
+    add(parser.add_subparsers())
+    words = ["atlas", scene, "-o", str(output)]
+    words += [w for v in vary for w in ("--vary", v)] + [w for s in sets for w in ("--set", s)]
+    return parser.parse_args(words)
 
 
 def main(args, comm) -> list[str]:
