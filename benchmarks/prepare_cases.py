@@ -338,6 +338,13 @@ def _update_cell(u: dict | None, r: dict) -> str:
     return f"{u['prior_residual_rms_mm']:.2f} -> {u['residual_rms_mm']:.2f} mm, {r['update_fit_ms']:.0f} ms"
 
 
+def _run_cell(r: dict) -> str:
+    """The synthetic operation's seconds, or how it stopped (the chain ends there)."""
+    if str(r.get("chain", "")).startswith("run exit"):
+        return f"stopped ({r['chain']})"
+    return str(r.get("run_s", "-"))
+
+
 def _atlas_cell(r: dict) -> str:
     """The atlas's seconds, and on how many ranks it was built."""
     if r.get("atlas_s") is None:
@@ -368,7 +375,7 @@ def report() -> None:
             f"| {r['case']} | {c.get('given') or '-'} / {c.get('measured', '-')} | {r['status']} "
             f"| {r['brain_litres'] or '-'} | {100 * r['correlation_ratio']:.0f} % "
             f"({100 * (r.get('correlation_ratio_moved') or 0):.0f} %) | {r['correlation']} "
-            f"| {r['prepare_s']} | {r.get('run_s', '-')} | {_atlas_cell(r)} "
+            f"| {r['prepare_s']} | {_run_cell(r)} | {_atlas_cell(r)} "
             f"| {_update_cell(u, r)} "
             f"| {r.get('warp_s', '-')} |"
             if r.get("correlation_ratio") is not None
