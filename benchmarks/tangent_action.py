@@ -38,7 +38,7 @@ from fenics_brainshift.atlas import scenarios  # noqa: E402
 from fenics_brainshift.bench import machine_line  # noqa: E402
 from fenics_brainshift.commands.atlas import arguments as atlas_arguments  # noqa: E402
 from fenics_brainshift.commands.atlas import main as atlas_command  # noqa: E402
-from fenics_brainshift.stepping.newton import NewtonStatic  # noqa: E402
+from fenics_brainshift.stepping.static_tangent import StaticTangent  # noqa: E402
 
 BRAIN_SETS = ["skull.gap=0.003", "septum.falx.enabled=true", "septum.tentorium.enabled=true"]
 
@@ -53,15 +53,15 @@ def chain(scene: str, sets: list[str]) -> list[str]:
 
 
 def build(scene: str, sets: list[str], vary: list[str], out: Path, assembled: bool) -> dict:
-    original = NewtonStatic._tangent_action
+    original = StaticTangent.action
     if assembled:  # the path before: the matrix assembled for flexible GMRES every iteration
-        NewtonStatic._tangent_action = lambda self, factor: self._tangent_matrix(factor)
+        StaticTangent.action = lambda self, K, factor: self.matrix(factor)
     try:
         start = time.perf_counter()
         atlas_command(atlas_arguments(scene, out, vary, sets), MPI.COMM_WORLD)
         wall = time.perf_counter() - start
     finally:
-        NewtonStatic._tangent_action = original
+        StaticTangent.action = original
     info = json.loads((out / "atlas.json").read_text())
     with h5py.File(out / "atlas.h5") as f:
         modes = f["modes/vertex"][()]

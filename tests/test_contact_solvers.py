@@ -383,9 +383,9 @@ def test_newton_in_contact_keeps_ks_one_factor_and_settles_where_refactoring_doe
     assert np.mean(sim.solves.iterations[-5:]) <= 6  # GMRES has little left to do
     P = newton_static._K.duplicate(copy=True)
     P.setLGMap(*newton_static._K.getLGMap())
-    sim.contact.add_tangent(P, None, blocks=newton_static._contact_blocks)
+    sim.contact.add_tangent(P, None, blocks=newton_static.tangent.contact_blocks)
     P.zeroRowsColumnsLocal(newton_static._fixed, 1.0)
-    exact.prepare(newton_static._contact_blocks)
+    exact.prepare(newton_static.tangent.contact_blocks)
     rhs = P.createVecRight()
     rhs.setRandom()
     rhs.scale(1e-3)
@@ -395,9 +395,9 @@ def test_newton_in_contact_keeps_ks_one_factor_and_settles_where_refactoring_doe
     assert np.abs(x.getArray() - expected.getArray()).max() <= 1e-8 * np.abs(expected.getArray()).max()
     given, real_set = [], exact.compliance.set  # where K plus the blocks is singular: their positive part
     exact.compliance.set = lambda dofs, B: given.append(B) or (len(given) > 1 and real_set(dofs, B))
-    exact.prepare(newton_static._contact_blocks)
+    exact.prepare(newton_static.tangent.contact_blocks)
     exact.compliance.set = real_set
-    raw = contact_preconditioner.gathered_blocks(sim.model.V, *newton_static._contact_blocks, exact._fixed)[1]
+    raw = contact_preconditioner.gathered_blocks(sim.model.V, *newton_static.tangent.contact_blocks, exact._fixed)[1]
     given = [b.toarray() for b in given]
     assert len(given) == 2 and np.array_equal(given[0], raw.toarray())  # the blocks as they are, then
     assert np.allclose(given[1], given[1].T) and np.linalg.eigvalsh(given[1]).min() >= -1e-9 * np.abs(given[1]).max()
@@ -413,11 +413,11 @@ def test_newton_in_contact_keeps_ks_one_factor_and_settles_where_refactoring_doe
     by_lu = _cantilever(floor, 1e-8)
     engaged = by_lu.static.engaged
     assert engaged._exact.lu_solves > 0 and by_lu.solves.factors == 1
-    A = engaged._tangent_matrix(1.0)
+    A = engaged.tangent.matrix(1.0)
     rhs = A.createVecRight()
     rhs.setRandom()
     x, residual = rhs.duplicate(), rhs.duplicate()
-    engaged._exact.prepare(engaged._contact_blocks)
+    engaged._exact.prepare(engaged.tangent.contact_blocks)
     engaged._exact(A, rhs, x, 1e-12, 0.0)  # one GMRES iteration cannot, the LU does
     A.mult(x, residual)
     residual.axpy(-1.0, rhs)
@@ -532,12 +532,12 @@ def test_the_tangent_as_an_action_is_the_assembled_tangent(shared_tmp, septa, de
     sim = Simulation(scene_from_dict(data), COMM)
     sim.solve_to_settled(1.0)
     solver = sim.static.engaged
-    assert solver is not None and solver._exact is not None and solver._action is not None  # Newton used it
+    assert solver is not None and solver._exact is not None and solver.tangent._action is not None  # Newton used it
     assert COMM.allreduce(len(sim.contact.pressed_dofs(sim.state.u)), op=MPI.SUM) > 0
     if septa:
         assert sim.model.constraints.has_septa
-    action = solver._tangent_action(0.7)
-    matrix = solver._tangent_matrix(0.7)
+    action = solver.tangent.action(solver._K, 0.7)
+    matrix = solver.tangent.matrix(0.7)
     rng = np.random.default_rng(COMM.rank)
     x, y, z = matrix.createVecRight(), matrix.createVecLeft(), matrix.createVecLeft()
     for _ in range(3):
@@ -548,6 +548,6 @@ def test_the_tangent_as_an_action_is_the_assembled_tangent(shared_tmp, septa, de
         difference = COMM.allreduce(float(np.abs(y.array - z.array).max()), op=MPI.MAX)
         assert difference <= 1e-12 * scale
     # the blocks matter: the action without them differs (the test can see a missing term)
-    solver._action.set(None, None)
+    solver.tangent._action.set(None, None)
     action.mult(x, y)
     assert COMM.allreduce(float(np.abs(y.array - z.array).max()), op=MPI.MAX) > 1e-6 * scale

@@ -142,7 +142,7 @@ def test_newton_converges_quadratically_with_the_follower_tangent(model, degree,
         return  # the iteration counts of the nearly incompressible block are dominated by its damped phase
     # without the load's tangent the same solve converges only linearly: more iterations
     plain = Simulation(scene, COMM)
-    plain._static().load_tangent = False
+    plain._static().tangent.follower_load = False
     plain.solve_to_settled(0.0)
     assert plain.static.iterations > sim.static.iterations + 2
     assert plain.probe_values() == pytest.approx(sim.probe_values(), abs=1e-9)

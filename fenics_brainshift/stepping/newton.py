@@ -1,5 +1,5 @@
 """Settled states of a hyperelastic body: Newton's method with a line search, the consistent
-tangent (material by UFL, follower fluid load by physics/load_tangent.py), and load stepping
+tangent (static_tangent.py: material by UFL, follower fluid load, contact), and load stepping
 where a full step does not converge.
 
 The residual is R(u) = f_int(u) - F_ext(u): the internal force of the stored energy, total
@@ -24,14 +24,13 @@ from .. import compat
 from ..errors import SolverError
 from ..linalg import solve_preconditioned_by
 from ..logs import get_logger
-from ..physics.load_tangent import add_load_tangent, load_tangent_blocks
 from .contact_preconditioner import ContactPreconditioner
 from .exact_contact import FACTOR_KINDS, ExactContactSolve
 from .newton_iteration import newton_iterate, round_off_floor
 from .solves import Solves
 from .state import State
-from .tangent import reassemble, tangent_settings, tangent_type
-from .tangent_action import TangentAction
+from .static_tangent import StaticTangent
+from .tangent import tangent_settings
 
 log = get_logger("newton")
 MIN_FRACTION = 1.0 / 1024.0
@@ -71,22 +70,17 @@ class NewtonStatic:
         v, du = ufl.TestFunction(V), ufl.TrialFunction(V)
         material = model.hyperelastic if model.nonlinear else model.material  # linear: Newton for the follower load
         self._internal = fem.form(material.internal_force(state.u, v))
-        self._tangent = fem.form(material.tangent(state.u, du, v))
+        follower_load = load_tangent and model.fluid is not None and model.fluid.follower
+        self.tangent = StaticTangent(model, state, fem.form(material.tangent(state.u, du, v)), contact, follower_load)
         self._R = dolfinx.la.create_petsc_vector(V.dofmap.index_map, V.dofmap.index_map_bs)
         self._F, self._du = self._R.duplicate(), fem.Function(V)
-        self._A = None  # the tangent, assembled anew into the same matrix each iteration
-        self._K0 = None  # a linear material's stiffness, in the tangent's storage
         self._K = None  # K with supports: the preconditioner at rest
         self._P = None  # an LU copy of a tangent, when GMRES failed with the factor it had
-        self._action: TangentAction | None = None  # a linear body's tangent as an action (exact contact)
         self._stale = False  # GMRES needed many iterations with it: rebuild before the next solve
         self._fixed = model.constraints.fixed
-        self.follower = model.fluid is not None and model.fluid.follower
-        self.load_tangent = load_tangent  # False: the follower load's tangent left out (a baseline)
         self.contact = contact  # a SkullContact (physics/contact.py) or None
         self._contact_pc = ContactPreconditioner(solves, contact, lambda: self._K, self._fixed) if contact else None
         self._exact: ExactContactSolve | None = None  # K's factor and the pressed nodes exactly (linear body)
-        self._contact_blocks = None  # the tangent's contact blocks at the last assembly
         self.contact_rounds = 0  # multiplier updates over the run (as the time steppers count them)
         self.iterations = 0  # Newton iterations of the last solve
         self.history: list[float] = []  # residual norms of the last Newton solve
@@ -107,8 +101,8 @@ class NewtonStatic:
             self.model.load_into(t, self._F, u)
         except SolverError:  # no fluid level for this shape (a container iterate gone wild)
             return np.inf
-        if self._K0 is not None:  # a linear material: K u, one product (assembling the form took 3x as long)
-            self._K0.mult(compat.petsc_vec(u), self._R)
+        if self.tangent.K0 is not None:  # a linear material: K u, one product (assembling the form took 3x as long)
+            self.tangent.K0.mult(compat.petsc_vec(u), self._R)
         else:
             with self._R.localForm() as local:
                 local.set(0.0)
@@ -121,45 +115,6 @@ class NewtonStatic:
         self._load_norm = factor * self._F.norm() + self.model.growth_scale(t)
         norm = self._R.norm()
         return norm if np.isfinite(norm) else np.inf
-
-    def _tangent_matrix(self, factor: float, with_load: bool = True) -> PETSc.Mat:
-        """The tangent with supports, into the one matrix kept for it (its sparsity built once)."""
-        if self.model.nonlinear:
-            A = self._A = reassemble(self._A, self._tangent, tangent_type(self.model))
-        else:  # the linear material's part never changes: copied, not assembled again
-            if self._K0 is None:
-                self._K0 = reassemble(None, self._tangent, tangent_type(self.model))
-            if self._A is None:  # (a duplicate of K0 lacks the local numbering)
-                self._A = reassemble(None, self._tangent, tangent_type(self.model))
-            A = self._A
-            self._K0.copy(A, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
-        fluid = self.model.fluid
-        if with_load and self.follower and self.load_tangent and fluid.level == fluid.level:  # a level is known
-            add_load_tangent(A, fluid.hydro, fluid.level, self.state.u, -factor * self.model.load_scale)
-        if self.contact is not None:
-            self._contact_blocks = self.contact.tangent_blocks(self.state.u)
-            self.contact.add_tangent(A, None, blocks=self._contact_blocks)
-        self.model.constraints.matrix(A)
-        return A
-
-    def _tangent_action(self, factor: float) -> PETSc.Mat:
-        """The tangent of a linear body as an action (stepping/tangent_action.py): K with the
-        constraints (the matrix K's factor was made of) and this iteration's load and contact
-        blocks."""
-        if self._K0 is None:  # (the residual's K u product)
-            self._K0 = reassemble(None, self._tangent, tangent_type(self.model))
-        if self._action is None or self._action.K is not self._K:  # on K with the constraints, the factor's own
-            if self._action is not None:
-                self._action.free()
-            self._action = TangentAction(self._K, self.model.constraints, self.model.V)
-        load = None
-        fluid = self.model.fluid
-        if self.follower and self.load_tangent and fluid.level == fluid.level:  # a level is known
-            rows, cols, blocks = load_tangent_blocks(fluid.hydro, fluid.level, self.state.u)
-            load = (rows, cols, (-factor * self.model.load_scale) * blocks)
-        self._contact_blocks = self.contact.tangent_blocks(self.state.u)
-        self._action.set(load, self._contact_blocks)
-        return self._action.mat
 
     def _preconditioner_at_rest(self) -> None:
         """The factor (or AMG) of K with supports, built once; with contact, of K and the
@@ -234,12 +189,12 @@ class NewtonStatic:
             self._start_exact()  # K was factored anew
         if self._exact is not None:  # the tangent as an action: flexible GMRES only multiplies by it
             du = compat.petsc_vec(self._du)
-            action = self._tangent_action(factor)
-            self._exact.prepare(self._contact_blocks)
-            self._exact(action, self._R, du, forcing, t, lambda: self._tangent_matrix(factor))
+            action = self.tangent.action(self._K, factor)
+            self._exact.prepare(self.tangent.contact_blocks)
+            self._exact(action, self._R, du, forcing, t, lambda: self.tangent.matrix(factor))
             du.scale(-1.0)
             return
-        A = self._tangent_matrix(factor)
+        A = self.tangent.matrix(factor)
         if self._stale:
             self._refreshed_preconditioner(A)
         du = compat.petsc_vec(self._du)
@@ -431,11 +386,10 @@ class NewtonStatic:
         return f"; with skull contact: {where}[skull] tolerance = {self.contact.tolerance:g} m ({advice})"
 
     def destroy(self) -> None:
-        for matrix in (self._A, self._P, self._K0, self._K):
+        for matrix in (self._P, self._K):
             if matrix is not None:
                 matrix.destroy()
-        if self._action is not None:
-            self._action.free()
+        self.tangent.destroy()
         if self._contact_pc is not None:
             self._contact_pc.destroy()
         if self._exact is not None:
