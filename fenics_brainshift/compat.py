@@ -21,6 +21,13 @@ DOLFINX_VERSION = dolfinx.__version__
 _MAJOR_MINOR = tuple(int(p) for p in DOLFINX_VERSION.split(".")[:2])
 MODERN = _MAJOR_MINOR >= (0, 8)  # functionspace(), basix.ufl, x.petsc_vec, bb_tree
 
+# How long a process waits for another to finish compiling the same form (the form compiler's
+# default is 10 s, after which the waiting process fails). Two processes compile the same form
+# whenever they share an empty cache: the rank groups of an atlas under mpirun, a test suite's
+# workers. A large form (the neo-Hookean P2 tangent) takes longer than 10 s to compile.
+JIT_WAIT_SECONDS = 900
+_JIT = {"timeout": JIT_WAIT_SECONDS}
+
 
 def vector_space(mesh, degree: int = 1):
     """Continuous Lagrange space of 3-vectors (displacement, velocity, acceleration)."""
@@ -127,7 +134,16 @@ def interpolation_points(V) -> np.ndarray:
 
 def expression(expr, V) -> fem.Expression:
     """A compiled UFL expression evaluated at V's interpolation points."""
-    return fem.Expression(expr, interpolation_points(V))
+    if MODERN:
+        return fem.Expression(expr, interpolation_points(V), jit_options=_JIT)
+    return fem.Expression(expr, interpolation_points(V), jit_params=_JIT)
+
+
+def form(ufl_form):
+    """fem.form, waiting for another process's compile of the same form (JIT_WAIT_SECONDS)."""
+    if MODERN:
+        return fem.form(ufl_form, jit_options=_JIT)
+    return fem.form(ufl_form, jit_params=_JIT)
 
 
 def colliding_cells(mesh, points: np.ndarray) -> list[int]:

@@ -14,6 +14,31 @@ ROOT = Path(__file__).resolve().parents[1]
 COMM = MPI.COMM_WORLD
 
 
+def pytest_configure(config):
+    """`make test-serial` runs the files on workers (pytest-xdist). They are started by this
+    process after the import above started MPI here as a singleton, which put its own PMIx
+    server's address into the process's environment (C's, not os.environ's); a worker started
+    with it takes that server for an mpirun of its own: every mpirun it starts then ends with
+    exit 1 and not a word, and the package's under-mpirun checks say yes. The workers get the
+    environment this process was started with."""
+    if os.environ.get("PYTEST_XDIST_WORKER") is None and getattr(config.option, "numprocesses", None):
+        _forget_variables_set_since_start()
+
+
+def _forget_variables_set_since_start() -> None:
+    """Unset every variable of C's environment that os.environ (read at start) does not hold."""
+    import ctypes
+
+    environ = ctypes.POINTER(ctypes.c_char_p).in_dll(ctypes.CDLL(None), "environ")
+    names, k = [], 0
+    while environ[k] is not None:
+        names.append(os.fsdecode(environ[k].split(b"=", 1)[0]))
+        k += 1
+    for name in names:
+        if name not in os.environ:
+            os.unsetenv(name)
+
+
 def column_dict(
     layers: int, degree: int = 1, height: float = 0.1, width: float = 0.02, gravity=(0.0, 0.0, -9.81), **sections
 ) -> dict:

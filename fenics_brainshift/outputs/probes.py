@@ -44,6 +44,8 @@ class SurfaceAverages:
         import ufl
         from dolfinx import fem
 
+        from .. import compat
+
         mesh = u.function_space.mesh
         self.names = list(regions)
         self.comm = mesh.comm
@@ -61,7 +63,7 @@ class SurfaceAverages:
             )
             ds = ufl.Measure("ds", domain=mesh, subdomain_data=tags)(1)
             one = fem.Constant(mesh, 1.0)
-            self.forms.append([fem.form(one * ds)] + [fem.form(u[i] * ds) for i in range(3)])
+            self.forms.append([compat.form(one * ds)] + [compat.form(u[i] * ds) for i in range(3)])
 
     def values(self) -> np.ndarray:
         """(n_regions, 3) mean displacement of each region (global)."""

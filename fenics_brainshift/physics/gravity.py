@@ -10,6 +10,7 @@ from dolfinx import fem
 from dolfinx.fem.petsc import assemble_vector, create_vector
 from petsc4py import PETSc
 
+from .. import compat
 from .forms import body_force
 
 if TYPE_CHECKING:
@@ -40,7 +41,7 @@ class GravityLoad:
         v = ufl.TestFunction(V)
         self.g = fem.Constant(mesh, np.array(gravity, dtype=PETSc.ScalarType))
         rho = PETSc.ScalarType(density) if isinstance(density, (int, float)) else density
-        self.form = fem.form(body_force(v, rho, self.g))
+        self.form = compat.form(body_force(v, rho, self.g))
         self.vector = assemble_into(create_vector(self.form), self.form)
 
     def set_gravity(self, gravity) -> None:

@@ -10,7 +10,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import ufl
-from dolfinx import fem
 from dolfinx.fem.petsc import assemble_matrix, create_vector
 from petsc4py import PETSc
 
@@ -168,7 +167,7 @@ class Model:
         """A matrix; with_bcs: rows and columns of fixed dofs replaced by the identity, (after
         a resection) a unit diagonal on rows with no tissue left, so the matrix that is solved
         stays regular, and the septa's normal parts taken out (constraints.py)."""
-        A = assemble_matrix(fem.form(ufl_form), bcs=self.bcs if with_bcs else [])
+        A = assemble_matrix(compat.form(ufl_form), bcs=self.bcs if with_bcs else [])
         A.assemble()
         if with_bcs and self.tissue is not None:
             fill_empty_diagonal(A)
@@ -251,7 +250,7 @@ class Model:
         again only when the stretch changed."""
         changed = self.growth.set_time(t)
         if self._growth_form is None:
-            self._growth_form = fem.form(self.material.growth_load(ufl.TestFunction(self.V)))
+            self._growth_form = compat.form(self.material.growth_load(ufl.TestFunction(self.V)))
             self._growth_vector = assemble_into(create_vector(self._growth_form), self._growth_form)
         elif changed:
             assemble_into(self._growth_vector, self._growth_form)

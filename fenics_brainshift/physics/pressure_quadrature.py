@@ -9,6 +9,7 @@ from dolfinx import fem
 from dolfinx.fem.petsc import create_vector
 from petsc4py import PETSc
 
+from .. import compat
 from .forms import clipped_hydrostatic_pressure, pressure_load
 from .gravity import assemble_into
 
@@ -25,7 +26,7 @@ class QuadratureFluidLoad:
         up = fem.Constant(mesh, np.array(-g / np.linalg.norm(g), dtype=PETSc.ScalarType))
         x = ufl.SpatialCoordinate(mesh)
         p = clipped_hydrostatic_pressure(x, rho_fluid, float(np.linalg.norm(g)), up, self.level)
-        self.form = fem.form(pressure_load(v, p, ufl.FacetNormal(mesh), quadrature_degree))
+        self.form = compat.form(pressure_load(v, p, ufl.FacetNormal(mesh), quadrature_degree))
         self.vector = create_vector(self.form)
         self._assembled_level: float | None = None
 

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import numpy as np
 import ufl
-from dolfinx import fem
 from dolfinx.fem.petsc import assemble_vector
 from mpi4py import MPI
 from petsc4py import PETSc
@@ -250,7 +249,7 @@ class Simulation:
         no inertia)."""
         model, st = self.model, self.state
         v = ufl.TestFunction(model.V)
-        r = assemble_vector(fem.form(model.constitutive.internal_force(st.u, v)))
+        r = assemble_vector(compat.form(model.constitutive.internal_force(st.u, v)))
         r.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         loads = r.duplicate()
         model.load_into(st.t, loads, st.u)

@@ -69,9 +69,11 @@ class NewtonStatic:
         V = model.V
         v, du = ufl.TestFunction(V), ufl.TrialFunction(V)
         material = model.hyperelastic if model.nonlinear else model.material  # linear: Newton for the follower load
-        self._internal = fem.form(material.internal_force(state.u, v))
+        self._internal = compat.form(material.internal_force(state.u, v))
         follower_load = load_tangent and model.fluid is not None and model.fluid.follower
-        self.tangent = StaticTangent(model, state, fem.form(material.tangent(state.u, du, v)), contact, follower_load)
+        self.tangent = StaticTangent(
+            model, state, compat.form(material.tangent(state.u, du, v)), contact, follower_load
+        )
         self._R = dolfinx.la.create_petsc_vector(V.dofmap.index_map, V.dofmap.index_map_bs)
         self._F, self._du = self._R.duplicate(), fem.Function(V)
         self._K = None  # K with supports: the preconditioner at rest

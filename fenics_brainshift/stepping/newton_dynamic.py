@@ -68,7 +68,7 @@ class NewtonDynamicStepper(DynamicStepper):
         self._x = fem.Function(V)  # u_n + du, the configuration of the current iterate
         v, w = ufl.TestFunction(V), ufl.TrialFunction(V)
         material = model.constitutive
-        self._internal = fem.form(material.internal_force(self._x, v))
+        self._internal = compat.form(material.internal_force(self._x, v))
         # the step's tangent as one form: the blocks are assembled once, with no matrix sums
         self._coefficient = {part: fem.Constant(model.mesh, PETSc.ScalarType(0.0)) for part in ("f", "M", "K0")}
         tangent = (
@@ -76,13 +76,13 @@ class NewtonDynamicStepper(DynamicStepper):
         )
         if not model.lumped:  # a lumped mass is added as its diagonal
             tangent += self._coefficient["M"] * model.mass_form()
-        self._tangent = fem.form(tangent)
+        self._tangent = compat.form(tangent)
         if model.nonlinear:
             energy = material.energy_density(material.deformation_gradient(state.u))
             dx = ufl.dx(metadata={"quadrature_degree": material.quadrature_degree})
         else:
             energy, dx = 0.5 * ufl.inner(material.stress(state.u), material.strain(state.u)), ufl.dx
-        self._stored = fem.form(energy * dx)
+        self._stored = compat.form(energy * dx)
         self._f_int_old, self._f, self._R = (self._F.duplicate() for _ in range(3))
         self._J = None
         # a linear material's part of the tangent, cM M + cK K0, is the same every iteration of
