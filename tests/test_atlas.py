@@ -882,6 +882,17 @@ def test_a_skull_atlas_built_on_two_ranks_is_the_one_built_on_one(skull_atlas, t
     np.testing.assert_allclose(two.prior_vertex, skull_atlas.prior_vertex, rtol=rtol, atol=atol)
 
 
+def test_the_atlas_says_what_its_chains_and_its_prior_cost(atlas):
+    """atlas.json's clock (benchmarks/resolution.py extrapolates from it): the family modes group
+    0 solved, counted as the scenarios count them, and its seconds within the modes' seconds."""
+    info = atlas.info
+    family = sum(s["kind"] == "family" for s in atlas.scenarios)
+    groups = info["ranks"] // info["ranks_per_mode"]
+    assert info["family_modes"] == family if groups == 1 else 0 < info["family_modes"] < family
+    assert 0 < info["family_s"] and 0 < info["prior_and_swelling_s"]
+    assert info["family_s"] + info["prior_and_swelling_s"] <= info["modes_s"]
+
+
 def test_chains_are_dealt_whole_to_groups_longest_first():
     """The modes' chains (a pose's levels) go whole to the least loaded group, group 0 carrying
     the prior and the swelling modes as a head start; every scenario dealt once."""

@@ -93,7 +93,7 @@ def build(
     if scene.fluid is not None and scene.fluid.volume is None and scene.fluid.level:
         prior_values["fluid.level"] = float(scene.fluid.level(t_end))
     swell = _Swelling(forward.model.growth.regions, priors)
-    stages = []
+    stages, clock = [], {}
     try:
         for stage in range(len(cuts) + 1):
             stage_start = time.perf_counter()
@@ -109,7 +109,8 @@ def build(
                 del removal["at"], removal["t"]
                 above = float(staged.thresholds[stage - 1])  # (the region's cells above this height, m along up)
                 removal["above_m"] = above if np.isfinite(above) else None
-            modes = _modes(forward, grid, team, comm, swelling, swell, prior_values, vertices)
+            timed = clock if not stage else {}  # (the stages' are their stages_s)
+            modes = _modes(forward, grid, team, comm, swelling, swell, prior_values, vertices, timed)
             present = None
             if forward.model.tissue is not None:
                 present = vertices.cell_values(forward.model.tissue.indicator)
@@ -121,6 +122,7 @@ def build(
         forward.destroy()
         team.free()
     seconds = {"setup_s": setup_s, "modes_s": stages[0][3]}
+    seconds.update({k: round(v, 3) for k, v in clock.items()})  # (group 0's: family_s, prior_and_swelling_s)
     if len(stages) > 1:
         seconds["stages_s"] = [round(s[3], 3) for s in stages[1:]]
     if comm.rank != 0:
@@ -170,20 +172,26 @@ def build(
     return atlas, seconds
 
 
-def _modes(forward, grid, team, comm, swelling, swell, prior_values, vertices) -> tuple:
+def _modes(forward, grid, team, comm, swelling, swell, prior_values, vertices, clock: dict) -> tuple:
     """One stage's modes on rank 0: (vertex modes (M, N, 3), the prior, scenarios, left out);
     empty elsewhere. The family dealt among the groups by whole chains; the prior and the
-    swelling modes by group 0."""
+    swelling modes by group 0. clock (on group 0): the seconds of its chains and of the prior
+    with the swelling modes, and how many family modes it solved."""
     dealt = groups.share(groups.chains(grid, _pose), team.count, head_start=1 + len(swelling))
     family_modes, skipped, prior_vertex, swollen, scenarios = [], [], None, [], []
     failed = None
     try:
+        start = time.perf_counter()
         family_modes, skipped = _family_states(forward, grid, vertices, dealt[team.index])
         if team.index == 0:  # the prior, from rest (its answer then is the same for any dealing)
+            clock["family_s"] = time.perf_counter() - start  # (group 0's chains: what a chain costs)
+            clock["family_modes"] = len(family_modes) + len(skipped)
+            start = time.perf_counter()
             forward.start_from_rest()
             forward.solve(prior_values)
             prior_vertex = vertices.values(forward.sim.u)
             swollen = _swelling_states(forward, swelling, swell, prior_values, vertices, scenarios)
+            clock["prior_and_swelling_s"] = time.perf_counter() - start
     except Exception as exc:  # (any: the other groups would wait for this one in the allgather below)
         failed = exc
     messages = [m for m in comm.allgather(None if failed is None else str(failed)) if m]

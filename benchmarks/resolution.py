@@ -1,0 +1,191 @@
+"""The skull atlas at clinical resolution: what one pose's chain of levels costs at 5, 3 and
+2 mm voxels, on one rank and as one group of two (--ranks-per-mode 2), with the peak memory
+of each command and the atlas's size on disk; from those, the default atlas's wall time on 1,
+2, 16 and 64 ranks, extrapolated.
+
+Writes benchmarks/results/resolution.md and resolution.json.
+
+    python benchmarks/resolution.py [--voxels 0.005,0.003,0.002] [--levels 14]
+
+Each build is its own process (`mpirun -n 2` for the group of two), after one unmeasured build
+at the coarsest voxel for the JIT cache. Measured: `brainshift atlas brain --set mesh.voxel=V
+--set skull.gap=0.003 --vary fluid.level=-0.015:0.05:L` (one pose: the scene's; L levels, a
+chain of warm starts, and the swelling mode), the wall time of the command, atlas.json's setup
+and mode seconds, and the largest resident memory of any of its processes (getrusage of the
+children, a fresh wrapper process per command).
+
+The extrapolation: the default atlas is 25 poses x 14 levels and one swelling mode (atlas/
+scenarios.py), its poses dealt whole to the rank groups (atlas/groups.py). With R ranks in
+groups of r, a group solves ceil(25 / (R / r)) chains; the wall time is the setup (the mesh,
+the factor: atlas.json's setup_s), the prior state from rest and the swelling mode (group 0's
+prior_and_swelling_s), and that many chains of 14 levels at the measured cost of a family mode
+in a chain (family_s / family_modes) for groups of that size. Groups of 1 are measured on one rank
+(two groups of one on this machine cost what one rank costs: benchmarks/results/
+atlas_ranks.md, 0.54 of one rank's wall time for two ranks); groups of 2 by --ranks-per-mode 2.
+Not measured here: groups of more than two ranks, a network between machines (MPI talks only
+within a group while it solves; the modes are gathered once at the end), and each machine's
+file system (every rank reads the scene and its mesh).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from fenics_brainshift.bench import machine_line  # noqa: E402
+
+DEFAULT_POSES, DEFAULT_LEVELS = 25, 14  # atlas/scenarios.py: 14 levels x (5 x 5 angles)
+RANKS = (1, 2, 16, 64)
+
+# a fresh process per command: its children's largest resident set is that command's alone
+MEASURE = """
+import json, resource, subprocess, sys, time
+start = time.perf_counter()
+done = subprocess.run(sys.argv[1:], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+print(json.dumps({"seconds": time.perf_counter() - start, "returncode": done.returncode,
+                  "peak_mb": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024,
+                  "stderr": done.stderr[-2000:]}))
+"""
+
+
+def atlas_command(voxel: float, levels: int, out: Path, group: int) -> list[str]:
+    launcher = ["mpirun", "-n", str(group)] if group > 1 else []
+    extra = ["--ranks-per-mode", str(group)] if group > 1 else []
+    return [
+        *launcher, sys.executable, "-m", "fenics_brainshift.cli", "--no-progress", "atlas", "brain", "-o", str(out),
+        "--set", f"mesh.voxel={voxel}", "--set", "skull.gap=0.003",
+        "--vary", f"fluid.level=-0.015:0.05:{levels}", *extra,
+    ]  # fmt: skip
+
+
+def measure(command: list[str]) -> dict:
+    env = dict(os.environ, OMP_NUM_THREADS="1", OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
+    out = subprocess.run([sys.executable, "-c", MEASURE, *command], capture_output=True, text=True, env=env, check=True)
+    result = json.loads(out.stdout)
+    if result["returncode"] != 0:
+        sys.exit(f"{' '.join(command)} failed ({result['returncode']}):\n{result['stderr']}")
+    return result
+
+
+def build(voxel: float, levels: int, group: int, work: Path) -> dict:
+    out = work / f"v{voxel}_g{group}"
+    shutil.rmtree(out, ignore_errors=True)
+    result = measure(atlas_command(voxel, levels, out, group))
+    info = json.loads((out / "atlas.json").read_text())
+    family = sum(1 for s in info["scenarios"] if s["kind"] == "family")
+    row = {
+        "voxel_mm": round(voxel * 1e3, 3),
+        "group": group,
+        "nodes": info["nodes"],
+        "cells": info["cells"],
+        "modes": info["modes"],
+        "family_modes": family,
+        "wall_s": result["seconds"],
+        "setup_s": info["setup_s"],
+        "modes_s": info["modes_s"],
+        "family_s": info["family_s"],
+        "per_family_mode_s": info["family_s"] / info["family_modes"],
+        "prior_and_swelling_s": info["prior_and_swelling_s"],
+        "peak_mb": result["peak_mb"],
+        "h5_mb": (out / "atlas.h5").stat().st_size / 2**20,
+    }
+    shutil.rmtree(out, ignore_errors=True)
+    return row
+
+
+def extrapolate(one: dict, two: dict | None) -> dict[int, tuple[float, str]]:
+    """The default atlas's wall time (s) on R ranks and how the ranks are grouped."""
+    modes = DEFAULT_POSES * DEFAULT_LEVELS + 1
+    out = {}
+    for ranks in RANKS:
+        options = [(1, one)] + ([(2, two)] if two and ranks % 2 == 0 else [])
+        best = None
+        for size, row in options:
+            groups = ranks // size
+            chains = math.ceil(DEFAULT_POSES / groups)
+            wall = row["setup_s"] + row["prior_and_swelling_s"] + chains * DEFAULT_LEVELS * row["per_family_mode_s"]
+            label = f"{groups} group{'s' if groups > 1 else ''} of {size}"
+            if best is None or wall < best[0]:
+                best = (wall, label)
+        out[ranks] = best
+    out["modes"] = modes
+    return out
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--voxels", default="0.005,0.003,0.002", help="m, comma-separated")
+    parser.add_argument("--levels", type=int, default=DEFAULT_LEVELS, help="levels of the measured chain")
+    parser.add_argument("--groups", default="1,2", help="group sizes to measure (1: one rank; 2: mpirun -n 2)")
+    parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results")
+    args = parser.parse_args(argv)
+    voxels = [float(v) for v in args.voxels.split(",")]
+    groups = [int(g) for g in args.groups.split(",")]
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="resolution_") as tmp:
+        work = Path(tmp)
+        build(max(voxels), 2, 1, work)  # the JIT cache, unmeasured
+        for voxel in voxels:
+            for group in groups:
+                row = build(voxel, args.levels, group, work)
+                rows.append(row)
+                print(json.dumps(row), flush=True)
+    write(rows, args, args.out)
+
+
+def write(rows: list[dict], args, folder: Path) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    command = f"python benchmarks/resolution.py --voxels {args.voxels} --levels {args.levels} --groups {args.groups}"
+    (folder / "resolution.json").write_text(json.dumps({"command": command, "rows": rows}, indent=1) + "\n")
+    lines = [
+        "# The skull atlas at 5, 3 and 2 mm: one pose's chain measured, the default atlas extrapolated",
+        "",
+        f"{machine_line()}; `{command}`. The bundled brain, skull 3 mm out; each build its own process.",
+        "",
+        "## Measured: one pose's chain of levels and the swelling mode",
+        "",
+        "| voxel mm | nodes | ranks | modes | wall s | setup s | prior and swelling s | a level in the chain s "
+        "| peak memory MB (a rank) | atlas.h5 MB |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        lines.append(
+            f"| {r['voxel_mm']:g} | {r['nodes']:,} | {r['group']} (one group) | {r['modes']} | {r['wall_s']:.1f} | "
+            f"{r['setup_s']:.1f} | {r['prior_and_swelling_s']:.1f} | {r['per_family_mode_s']:.2f} | "
+            f"{r['peak_mb']:,.0f} | {r['h5_mb']:.1f} |"
+        )
+    lines += [
+        "",
+        f"## The default atlas ({DEFAULT_POSES} poses x {DEFAULT_LEVELS} levels + 1 swelling mode), extrapolated",
+        "",
+        "From the rows above (the module's docstring says how): the setup, then the chains a group solves, one "
+        "after another. Disk: the modes in single precision (N nodes x 3 x 4 bytes a mode) with the fine surface's.",
+        "",
+        "| voxel mm | nodes | " + " | ".join(f"{n} rank{'s' if n > 1 else ''}" for n in RANKS) + " | atlas.h5 GB |",
+        "|---|---|" + "---|" * len(RANKS) + "---|",
+    ]
+    for voxel in sorted({r["voxel_mm"] for r in rows}, reverse=True):
+        by_group = {r["group"]: r for r in rows if r["voxel_mm"] == voxel}
+        one = by_group.get(1)
+        if one is None:
+            continue
+        plan = extrapolate(one, by_group.get(2))
+        cells = [f"{plan[n][0] / 60:.0f} min ({plan[n][1]})" for n in RANKS]
+        size_gb = one["h5_mb"] / one["modes"] * plan["modes"] / 1024
+        lines.append(f"| {voxel:g} | {one['nodes']:,} | " + " | ".join(cells) + f" | {size_gb:.2f} |")
+    (folder / "resolution.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()
