@@ -5,10 +5,14 @@ of each command and the atlas's size on disk; from those, the default atlas's wa
 
 Writes benchmarks/results/resolution.md and resolution.json.
 
-    python benchmarks/resolution.py [--voxels 0.005,0.003,0.002] [--levels 14]
+    python benchmarks/resolution.py [--voxels 0.005,0.003,0.002] [--levels 14] [--keep]
+
+--keep keeps the rows of resolution.json that this run does not measure (another voxel or
+group size, measured by an earlier command: the file names each row's command); --report
+writes resolution.md again from resolution.json.
 
 Each build is its own process (`mpirun -n 2` for the group of two), after one unmeasured build
-at the coarsest voxel for the JIT cache. Measured: `brainshift atlas brain --set mesh.voxel=V
+at 10 mm for the JIT cache. Measured: `brainshift atlas brain --set mesh.voxel=V
 --set skull.gap=0.003 --vary fluid.level=-0.015:0.05:L` (one pose: the scene's; L levels, a
 chain of warm starts, and the swelling mode), the wall time of the command, atlas.json's setup
 and mode seconds, and the largest resident memory of any of its processes (getrusage of the
@@ -86,6 +90,7 @@ def build(voxel: float, levels: int, group: int, work: Path) -> dict:
     row = {
         "voxel_mm": round(voxel * 1e3, 3),
         "group": group,
+        "levels": levels,
         "nodes": info["nodes"],
         "cells": info["cells"],
         "modes": info["modes"],
@@ -114,7 +119,9 @@ def extrapolate(one: dict, two: dict | None) -> dict[int, tuple[float, str]]:
             groups = ranks // size
             chains = math.ceil(DEFAULT_POSES / groups)
             wall = row["setup_s"] + row["prior_and_swelling_s"] + chains * DEFAULT_LEVELS * row["per_family_mode_s"]
-            label = f"{groups} group{'s' if groups > 1 else ''} of {size}"
+            busy = min(groups, DEFAULT_POSES)  # (a pose is never split: more groups than poses wait)
+            label = f"{busy} group{'s' if busy > 1 else ''} of {size}"
+            label += f", {(groups - busy) * size} ranks idle" if groups > busy else ""
             if best is None or wall < best[0]:
                 best = (wall, label)
         out[ranks] = best
@@ -127,40 +134,53 @@ def main(argv=None) -> None:
     parser.add_argument("--voxels", default="0.005,0.003,0.002", help="m, comma-separated")
     parser.add_argument("--levels", type=int, default=DEFAULT_LEVELS, help="levels of the measured chain")
     parser.add_argument("--groups", default="1,2", help="group sizes to measure (1: one rank; 2: mpirun -n 2)")
+    parser.add_argument("--keep", action="store_true", help="keep resolution.json's rows this run does not measure")
+    parser.add_argument("--report", action="store_true", help="write resolution.md from resolution.json, no builds")
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results")
     args = parser.parse_args(argv)
     voxels = [float(v) for v in args.voxels.split(",")]
     groups = [int(g) for g in args.groups.split(",")]
+    if args.report:
+        write(json.loads((args.out / "resolution.json").read_text())["rows"], args.out)
+        return
+    command = f"python benchmarks/resolution.py --voxels {args.voxels} --levels {args.levels} --groups {args.groups}"
     rows = []
+    if args.keep and (args.out / "resolution.json").is_file():
+        measured = {(round(v * 1e3, 3), g) for v in voxels for g in groups}
+        kept = json.loads((args.out / "resolution.json").read_text())["rows"]
+        rows = [r for r in kept if (r["voxel_mm"], r["group"]) not in measured]
     with tempfile.TemporaryDirectory(prefix="resolution_") as tmp:
         work = Path(tmp)
-        build(max(voxels), 2, 1, work)  # the JIT cache, unmeasured
+        build(0.01, 2, 1, work)  # the JIT cache, unmeasured (the forms are the same at every voxel)
         for voxel in voxels:
             for group in groups:
-                row = build(voxel, args.levels, group, work)
+                row = {**build(voxel, args.levels, group, work), "command": command}
                 rows.append(row)
                 print(json.dumps(row), flush=True)
-    write(rows, args, args.out)
+                write(rows, args.out)  # (each row as it comes: a long run stopped keeps what it measured)
 
 
-def write(rows: list[dict], args, folder: Path) -> None:
+def write(rows: list[dict], folder: Path) -> None:
     folder.mkdir(parents=True, exist_ok=True)
-    command = f"python benchmarks/resolution.py --voxels {args.voxels} --levels {args.levels} --groups {args.groups}"
-    (folder / "resolution.json").write_text(json.dumps({"command": command, "rows": rows}, indent=1) + "\n")
+    rows = sorted(rows, key=lambda r: (-r["voxel_mm"], r["group"]))
+    (folder / "resolution.json").write_text(json.dumps({"rows": rows}, indent=1) + "\n")
+    commands = sorted({r["command"] for r in rows})
     lines = [
         "# The skull atlas at 5, 3 and 2 mm: one pose's chain measured, the default atlas extrapolated",
         "",
-        f"{machine_line()}; `{command}`. The bundled brain, skull 3 mm out; each build its own process.",
+        f"{machine_line()}; " + "; ".join(f"`{c}`" for c in commands) + " (each row says which: its levels). "
+        "The bundled brain, skull 3 mm out; each build its own process.",
         "",
         "## Measured: one pose's chain of levels and the swelling mode",
         "",
-        "| voxel mm | nodes | ranks | modes | wall s | setup s | prior and swelling s | a level in the chain s "
-        "| peak memory MB (a rank) | atlas.h5 MB |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| voxel mm | nodes | ranks | levels | modes | wall s | setup s | prior and swelling s "
+        "| a level in the chain s | peak memory MB (a rank) | atlas.h5 MB |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         lines.append(
-            f"| {r['voxel_mm']:g} | {r['nodes']:,} | {r['group']} (one group) | {r['modes']} | {r['wall_s']:.1f} | "
+            f"| {r['voxel_mm']:g} | {r['nodes']:,} | {r['group']} (one group) | {r['levels']} | {r['modes']} | "
+            f"{r['wall_s']:.1f} | "
             f"{r['setup_s']:.1f} | {r['prior_and_swelling_s']:.1f} | {r['per_family_mode_s']:.2f} | "
             f"{r['peak_mb']:,.0f} | {r['h5_mb']:.1f} |"
         )

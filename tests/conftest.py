@@ -121,6 +121,13 @@ def subprocess_env() -> dict:
     return env
 
 
+def high_water_mb() -> float:
+    """This process's peak resident memory as the kernel's status file says it (VmHWM, kB): a
+    measure apart from getrusage, which fenics_brainshift/memory.py reads."""
+    status = Path("/proc/self/status").read_text()
+    return int(next(line.split()[1] for line in status.splitlines() if line.startswith("VmHWM:"))) / 1024
+
+
 def run_group(cmd: list[str], timeout: float, **kwargs):
     """subprocess.run(cmd, capture_output=True, text=True), but on timeout the command is
     terminated, mpirun's ranks with it (subprocess.run kills mpirun alone, and left two ranks

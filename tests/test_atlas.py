@@ -30,7 +30,7 @@ from fenics_brainshift.outputs.vertices import GlobalVertices
 from fenics_brainshift.runner import Simulation
 from fenics_brainshift.surfaces.triangles import closest_points_on_triangles
 
-from conftest import mpirun, subprocess_env
+from conftest import high_water_mb, mpirun, subprocess_env
 
 COARSE = ["mesh.voxel=0.01", "time.mode=quasi-static"]
 VARY = ["fluid.level=0.02,0.03,0.04", "gravity.angle_z=-8,0,8"]
@@ -884,13 +884,15 @@ def test_a_skull_atlas_built_on_two_ranks_is_the_one_built_on_one(skull_atlas, t
 
 def test_the_atlas_says_what_its_chains_and_its_prior_cost(atlas):
     """atlas.json's clock (benchmarks/resolution.py extrapolates from it): the family modes group
-    0 solved, counted as the scenarios count them, and its seconds within the modes' seconds."""
+    0 solved, counted as the scenarios count them, and its seconds within the modes' seconds;
+    and the largest memory a rank held."""
     info = atlas.info
     family = sum(s["kind"] == "family" for s in atlas.scenarios)
     groups = info["ranks"] // info["ranks_per_mode"]
     assert info["family_modes"] == family if groups == 1 else 0 < info["family_modes"] < family
     assert 0 < info["family_s"] and 0 < info["prior_and_swelling_s"]
     assert info["family_s"] + info["prior_and_swelling_s"] <= info["modes_s"]
+    assert 50 <= info["peak_memory_mb_a_rank"] <= high_water_mb() + 1  # (built here earlier; the kernel says)
 
 
 def test_chains_are_dealt_whole_to_groups_longest_first():

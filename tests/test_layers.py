@@ -19,7 +19,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "fenics_brainshift"
 # other (they form no cycle: checked below). The ground starts no DOLFINx; compat.py is the
 # first layer that does. The package's __init__ (the lazy public API) sits on top with cli.py.
 LAYERS = [
-    {"version", "errors", "logs", "units", "formats", "json_text", "data"},
+    {"version", "errors", "logs", "units", "formats", "json_text", "data", "memory"},
     {"surfaces"},
     {"images"},
     {"scene"},

@@ -33,7 +33,7 @@ from fenics_brainshift.data.templates import mni_brain_mask, mni_head, mni_t1
 # is collective, and rank 1 waiting in a broadcast meanwhile had its stack smashed
 from fenics_brainshift.runner import run
 
-from conftest import COMM
+from conftest import COMM, high_water_mb
 
 SPACING, SIZE = (2.5, 2.5, 3.0), (80, 92, 64)
 SPACING_STRIPPED = (3.0, 3.0, 3.0)
@@ -105,6 +105,7 @@ def test_the_brain_found_is_the_known_one(patient):
     assert abs(found.sum() / truth.sum() - 1.0) <= 0.03
     record = json.loads((patient / "P" / "prepare.json").read_text())
     assert record["head_first"]  # the whole head placed first (patients/registration.py)
+    assert 100 <= record["peak_memory_mb"] <= high_water_mb() + 1  # (prepared here earlier; the kernel says)
     litres = found.sum() * np.prod(SPACING) * 1e-6
     assert record["brain_litres"] == pytest.approx(litres, rel=1e-3)
     assert 1.0 <= litres <= 1.7  # a 0.9-scaled template brain: 0.73 x 2.05 l

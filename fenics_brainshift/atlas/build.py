@@ -20,6 +20,7 @@ import numpy as np
 from .. import compat, formats
 from ..errors import SolverError
 from ..logs import get_logger
+from ..memory import peak_memory_mb
 from ..scene.body import Swelling
 from . import groups, store
 from .locate import MeshLocator
@@ -123,6 +124,7 @@ def build(
         team.free()
     seconds = {"setup_s": setup_s, "modes_s": stages[0][3]}
     seconds.update({k: round(v, 3) for k, v in clock.items()})  # (group 0's: family_s, prior_and_swelling_s)
+    peak_mb = max(comm.allgather(peak_memory_mb()))  # (a rank's: the one that held most)
     if len(stages) > 1:
         seconds["stages_s"] = [round(s[3], 3) for s in stages[1:]]
     if comm.rank != 0:
@@ -133,6 +135,7 @@ def build(
         "scene_name": scene.name,
         "ranks": comm.size,
         "ranks_per_mode": team.ranks_per_mode,
+        "peak_memory_mb_a_rank": round(peak_mb),
         "dolfinx_version": compat.DOLFINX_VERSION,
         "material": scene.material.model,
         "gravity": [float(c) for c in scene.gravity.vector],

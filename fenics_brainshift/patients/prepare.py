@@ -23,6 +23,7 @@ from .. import json_text
 from ..data.templates import largest_part, mni_brain_mask, mni_head, mni_t1
 from ..errors import InputError
 from ..images.frames import LPS_TO_RAS
+from ..memory import peak_memory_mb
 from .anatomy import template_anatomy
 from .carry import index_to_lps, labels_on_patient
 from .contrast import NAMES as CONTRAST_NAMES
@@ -124,6 +125,7 @@ def prepare(args) -> list[str]:
             labels={n: v for v, n in present.items()},
             seconds={k: round(v, 2) for k, v in times.items()},
             total_seconds=round(time.perf_counter() - began, 2),
+            peak_memory_mb=round(peak_memory_mb()),
             made=datetime.datetime.now().isoformat(timespec="seconds"),
         )
         (tmp / PREPARE_RECORD).write_text(json_text.dumps(report) + "\n")
