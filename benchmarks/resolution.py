@@ -203,8 +203,50 @@ def write(rows: list[dict], folder: Path) -> None:
         cells = [f"{plan[n][0] / 60:.0f} min ({plan[n][1]})" for n in RANKS]
         size_gb = one["h5_mb"] / one["modes"] * plan["modes"] / 1024
         lines.append(f"| {voxel:g} | {one['nodes']:,} | " + " | ".join(cells) + f" | {size_gb:.2f} |")
+    lines += ["", "![the atlas's time against ranks and against nodes](resolution.png)"]
     (folder / "resolution.md").write_text("\n".join(lines) + "\n")
+    plot(rows, folder / "resolution.png")
     print("\n".join(lines))
+
+
+def plot(rows: list[dict], path: Path) -> None:
+    """Left: the default atlas's wall time (extrapolated) against ranks, one line a voxel size.
+    Right: the measured time of a level against the mesh's nodes, one rank and a group of two."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (left, right) = plt.subplots(1, 2, figsize=(10, 4))
+    for voxel in sorted({r["voxel_mm"] for r in rows}, reverse=True):
+        by_group = {r["group"]: r for r in rows if r["voxel_mm"] == voxel}
+        if 1 not in by_group:
+            continue
+        plan = extrapolate(by_group[1], by_group.get(2))
+        left.loglog(
+            RANKS, [plan[n][0] / 60 for n in RANKS], "o-", label=f"{voxel:g} mm ({by_group[1]['nodes']:,} nodes)"
+        )
+    left.axhline(20, color="k", ls=":", lw=1, label="20 minutes")
+    left.set_xlabel("ranks (one group of one rank each, at most one a pose)")
+    left.set_ylabel("default atlas, minutes (extrapolated)")
+    left.grid(True, which="both", alpha=0.3)
+    left.legend(fontsize=8)
+    for group, marker in ((1, "o-"), (2, "s--")):
+        mine = sorted((r for r in rows if r["group"] == group), key=lambda r: r["nodes"])
+        if mine:
+            label = "one rank" if group == 1 else "one group of two ranks"
+            right.loglog([r["nodes"] for r in mine], [r["per_family_mode_s"] for r in mine], marker, label=label)
+    ones = sorted((r for r in rows if r["group"] == 1), key=lambda r: r["nodes"])
+    if ones:
+        nodes = [r["nodes"] for r in ones]
+        right.loglog(nodes, [ones[0]["per_family_mode_s"] * n / nodes[0] for n in nodes], "k:", lw=1, label="linear")
+    right.set_xlabel("nodes")
+    right.set_ylabel("a level of a pose's chain, s (measured)")
+    right.grid(True, which="both", alpha=0.3)
+    right.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 if __name__ == "__main__":
