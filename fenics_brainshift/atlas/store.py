@@ -102,6 +102,8 @@ def write(folder: Path, atlas: Atlas) -> str:
         f.attrs["mesh_id"] = atlas.mesh_id()
         f.attrs["build_id"] = build_id
         f["mesh/points"], f["mesh/tetrahedra"] = atlas.points, atlas.tetrahedra
+        # contiguous: chunked and compressed, the file is a fifth smaller and reads 5-17x slower
+        # (benchmarks/results/atlas_storage.md)
         f.create_dataset("modes/vertex", data=atlas.vertex_modes.astype(np.float32))
         f["prior/vertex"] = atlas.prior_vertex
         f["regulariser/gram"], f["regulariser/cross"] = atlas.gram, atlas.cross
