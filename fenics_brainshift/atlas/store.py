@@ -103,14 +103,14 @@ def write(folder: Path, atlas: Atlas) -> str:
         f.attrs["build_id"] = build_id
         f["mesh/points"], f["mesh/tetrahedra"] = atlas.points, atlas.tetrahedra
         # contiguous: chunked and compressed, the file is a fifth smaller and reads 5-17x slower
-        # (benchmarks/results/atlas_storage.md)
-        f.create_dataset("modes/vertex", data=atlas.vertex_modes.astype(np.float32))
+        # (benchmarks/results/atlas_storage.md); a mode at a time (no single-precision copy of all)
+        _write_modes(f, "modes/vertex", atlas.vertex_modes)
         f["prior/vertex"] = atlas.prior_vertex
         f["regulariser/gram"], f["regulariser/cross"] = atlas.gram, atlas.cross
         f["regulariser"].attrs["prior_square"] = atlas.prior_square
         if atlas.surface_points is not None:
             f["surface/points"], f["surface/triangles"] = atlas.surface_points, atlas.surface_triangles
-            f.create_dataset("modes/surface", data=atlas.surface_modes.astype(np.float32))
+            _write_modes(f, "modes/surface", atlas.surface_modes)
             f["prior/surface"] = atlas.prior_surface
         if atlas.skull_triangles is not None:
             f["skull/triangles"] = atlas.skull_triangles
@@ -130,6 +130,13 @@ def write(folder: Path, atlas: Atlas) -> str:
     os.replace(tmp, h5)
     os.replace(tmp_index, index)
     return build_id
+
+
+def _write_modes(f, name: str, modes: np.ndarray) -> None:
+    """Modes (M, n, 3) in single precision, one at a time."""
+    dataset = f.create_dataset(name, shape=modes.shape, dtype=np.float32)
+    for k in range(len(modes)):
+        dataset[k] = modes[k]
 
 
 def _remove_stages(folder: Path) -> None:
