@@ -163,6 +163,7 @@ def main(argv=None) -> None:
 def write(rows: list[dict], folder: Path) -> None:
     folder.mkdir(parents=True, exist_ok=True)
     rows = sorted(rows, key=lambda r: (-r["voxel_mm"], r["group"]))
+    stopped = [r for r in rows if "stopped" in r]
     (folder / "resolution.json").write_text(json.dumps({"rows": rows}, indent=1) + "\n")
     commands = sorted({r["command"] for r in rows})
     lines = [
@@ -178,12 +179,21 @@ def write(rows: list[dict], folder: Path) -> None:
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
+        if "stopped" in r:  # (a build stopped by hand: what was seen, said as such)
+            lines.append(
+                f"| {r['voxel_mm']:g} | {r['nodes']:,} | {r['group']} (one group) | {r['levels']} | - | "
+                f"stopped after {r['stopped_after_s'] / 60:.0f} min | - | - | - | "
+                f"{r['resident_mb_when_stopped']:,.0f} when stopped | - |"
+            )
+            continue
         lines.append(
             f"| {r['voxel_mm']:g} | {r['nodes']:,} | {r['group']} (one group) | {r['levels']} | {r['modes']} | "
             f"{r['wall_s']:.1f} | "
             f"{r['setup_s']:.1f} | {r['prior_and_swelling_s']:.1f} | {r['per_family_mode_s']:.2f} | "
             f"{r['peak_mb']:,.0f} | {r['h5_mb']:.1f} |"
         )
+    lines += [f"\nStopped: {r['voxel_mm']:g} mm, {r['stopped']}" for r in stopped]
+    rows = [r for r in rows if "stopped" not in r]
     lines += [
         "",
         f"## The default atlas ({DEFAULT_POSES} poses x {DEFAULT_LEVELS} levels + 1 swelling mode), extrapolated",
