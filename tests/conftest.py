@@ -122,8 +122,7 @@ def subprocess_env() -> dict:
 
 
 def high_water_mb() -> float:
-    """This process's peak resident memory as the kernel's status file says it (VmHWM, kB): a
-    measure apart from getrusage, which fenics_brainshift/memory.py reads."""
+    """This process's peak resident memory as the kernel's status file says it (VmHWM, kB)."""
     status = Path("/proc/self/status").read_text()
     return int(next(line.split()[1] for line in status.splitlines() if line.startswith("VmHWM:"))) / 1024
 
