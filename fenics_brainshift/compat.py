@@ -32,21 +32,22 @@ _JIT = {"timeout": JIT_WAIT_SECONDS}
 def vector_space(mesh, degree: int = 1):
     """Continuous Lagrange space of 3-vectors (displacement, velocity, acceleration)."""
     if MODERN:
-        return fem.functionspace(mesh, ("Lagrange", degree, (mesh.geometry.dim,)))
-    return fem.VectorFunctionSpace(mesh, ("Lagrange", degree))
+        return fem.functionspace(mesh, ("Lagrange", degree, (mesh.geometry.dim,)), jit_options=_JIT)
+    # (VectorFunctionSpace takes no JIT options: the element it makes, given to FunctionSpace)
+    return fem.FunctionSpace(mesh, ufl.VectorElement("Lagrange", mesh.ufl_cell(), degree), jit_params=_JIT)
 
 
 def scalar_space(mesh, family: str = "Lagrange", degree: int = 1):
     if MODERN:
-        return fem.functionspace(mesh, (family, degree))
-    return fem.FunctionSpace(mesh, (family, degree))
+        return fem.functionspace(mesh, (family, degree), jit_options=_JIT)
+    return fem.FunctionSpace(mesh, (family, degree), jit_params=_JIT)
 
 
 def cell_tensor_space(mesh):
     """Cell-wise constant (DG0) 3 x 3 tensors: the deformation gradient of each cell."""
     if MODERN:
-        return fem.functionspace(mesh, ("DG", 0, (3, 3)))
-    return fem.TensorFunctionSpace(mesh, ("DG", 0))
+        return fem.functionspace(mesh, ("DG", 0, (3, 3)), jit_options=_JIT)
+    return fem.FunctionSpace(mesh, ufl.TensorElement("DG", mesh.ufl_cell(), 0), jit_params=_JIT)
 
 
 def petsc_vec(f: fem.Function):
