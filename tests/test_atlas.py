@@ -891,7 +891,7 @@ def test_the_atlas_says_what_its_chains_and_its_prior_cost(atlas):
     groups = info["ranks"] // info["ranks_per_mode"]
     assert info["family_modes"] == family if groups == 1 else 0 < info["family_modes"] < family
     assert 0 < info["family_s"] and 0 < info["prior_and_swelling_s"]
-    assert info["family_s"] + info["prior_and_swelling_s"] <= info["modes_s"]
+    assert info["family_s"] + info["prior_and_swelling_s"] <= info["modes_s"] + 1e-3  # (each rounded to 1 ms)
     assert 50 <= info["peak_memory_mb_a_rank"] <= high_water_mb() + 1  # (built here earlier; the kernel says)
 
 
