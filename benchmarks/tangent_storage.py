@@ -23,7 +23,11 @@ from mpi4py import MPI
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from fenics_brainshift import load_scene, logs  # noqa: E402
+from fenics_brainshift import (  # noqa: E402
+    compat,  # noqa: E402
+    load_scene,
+    logs,
+)
 from fenics_brainshift.bench import machine_line  # noqa: E402
 from fenics_brainshift.compat import DOLFINX_VERSION  # noqa: E402
 from fenics_brainshift.runner import build_model  # noqa: E402
@@ -49,8 +53,8 @@ def main(argv=None) -> None:
     V = model.V
     u, v, du = fem.Function(V), ufl.TestFunction(V), ufl.TrialFunction(V)
     forms = {
-        "linear stiffness": fem.form(model.material.tangent(u, du, v)),
-        "neo-Hookean tangent": fem.form(model.hyperelastic.tangent(u, du, v)),
+        "linear stiffness": compat.form(model.material.tangent(u, du, v)),
+        "neo-Hookean tangent": compat.form(model.hyperelastic.tangent(u, du, v)),
     }
     rows = []
     for name, form in forms.items():

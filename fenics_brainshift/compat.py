@@ -24,8 +24,10 @@ MODERN = _MAJOR_MINOR >= (0, 8)  # functionspace(), basix.ufl, x.petsc_vec, bb_t
 # How long a process waits for another to finish compiling the same form (the form compiler's
 # default is 10 s, after which the waiting process fails). Two processes compile the same form
 # whenever they share an empty cache: the rank groups of an atlas under mpirun, a test suite's
-# workers. A large form (the neo-Hookean P2 tangent) takes longer than 10 s to compile.
-JIT_WAIT_SECONDS = 900
+# workers; a large form (the neo-Hookean P2 tangent) on a busy machine takes more than 10 s.
+# The price: a compile killed midway leaves its lock, and the next process waits this long
+# before the form compiler says to clear the cache.
+JIT_WAIT_SECONDS = 300
 _JIT = {"timeout": JIT_WAIT_SECONDS}
 
 
