@@ -11,6 +11,12 @@ Writes benchmarks/results/resolution.md and resolution.json.
 group size, measured by an earlier command: the file names each row's command); --report
 writes resolution.md again from resolution.json.
 
+    python benchmarks/resolution.py --whole 2 --voxels 0.003 [--keep] [--keep-atlas DIR]
+
+measures the whole default atlas instead (no --vary: 25 poses x 14 levels and the swelling
+mode) under `mpirun -n 2` (one group of one rank each), beside the extrapolation; --keep-atlas
+keeps the atlas it builds (for `python benchmarks/update.py --atlas DIR`).
+
 Each build is its own process (`mpirun -n 2` for the group of two), after one unmeasured build
 at 10 mm for the JIT cache. Measured: `brainshift atlas brain --set mesh.voxel=V
 --set skull.gap=0.003 --vary fluid.level=-0.015:0.05:L` (one pose: the scene's; L levels, a
@@ -109,6 +115,36 @@ def build(voxel: float, levels: int, group: int, work: Path) -> dict:
     return row
 
 
+def build_whole(voxel: float, ranks: int, work: Path, keep: Path | None) -> dict:
+    """The default atlas at ``voxel`` on ``ranks`` ranks (groups of one), measured whole."""
+    out = keep or work / f"whole_v{voxel}_r{ranks}"
+    shutil.rmtree(out, ignore_errors=True)
+    launcher = ["mpirun", "-n", str(ranks)] if ranks > 1 else []
+    result = measure([
+        *launcher, sys.executable, "-m", "fenics_brainshift.cli", "--no-progress", "atlas", "brain", "-o", str(out),
+        "--set", f"mesh.voxel={voxel}", "--set", "skull.gap=0.003",
+    ])  # fmt: skip
+    info = json.loads((out / "atlas.json").read_text())
+    row = {
+        "whole": True,
+        "voxel_mm": round(voxel * 1e3, 3),
+        "ranks": ranks,
+        "groups": info["ranks"] // info["ranks_per_mode"],
+        "nodes": info["nodes"],
+        "modes": info["modes"],
+        "left_out": len(info.get("left_out", [])),
+        "wall_s": result["seconds"],
+        "setup_s": info["setup_s"],
+        "modes_s": info["modes_s"],
+        "peak_mb": result["peak_mb"],
+        "h5_mb": (out / "atlas.h5").stat().st_size / 2**20,
+        "columns": (info.get("contact_compliance") or {}).get("columns"),
+    }
+    if keep is None:
+        shutil.rmtree(out, ignore_errors=True)
+    return row
+
+
 def surface_points(h5: Path) -> int:
     """How many points the atlas's fine surface has (0: none)."""
     import h5py
@@ -153,6 +189,8 @@ def main(argv=None) -> None:
     parser.add_argument("--groups", default="1,2", help="group sizes to measure (1: one rank; 2: mpirun -n 2)")
     parser.add_argument("--keep", action="store_true", help="keep resolution.json's rows this run does not measure")
     parser.add_argument("--report", action="store_true", help="write resolution.md from resolution.json, no builds")
+    parser.add_argument("--whole", type=int, metavar="RANKS", help="measure the whole default atlas on RANKS ranks")
+    parser.add_argument("--keep-atlas", type=Path, metavar="DIR", help="with --whole: keep the atlas it builds in DIR")
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results")
     args = parser.parse_args(argv)
     voxels = [float(v) for v in args.voxels.split(",")]
@@ -160,15 +198,28 @@ def main(argv=None) -> None:
     if args.report:
         write(json.loads((args.out / "resolution.json").read_text())["rows"], args.out)
         return
-    command = f"python benchmarks/resolution.py --voxels {args.voxels} --levels {args.levels} --groups {args.groups}"
+    if args.whole:
+        command = f"python benchmarks/resolution.py --whole {args.whole} --voxels {args.voxels}"
+        measured = {_key({"whole": True, "voxel_mm": round(v * 1e3, 3), "ranks": args.whole}) for v in voxels}
+    else:
+        command = (
+            f"python benchmarks/resolution.py --voxels {args.voxels} --levels {args.levels} --groups {args.groups}"
+        )
+        measured = {_key({"voxel_mm": round(v * 1e3, 3), "group": g}) for v in voxels for g in groups}
     rows = []
     if args.keep and (args.out / "resolution.json").is_file():
-        measured = {(round(v * 1e3, 3), g) for v in voxels for g in groups}
         kept = json.loads((args.out / "resolution.json").read_text())["rows"]
-        rows = [r for r in kept if (r["voxel_mm"], r["group"]) not in measured]
+        rows = [r for r in kept if _key(r) not in measured]
     with tempfile.TemporaryDirectory(prefix="resolution_") as tmp:
         work = Path(tmp)
         build(0.01, 2, 1, work)  # the JIT cache, unmeasured (the forms are the same at every voxel)
+        if args.whole:
+            for voxel in voxels:
+                row = {**build_whole(voxel, args.whole, work, args.keep_atlas), "command": command}
+                rows.append(row)
+                print(json.dumps(row), flush=True)
+                write(rows, args.out)
+            return
         for voxel in voxels:
             for group in groups:
                 row = {**build(voxel, args.levels, group, work), "command": command}
@@ -177,11 +228,17 @@ def main(argv=None) -> None:
                 write(rows, args.out)  # (each row as it comes: a long run stopped keeps what it measured)
 
 
+def _key(row: dict) -> tuple:
+    """A row's identity: a measured chain by voxel and group size, a whole atlas by voxel and ranks."""
+    return ("whole", row["voxel_mm"], row["ranks"]) if row.get("whole") else ("chain", row["voxel_mm"], row["group"])
+
+
 def write(rows: list[dict], folder: Path) -> None:
     folder.mkdir(parents=True, exist_ok=True)
-    rows = sorted(rows, key=lambda r: (-r["voxel_mm"], r["group"]))
+    whole = sorted((r for r in rows if r.get("whole")), key=lambda r: (-r["voxel_mm"], r["ranks"]))
+    rows = sorted((r for r in rows if not r.get("whole")), key=lambda r: (-r["voxel_mm"], r["group"]))
     stopped = [r for r in rows if "stopped" in r]
-    (folder / "resolution.json").write_text(json.dumps({"rows": rows}, indent=1) + "\n")
+    (folder / "resolution.json").write_text(json.dumps({"rows": rows + whole}, indent=1) + "\n")
     commands = sorted({r["command"] for r in rows})
     lines = [
         "# The skull atlas at 5, 3 and 2 mm: one pose's chain measured, the default atlas extrapolated",
@@ -231,6 +288,24 @@ def write(rows: list[dict], folder: Path) -> None:
         cells = [f"{plan[n][0] / 60:.0f} min ({plan[n][1]})" for n in RANKS]
         size_gb = default_size_gb(one, plan["modes"])
         lines.append(f"| {voxel:g} | {one['nodes']:,} | " + " | ".join(cells) + f" | {size_gb:.2f} |")
+    if whole:
+        lines += [
+            "",
+            "## The default atlas, measured whole",
+            "",
+            "The command's wall time, all ranks' groups of one (`mpirun -n R brainshift atlas brain --set "
+            "mesh.voxel=V --set skull.gap=0.003`), the largest resident memory of any of its processes.",
+            "",
+            "| voxel mm | nodes | ranks | modes | left out | wall min | setup s | peak memory MB (a rank) "
+            "| atlas.h5 MB | compliance columns (group 0) |",
+            "|---|---|---|---|---|---|---|---|---|---|",
+        ]
+        for r in whole:
+            lines.append(
+                f"| {r['voxel_mm']:g} | {r['nodes']:,} | {r['ranks']} ({r['groups']} groups) | {r['modes']} | "
+                f"{r['left_out']} | {r['wall_s'] / 60:.1f} | {r['setup_s']:.1f} | {r['peak_mb']:,.0f} | "
+                f"{r['h5_mb']:.0f} | {r['columns'] if r['columns'] is not None else '-'} |"
+            )
     lines += ["", "![the atlas's time against ranks and against nodes](resolution.png)"]
     (folder / "resolution.md").write_text("\n".join(lines) + "\n")
     plot(rows, folder / "resolution.png")

@@ -106,11 +106,11 @@ def lowest_mode(model):
     return float(np.sqrt(x.dot(Kx) / x.dot(Mx))), x, solver
 
 
-def mpirun() -> list[str]:
+def mpirun(ranks: int = 2) -> list[str]:
     exe = shutil.which("mpirun") or shutil.which("mpiexec")
     if exe is None:
         pytest.fail("mpirun not found: install openmpi-bin (scripts/install.sh does)")
-    return [exe, "-n", "2", "--oversubscribe"]  # a one-core machine runs two ranks too
+    return [exe, "-n", str(ranks), "--oversubscribe"]  # a one-core machine runs two ranks too
 
 
 def subprocess_env() -> dict:

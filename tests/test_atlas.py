@@ -693,8 +693,8 @@ def test_with_a_skull_a_mode_is_the_full_models_contact_state(skull_atlas, atlas
     tolerance = skull_atlas.info["contact_tolerance_m"]  # the scene's 0.01 mm, loosened for the modes
     assert tolerance == pytest.approx(0.05e-3)
     assert min(room) > -tolerance
-    kept = skull_atlas.info["contact_compliance"]  # three columns a node ever pressed, G dense over them
-    assert kept["columns"] > 0 and kept["columns"] % 3 == 0
+    kept = skull_atlas.info["contact_compliance"]  # a column a direction a pressed node needed, G dense over them
+    assert kept["columns"] > 0
     assert kept["megabytes"] == pytest.approx(8e-6 * kept["columns"] ** 2, abs=0.1)
     assert atlas.info["contact_compliance"] is None
     assert atlas.scenarios[k] == skull_atlas.scenarios[k]
@@ -841,18 +841,19 @@ def test_an_atlas_built_on_two_ranks_is_the_one_built_on_one(atlas, tmp_path):
     assert np.abs(two.vertex_modes - atlas.vertex_modes).max() < 1e-6 * np.abs(atlas.vertex_modes).max()
 
 
-@pytest.mark.parametrize("per_mode", [1, 2])
-def test_a_skull_atlas_built_on_two_ranks_is_the_one_built_on_one(skull_atlas, tmp_path, per_mode):
-    """The contact modes and the swelling mode (solved from the prior state) built on two ranks
-    equal those built on one, the fine surface's too. Two groups of one rank (each solving whole
-    poses, each pose from rest) give the numbers of one rank to round-off (a pose's start carried
-    the last pose's contact pressures: 0.04 mm apart); one group of two ranks (the mesh split) the
-    same to the solver's round-off, the fine surface too (its points beyond the voxels took their
-    values from whichever of two equally near cells each partition's round-off chose: 0.2 mm).
-    (At 10 mm the contact state is unique, so this checks the ranks' agreement, not the start:
-    that is the stand-in test above. Serial pass only, as above.)"""
+@pytest.mark.parametrize("ranks, per_mode", [(2, 1), (2, 2), (3, 1), (3, 3)])
+def test_a_skull_atlas_built_on_two_or_three_ranks_is_the_one_built_on_one(skull_atlas, tmp_path, ranks, per_mode):
+    """The contact modes and the swelling mode (solved from the prior state) built on two and
+    three ranks equal those built on one, the fine surface's too. Groups of one rank (each
+    solving whole poses, each pose from rest) give the numbers of one rank to round-off (a
+    pose's start carried the last pose's contact pressures: 0.04 mm apart); one group of all
+    the ranks (the mesh split in two or three) the same to the solver's round-off, the fine
+    surface too (its points beyond the voxels took their values from whichever of two equally
+    near cells each partition's round-off chose: 0.2 mm). (At 10 mm the contact state is
+    unique, so this checks the ranks' agreement, not the start: that is the stand-in test
+    above. Serial pass only, as above; three ranks on two cores oversubscribed.)"""
     out = tmp_path / "s2"
-    command = mpirun() + [
+    command = mpirun(ranks) + [
         sys.executable,
         "-m",
         "fenics_brainshift.cli",
@@ -868,7 +869,7 @@ def test_a_skull_atlas_built_on_two_ranks_is_the_one_built_on_one(skull_atlas, t
     done = subprocess.run(command, capture_output=True, text=True, env=subprocess_env(), timeout=600)
     assert done.returncode == 0, done.stderr[-3000:]
     two = store.read(out)
-    assert two.info["ranks"] == 2 and two.info["ranks_per_mode"] == per_mode
+    assert two.info["ranks"] == ranks and two.info["ranks_per_mode"] == per_mode
     assert two.scenarios == skull_atlas.scenarios and two.scenarios[-1]["kind"] == "swelling"
     assert np.abs(two.points - skull_atlas.points).max() < 1e-12
     assert np.array_equal(two.tetrahedra, skull_atlas.tetrahedra)

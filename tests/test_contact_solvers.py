@@ -311,6 +311,11 @@ def _tridiagonal(n: int) -> PETSc.Mat:
             if 0 <= j < n:
                 P0.setValue(i, j, -1.0)
     P0.assemble()
+    return P0, _factored(P0)
+
+
+def _factored(P0: PETSc.Mat) -> PETSc.KSP:
+    """A solver holding P0's factor (Cholesky; MUMPS LU on N ranks)."""
     ksp = PETSc.KSP().create(COMM)
     ksp.setOperators(P0)
     ksp.setType("preonly")
@@ -318,52 +323,126 @@ def _tridiagonal(n: int) -> PETSc.Mat:
     if COMM.size > 1:
         ksp.getPC().setFactorSolverType("mumps")
     ksp.setUp()
-    return P0, ksp
+    return ksp
 
 
-@pytest.mark.parametrize("at_once", [True, False])
-def test_the_compliance_solves_k_plus_the_blocks_of_any_pressed_dofs(at_once):
-    """K factored once; K + E B E^T for pressed sets that come, go and come back, over dofs of
-    both ranks' rows: the Woodbury solve equals CG on the assembled matrix, the kept
-    compliance equals the dense inverse of K (numpy) between the dofs seen, and each dof's
-    column is solved once, whether many at once (MatMatSolve) or one by one."""
-    from fenics_brainshift.linalg.compliance import Compliance
-
-    n = 40
-    P0, ksp = _tridiagonal(n)
-    lo, hi = P0.getOwnershipRange()
-    pc = ksp.getPC()
-    compliance = Compliance(
-        lambda r, x: pc.apply(r, x), P0.createVecRight(), (lambda: pc.getFactorMatrix()) if at_once else None
-    )
-    rng = np.random.default_rng(2)  # the same on every rank
-    rhs = P0.createVecRight()
-    rhs.setArray(rng.normal(size=n)[lo:hi])
-    seen = set()
-    for dofs in ([2, 3, 4, 31, 32, 33], [3, 4, 5, 36], [33, 2], [], [39, 0, 5, 20]):
-        M = rng.normal(size=(len(dofs), len(dofs)))
-        B = M @ M.T + M  # (need not be symmetric)
-        assert compliance.set(np.array(dofs, dtype=np.int64), B)
-        seen |= set(dofs)
-        assert compliance.columns == len(seen)
-        P = _changed(P0, dofs, B)
-        x = rhs.duplicate()
-        compliance.solve(rhs, x)
-        np.testing.assert_allclose(x.getArray(), _lu(P, rhs).getArray(), rtol=0, atol=1e-10)
-        singular = (
-            -np.linalg.inv(compliance.G[np.ix_(*[[compliance._position[d] for d in dofs]] * 2)]) if dofs else None
-        )
-        if singular is not None:  # K + E B E^T singular: refused, the last change kept
-            assert not compliance.set(np.array(dofs, dtype=np.int64), singular)
-            compliance.solve(rhs, x)
-            np.testing.assert_allclose(x.getArray(), _lu(P, rhs).getArray(), rtol=0, atol=1e-10)
+def _node_blocks(nodes: int) -> tuple[PETSc.Mat, PETSc.KSP, np.ndarray]:
+    """A distributed SPD matrix over ``nodes`` nodes of three dofs (a node's dofs on one rank,
+    as DOLFINx's), its factor's solver (Cholesky; MUMPS LU on N ranks), and it dense."""
+    n = 3 * nodes
+    mine = len(np.array_split(np.arange(nodes), COMM.size)[COMM.rank])
+    P0 = PETSc.Mat().createAIJ(((3 * mine, n), (3 * mine, n)), nnz=7, comm=COMM)
     dense = np.zeros((n, n))
     for i in range(n):
         dense[i, i] = 4.0 + 0.1 * i
-        if i + 1 < n:
-            dense[i, i + 1] = dense[i + 1, i] = -1.0
-    known = compliance.known
-    np.testing.assert_allclose(compliance.G, np.linalg.inv(dense)[np.ix_(known, known)], rtol=0, atol=1e-12)
+        for j in (i - 1, i + 3):
+            if 0 <= j < n:
+                dense[i, j] = dense[j, i] = -1.0
+    lo, hi = P0.getOwnershipRange()
+    for i in range(lo, hi):
+        columns = np.flatnonzero(dense[i]).astype(PETSc.IntType)
+        P0.setValues([i], columns, dense[i, columns])
+    P0.assemble()
+    return P0, _factored(P0), dense
+
+
+def _with_blocks(P0: PETSc.Mat, nodes, blocks) -> PETSc.Mat:
+    """P0 plus each node's 3x3 block, assembled."""
+    dofs = [3 * n + c for n in nodes for c in range(3)]
+    return _changed(P0, dofs, scipy.linalg.block_diag(*blocks) if len(nodes) else np.zeros((0, 0)))
+
+
+def _unit(rng, count: int) -> np.ndarray:
+    v = rng.normal(size=(count, 3))
+    return v / np.linalg.norm(v, axis=1)[:, None]
+
+
+@pytest.mark.parametrize("at_once", [True, False])
+def test_the_compliance_solves_k_plus_the_blocks_of_any_pressed_nodes(at_once):
+    """K factored once; K plus 3x3 blocks (unsymmetric, full) of pressed sets that come, go and
+    come back, over nodes of both ranks: with every direction kept (share 0) the Woodbury
+    solve equals an LU of the assembled matrix, the kept compliance equals the dense inverse
+    of K (numpy) between the directions learned, a node pressed again learns nothing, and K
+    plus blocks that make it singular is refused with the last change kept."""
+    from fenics_brainshift.linalg.compliance import Compliance
+
+    P0, ksp, dense = _node_blocks(14)
+    lo, hi = P0.getOwnershipRange()
+    pc = ksp.getPC()
+    compliance = Compliance(
+        lambda r, x: pc.apply(r, x), P0.createVecRight(), (lambda: pc.getFactorMatrix()) if at_once else None, share=0.0
+    )
+    rng = np.random.default_rng(2)  # the same on every rank
+    rhs = P0.createVecRight()
+    rhs.setArray(rng.normal(size=dense.shape[0])[lo:hi])
+    for nodes in ([0, 1, 10], [1, 12], [10, 0], [], [13, 0, 6, 7]):
+        M = rng.normal(size=(len(nodes), 3, 3))
+        blocks = M @ M.transpose(0, 2, 1) + M  # (need not be symmetric)
+        before = compliance.columns
+        new = len(set(nodes) - set(compliance.node.tolist()))
+        assert compliance.set(np.array(nodes, dtype=np.int64), blocks)
+        assert compliance.columns == before + 3 * new  # full blocks: three directions a new node
+        x = rhs.duplicate()
+        compliance.solve(rhs, x)
+        P = _with_blocks(P0, nodes, blocks)
+        np.testing.assert_allclose(x.getArray(), _lu(P, rhs).getArray(), rtol=0, atol=1e-10)
+        if nodes:  # a rank-one block along a learned direction with -1 / its compliance: singular
+            k = compliance._of_node[nodes[0]][0]
+            d = compliance.direction[k]
+            singular = np.zeros((len(nodes), 3, 3))
+            singular[0] = -np.outer(d, d) / compliance.G[k, k]
+            assert not compliance.set(np.array(nodes, dtype=np.int64), singular)
+            compliance.solve(rhs, x)
+            np.testing.assert_allclose(x.getArray(), _lu(P, rhs).getArray(), rtol=0, atol=1e-10)
+    W = np.zeros((dense.shape[0], len(compliance.node)))
+    for k, (node, d) in enumerate(zip(compliance.node, compliance.direction)):
+        W[3 * node : 3 * node + 3, k] = d
+    np.testing.assert_allclose(compliance.G, W.T @ np.linalg.inv(dense) @ W, rtol=0, atol=1e-12)
+    compliance.destroy()
+    ksp.destroy()
+
+
+def test_the_compliance_takes_a_node_along_the_directions_its_block_needs():
+    """A node pressed on a smooth wall, k n n^T, takes one column and the solve is exact (an LU
+    of the assembled matrix); a block with a little stiffness across n (below the share) keeps
+    that one column and is no longer exact (GMRES makes up the rest); a normal turned by 60
+    degrees adds a second direction and leaves the first; a node far weaker than the others
+    is left out."""
+    from fenics_brainshift.linalg.compliance import SHARE, Compliance
+
+    P0, ksp, _ = _node_blocks(14)
+    pc = ksp.getPC()
+    compliance = Compliance(lambda r, x: pc.apply(r, x), P0.createVecRight(), lambda: pc.getFactorMatrix())
+    rng = np.random.default_rng(5)
+    rhs = P0.createVecRight()
+    lo, hi = P0.getOwnershipRange()
+    rhs.setArray(rng.normal(size=42)[lo:hi])
+    nodes = np.array([2, 5, 9, 11])
+    normal = _unit(rng, 4)
+    blocks = 50.0 * np.einsum("ni,nj->nij", normal, normal)
+
+    def error(blocks) -> float:
+        x = rhs.duplicate()
+        compliance.solve(rhs, x)
+        exact = _lu(_with_blocks(P0, nodes, blocks), rhs).getArray()
+        return np.abs(x.getArray() - exact).max() / np.abs(exact).max()
+
+    assert compliance.set(nodes, blocks) and compliance.columns == 4
+    assert COMM.allreduce(error(blocks), op=MPI.MAX) < 1e-12
+    across = np.cross(normal, _unit(rng, 4))
+    across /= np.linalg.norm(across, axis=1)[:, None]
+    tilted = blocks + 0.5 * SHARE * 50.0 * np.einsum("ni,nj->nij", across, across)
+    assert compliance.set(nodes, tilted) and compliance.columns == 4
+    assert 1e-4 < COMM.allreduce(error(tilted), op=MPI.MAX) < 0.5  # (0.2 here, on a K four on the diagonal)
+    turned = normal.copy()
+    turned[0] = 0.5 * normal[0] + np.sqrt(0.75) * across[0]
+    blocks[0] = 50.0 * np.outer(turned[0], turned[0])
+    assert compliance.set(nodes, blocks) and compliance.columns == 5
+    assert compliance._of_node[2] == [0, 4]
+    assert COMM.allreduce(error(blocks), op=MPI.MAX) < 1e-12  # (turned[0] in the two directions' plane)
+    weak = blocks.copy()
+    weak[3] *= 1e-5
+    assert compliance.set(nodes, weak) and 11 not in compliance.node[compliance.chosen]
     compliance.destroy()
     ksp.destroy()
 
@@ -385,22 +464,26 @@ def test_newton_in_contact_keeps_ks_one_factor_and_settles_where_refactoring_doe
     P.setLGMap(*newton_static._K.getLGMap())
     sim.contact.add_tangent(P, None, blocks=newton_static.tangent.contact_blocks)
     P.zeroRowsColumnsLocal(newton_static._fixed, 1.0)
-    exact.prepare(newton_static.tangent.contact_blocks)
     rhs = P.createVecRight()
     rhs.setRandom()
     rhs.scale(1e-3)
     x = rhs.duplicate()
-    exact.compliance.solve(rhs, x)
     expected = _lu(P, rhs)
-    assert np.abs(x.getArray() - expected.getArray()).max() <= 1e-8 * np.abs(expected.getArray()).max()
+    exact.prepare(newton_static.tangent.contact_blocks)  # the blocks along the directions they need
+    exact.compliance.solve(rhs, x)
+    near = np.abs(x.getArray() - expected.getArray()).max() / np.abs(expected.getArray()).max()
+    exact.compliance.share = exact.compliance.weak = 0.0  # every direction of every pressed node
+    exact.prepare(newton_static.tangent.contact_blocks)
+    exact.compliance.solve(rhs, x)
+    assert np.abs(x.getArray() - expected.getArray()).max() <= 1e-8 * np.abs(expected.getArray()).max() < near
     given, real_set = [], exact.compliance.set  # where K plus the blocks is singular: their positive part
-    exact.compliance.set = lambda dofs, B: given.append(B) or (len(given) > 1 and real_set(dofs, B))
+    exact.compliance.set = lambda nodes, B: given.append(B) or (len(given) > 1 and real_set(nodes, B))
     exact.prepare(newton_static.tangent.contact_blocks)
     exact.compliance.set = real_set
-    raw = contact_preconditioner.gathered_blocks(sim.model.V, *newton_static.tangent.contact_blocks, exact._fixed)[1]
-    given = [b.toarray() for b in given]
-    assert len(given) == 2 and np.array_equal(given[0], raw.toarray())  # the blocks as they are, then
-    assert np.allclose(given[1], given[1].T) and np.linalg.eigvalsh(given[1]).min() >= -1e-9 * np.abs(given[1]).max()
+    raw = contact_preconditioner.gathered_node_blocks(sim.model.V, *newton_static.tangent.contact_blocks, exact._fixed)
+    assert len(given) == 2 and np.array_equal(given[0], raw[1])  # the blocks as they are, then
+    assert np.allclose(given[1], given[1].transpose(0, 2, 1))
+    assert np.linalg.eigvalsh(given[1]).min() >= -1e-9 * np.abs(given[1]).max()
 
     monkeypatch.setattr(newton.NewtonStatic, "_exact_possible", lambda self: False)
     former = _cantilever(floor, 1e-8)

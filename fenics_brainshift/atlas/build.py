@@ -335,8 +335,8 @@ def _assembled(
 
 def _compliance(forward) -> dict | None:
     """What the exact contact preconditioner kept (linalg/compliance.py): the columns of K^-1
-    solved (three a node ever pressed) and the dense compliance G between them, in MB on every
-    rank; None without it."""
+    solved (one a direction a pressed node's block needed: one to three a node) and the dense
+    compliance G between them, in MB on every rank; None without it."""
     exact = getattr(getattr(forward.sim.static, "engaged", None), "_exact", None)
     if exact is None:
         return None

@@ -1,19 +1,28 @@
-"""Solves with K + E B E^T, K factored once, B the 3x3 blocks of whichever nodes are pressed
-now, by the Sherman-Morrison-Woodbury formula
+"""Solves with K + W C W^T, K factored once, W unit directions at the pressed nodes and C their
+contact stiffness along them, by the Sherman-Morrison-Woodbury formula
 
-    (K + E B E^T)^-1 r = K^-1 (r - E y),   y = (I + B G)^-1 B E^T K^-1 r,   G = E^T K^-1 E,
+    (K + W C W^T)^-1 r = K^-1 (r - W y),   y = (I + C G)^-1 C W^T K^-1 r,   G = W^T K^-1 W,
 
-two triangular solves an application, however many nodes are pressed. G, the compliance of K
-between the dofs of the nodes ever pressed, is kept and grows as nodes join: a node's three
-columns K^-1 e are solved once (with the others that join with it, in one multi-right-hand-side
-solve), their rows at the dofs known then kept, and the rest of G follows from its symmetry.
-Over an atlas's hundreds of settled states the same few hundred nodes press again and again:
-the contact's preconditioner is then exact for every Newton iteration without another
-factorisation (stepping/exact_contact.py; contact_preconditioner.py rebuilds one each time the
-pressed set has moved; docs/performance.md, "Skull contact"). G is dense: 1000 nodes ever
-pressed keep 72 MB.
+two triangular solves an application, however many nodes are pressed. A node's 3x3 block B
+is taken along the directions that carry it: a node pressed on a smooth wall has one, k n n^T,
+and only where its normal turns (a skull's edge, a staircase step) does it need a second or
+a third. A node's directions are added as its blocks need them (the eigenvectors of the block's
+symmetric part outside the directions it has whose eigenvalues exceed SHARE of the block's
+largest), and B is taken as D (D^T B D) D^T on them: exact with all three.
+G, the compliance of K between the directions ever needed, is kept and grows as they join:
+a direction's column K^-1 w is solved once (with the others that join with it, in one
+multi-right-hand-side solve), its rows at the directions known then kept, and the rest of G
+follows from its symmetry. Over an atlas's hundreds of settled states the same few hundred
+nodes press again and again: the preconditioner is then (nearly) exact for every Newton
+iteration without another factorisation (stepping/exact_contact.py; contact_preconditioner.py
+rebuilds one each time the pressed set has moved; docs/performance.md, "Skull contact").
 
-Works on N ranks: dofs are global scalar dofs, the same on every rank, and so is G.
+Cost: a column is one triangular solve of K's factor with many right-hand sides; at 3 mm
+voxels (84,065 nodes) they were most of a chain of levels when every node took three
+(benchmarks/results/compliance_directions.md). G is dense: 3000 directions keep 72 MB.
+
+Works on N ranks: nodes are global block indices, the blocks the same on every rank, and so
+are the directions and G.
 """
 
 from __future__ import annotations
@@ -27,64 +36,78 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 BATCH = 256  # columns per multi-right-hand-side solve (a dense block of BATCH x the dofs)
+SHARE = 1e-3  # a node gets another direction while its block's stiffness outside them exceeds this share
+WEAK = 1e-3  # a node whose block is below this share of the stiffest pressed node's is left out
 
 
 class Compliance:
     """apply_K(rhs, x): x = K^-1 rhs by the factor; factor(): the factor matrix (for many
-    columns at once; None: one solve a column); template: a vector of K's layout."""
+    columns at once; None: one solve a column); template: a vector of K's layout (three
+    scalar dofs a node, in block order)."""
 
-    def __init__(self, apply_K, template: PETSc.Vec, factor=None):
+    def __init__(
+        self, apply_K, template: PETSc.Vec, factor=None, share: float | None = None, weak: float | None = None
+    ):
         self.apply_K, self.template, self.factor = apply_K, template, factor
+        self.share = SHARE if share is None else share  # (0 and 0: every direction of every pressed node)
+        self.weak = WEAK if weak is None else weak
         self.comm = template.getComm().tompi4py()
         self.lo, self.hi = template.getOwnershipRange()
-        self.known = np.zeros(0, dtype=np.int64)  # global scalar dofs whose columns were solved
-        self.G = np.zeros((0, 0))  # E^T K^-1 E over the known dofs, in their order
-        self._position: dict[int, int] = {}
+        self.node = np.zeros(0, dtype=np.int64)  # each known direction's node (global block index)
+        self.direction = np.zeros((0, 3))  # and its unit vector
+        self.G = np.zeros((0, 0))  # W^T K^-1 W over the known directions, in their order
+        self._of_node: dict[int, list[int]] = {}  # a node's directions (positions in G)
         self.columns = 0  # columns solved (over the life of the factor)
-        self.dofs = np.zeros(0, dtype=np.int64)  # the pressed dofs now
-        self._core = None  # LU of I + B G over them
-        self._B = scipy.sparse.csr_matrix((0, 0))
+        self.chosen = np.zeros(0, dtype=np.int64)  # the directions in the preconditioner now
+        self._core = None  # LU of I + C G over them
+        self._C = scipy.sparse.csr_matrix((0, 0))
         self._w, self._correction = template.duplicate(), template.duplicate()
 
-    # -- the compliance between the dofs ever pressed ---------------------------------------------
-    def learn(self, dofs: np.ndarray) -> None:
-        """Solve the columns of the dofs not yet known and extend G (collective; the same dofs
-        on every rank)."""
-        new = np.setdiff1d(np.asarray(dofs, dtype=np.int64), self.known)
-        for start in range(0, len(new), BATCH):
-            self._extend(new[start : start + BATCH])
+    # -- the compliance between the directions ever needed -----------------------------------------
+    def learn(self, node: np.ndarray, direction: np.ndarray) -> None:
+        """Solve the columns of new directions (unit vectors at nodes) and extend G
+        (collective; the same on every rank)."""
+        for start in range(0, len(node), BATCH):
+            self._extend(node[start : start + BATCH], direction[start : start + BATCH])
 
-    def _extend(self, new: np.ndarray) -> None:
-        Z = self._solve_columns(new)  # (local rows, len(new))
-        known = np.concatenate([self.known, new])
-        rows = np.zeros((len(known), len(new)))
-        mine = (known >= self.lo) & (known < self.hi)
-        rows[mine] = Z[known[mine] - self.lo]
-        self.comm.Allreduce(MPI.IN_PLACE, rows, op=MPI.SUM)  # each dof's row from its owner
-        n_old = len(self.known)
-        G = np.empty((len(known), len(known)))
+    def _extend(self, node: np.ndarray, direction: np.ndarray) -> None:
+        Z = self._solve_columns(node, direction)  # (local rows, len(node))
+        known_node = np.concatenate([self.node, node])
+        known_direction = np.concatenate([self.direction, direction])
+        rows = np.zeros((len(known_node), len(node)))
+        dofs = 3 * known_node[:, None] + np.arange(3)
+        mine = (dofs >= self.lo) & (dofs < self.hi)  # (a node's three dofs have one owner)
+        mine_node = mine.all(axis=1)
+        local = Z[dofs[mine_node] - self.lo]  # (mine, 3, new)
+        rows[mine_node] = np.einsum("md,mdn->mn", known_direction[mine_node], local)
+        self.comm.Allreduce(MPI.IN_PLACE, rows, op=MPI.SUM)  # each direction's row from its owner
+        n_old = len(self.node)
+        G = np.empty((len(known_node), len(known_node)))
         G[:n_old, :n_old] = self.G
         G[:, n_old:] = rows
         G[n_old:, :n_old] = rows[:n_old].T  # K symmetric: G too
         G[n_old:, n_old:] = 0.5 * (rows[n_old:] + rows[n_old:].T)
-        self.G, self.known = G, known
-        self._position.update((int(d), n_old + k) for k, d in enumerate(new))
-        self.columns += len(new)
+        self.G, self.node, self.direction = G, known_node, known_direction
+        for k, n in enumerate(node.tolist()):
+            self._of_node.setdefault(n, []).append(n_old + k)
+        self.columns += len(node)
 
-    def _solve_columns(self, dofs: np.ndarray) -> np.ndarray:
-        """K^-1 e_d for each global dof d: this rank's rows (n_local, len(dofs))."""
+    def _solve_columns(self, node: np.ndarray, direction: np.ndarray) -> np.ndarray:
+        """K^-1 w for each direction w (a unit vector at a node): this rank's rows (n_local, len(node))."""
         n_local = self.hi - self.lo
         if self.factor is not None:
             try:
-                return self._columns_at_once(dofs, n_local)
+                return self._columns_at_once(node, direction, n_local)
             except PETSc.Error:  # a factor package without MatMatSolve
                 self.factor = None
-        out = np.empty((n_local, len(dofs)))
+        out = np.empty((n_local, len(node)))
         e, z = self.template.duplicate(), self.template.duplicate()
-        for k, dof in enumerate(dofs):
+        for k in range(len(node)):
             e.set(0.0)
-            if self.lo <= dof < self.hi:
-                e.setValue(int(dof), 1.0)
+            for c in range(3):
+                dof = 3 * int(node[k]) + c
+                if self.lo <= dof < self.hi:
+                    e.setValue(dof, direction[k, c])
             e.assemble()
             self.apply_K(e, z)
             out[:, k] = z.getArray()
@@ -92,8 +115,8 @@ class Compliance:
         z.destroy()
         return out
 
-    def _columns_at_once(self, dofs: np.ndarray, n_local: int) -> np.ndarray:
-        size = ((n_local, self.template.getSize()), (None, len(dofs)))
+    def _columns_at_once(self, node: np.ndarray, direction: np.ndarray, n_local: int) -> np.ndarray:
+        size = ((n_local, self.template.getSize()), (None, len(node)))
         E = PETSc.Mat().createDense(size, comm=self.template.getComm())
         Z = PETSc.Mat().createDense(size, comm=self.template.getComm())
         E.setUp()
@@ -101,8 +124,9 @@ class Compliance:
         try:
             local = E.getDenseArray()
             local[:] = 0.0
-            mine = np.flatnonzero((dofs >= self.lo) & (dofs < self.hi))
-            local[dofs[mine] - self.lo, mine] = 1.0
+            dofs = 3 * node[:, None] + np.arange(3)
+            mine = np.flatnonzero(((dofs >= self.lo) & (dofs < self.hi)).all(axis=1))
+            local[dofs[mine] - self.lo, mine[:, None]] = direction[mine]
             E.assemble()
             self.factor().matSolve(E, Z)
             return Z.getDenseArray().copy()
@@ -110,44 +134,80 @@ class Compliance:
             E.destroy()
             Z.destroy()
 
+    # -- the directions a node's block needs --------------------------------------------------------
+    def _projectors(self, nodes: np.ndarray) -> np.ndarray:
+        """P (n, 3, 3): the projection onto each node's known directions."""
+        P = np.zeros((len(nodes), 3, 3))
+        for i, n in enumerate(nodes.tolist()):
+            for k in self._of_node.get(n, ()):
+                P[i] += np.outer(self.direction[k], self.direction[k])
+        return P
+
+    def _cover(self, nodes: np.ndarray, S: np.ndarray, strong: np.ndarray) -> None:
+        """Learn the directions the strong nodes' symmetric blocks S need, in one solve: the
+        eigenvectors of S outside a node's known directions whose eigenvalues exceed SHARE of
+        its largest (adding them one by one, the largest first, would end at the same ones)."""
+        scale = np.abs(np.linalg.eigvalsh(S)).max(axis=1) if len(S) else np.zeros(0)
+        outside = np.eye(3) - self._projectors(nodes)
+        values, vectors = np.linalg.eigh(outside @ S @ outside)
+        floor = max(self.share, 1e-9) * scale  # (round-off: never a fourth direction)
+        need = strong[:, None] & (np.abs(values) > floor[:, None])  # (n, 3): node, eigenvalue
+        which, k = np.nonzero(need)
+        if len(which):
+            new = vectors[which, :, k]  # (m, 3), unit
+            self.learn(nodes[which], new / np.linalg.norm(new, axis=1)[:, None])
+
     # -- the preconditioner for the nodes pressed now ----------------------------------------------
-    def set(self, dofs: np.ndarray, B: np.ndarray) -> bool:
-        """The pressed dofs (global scalar, the same on every rank) and B over them (any square
-        matrix, dense or sparse: nodes' blocks). False, and the former change kept, if K + E B E^T is singular
-        (to round-off)."""
-        dofs = np.asarray(dofs, dtype=np.int64)
-        self.learn(dofs)
-        B = scipy.sparse.csr_matrix(B if scipy.sparse.issparse(B) else np.asarray(B, dtype=float), dtype=float)
-        if not len(dofs):
-            self.dofs, self._B, self._core = dofs, B, None
+    def set(self, nodes: np.ndarray, blocks: np.ndarray) -> bool:
+        """The pressed nodes (global block indices, the same on every rank, each once) and
+        their 3x3 blocks (any: need not be symmetric; a support's rows and columns zero).
+        False, and the former change kept, if K plus them is singular (to round-off)."""
+        nodes = np.asarray(nodes, dtype=np.int64)
+        blocks = np.asarray(blocks, dtype=float).reshape(-1, 3, 3)
+        S = 0.5 * (blocks + blocks.transpose(0, 2, 1))
+        size = np.abs(blocks).reshape(len(blocks), -1).max(axis=1) if len(blocks) else np.zeros(0)
+        strong = size > self.weak * size.max(initial=0.0)
+        self._cover(nodes, S, strong)
+        chosen, pieces = [], []
+        for i in np.flatnonzero(strong):
+            where = self._of_node.get(int(nodes[i]), [])
+            if where:
+                D = self.direction[where]  # (m, 3)
+                chosen.extend(where)
+                pieces.append(D @ blocks[i] @ D.T)
+        chosen = np.asarray(chosen, dtype=np.int64)
+        C = scipy.sparse.block_diag(pieces, format="csr") if pieces else scipy.sparse.csr_matrix((0, 0))
+        if not len(chosen):
+            self.chosen, self._C, self._core = chosen, C, None
             return True
-        where = np.array([self._position[int(d)] for d in dofs])
         with np.errstate(all="ignore"), warnings.catch_warnings():
             warnings.simplefilter("ignore", scipy.linalg.LinAlgWarning)  # (singular: told below)
-            core = scipy.linalg.lu_factor(np.eye(len(dofs)) + B @ self.G[np.ix_(where, where)], check_finite=False)
+            core = scipy.linalg.lu_factor(np.eye(len(chosen)) + C @ self.G[np.ix_(chosen, chosen)], check_finite=False)
         pivots = np.abs(np.diag(core[0]))
         if not (np.isfinite(core[0]).all() and pivots.min() > 1e-12 * max(pivots.max(), 1.0)):
-            return False  # det(K + E B E^T) = det K det(I + B G): singular with the core
-        self.dofs, self._B, self._core = dofs, B, core
+            return False  # det(K + W C W^T) = det K det(I + C G): singular with the core
+        self.chosen, self._C, self._core = chosen, C, core
         return True
 
     def solve(self, rhs: PETSc.Vec, x: PETSc.Vec) -> None:
-        """x = (K + E B E^T)^-1 rhs."""
+        """x = (K + W C W^T)^-1 rhs."""
         self.apply_K(rhs, x)
         if self._core is None:
             return
-        mine = (self.dofs >= self.lo) & (self.dofs < self.hi)
-        at = np.zeros(len(self.dofs))
-        at[mine] = x.getArray(readonly=True)[self.dofs[mine] - self.lo]
+        node, direction = self.node[self.chosen], self.direction[self.chosen]
+        dofs = 3 * node[:, None] + np.arange(3)
+        mine = ((dofs >= self.lo) & (dofs < self.hi)).all(axis=1)
+        at = np.zeros(len(node))
+        at[mine] = np.einsum("md,md->m", direction[mine], x.getArray(readonly=True)[dofs[mine] - self.lo])
         self.comm.Allreduce(MPI.IN_PLACE, at, op=MPI.SUM)
-        y = scipy.linalg.lu_solve(self._core, self._B @ at, check_finite=False)
+        y = scipy.linalg.lu_solve(self._core, self._C @ at, check_finite=False)
         w = self._w
         w.set(0.0)
         local = w.getArray()
-        local[self.dofs[mine] - self.lo] = -y[mine]
+        np.add.at(local, dofs[mine] - self.lo, -y[mine, None] * direction[mine])
         w.assemble()
         self.apply_K(w, self._correction)
-        x.axpy(1.0, self._correction)  # K^-1 (r - E y)
+        x.axpy(1.0, self._correction)  # K^-1 (r - W y)
 
     def destroy(self) -> None:
         self._w.destroy()

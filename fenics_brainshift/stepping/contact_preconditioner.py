@@ -197,26 +197,39 @@ def fixed_global(V, fixed: np.ndarray) -> set[int]:
     return set(np.concatenate(V.mesh.comm.allgather(held)).tolist())
 
 
+def gathered_node_blocks(V, dofs: np.ndarray, blocks: np.ndarray, fixed: set[int]):
+    """Nodes' 3x3 blocks (this rank's block dofs (n,), blocks (n, 3, 3)) the same on every rank:
+    (global block indices (m,), blocks (m, 3, 3)), a node's ranks' shares summed, the rows and
+    columns of the supports' dofs zero (they stay identity)."""
+    comm = V.mesh.comm
+    index_map = V.dofmap.index_map
+    nodes = np.concatenate(comm.allgather(index_map.local_to_global(np.asarray(dofs, dtype=np.int32))))
+    blocks = np.concatenate(comm.allgather(np.asarray(blocks).reshape(-1, 3, 3)))
+    unique, where = np.unique(nodes, return_inverse=True)
+    summed = np.zeros((len(unique), 3, 3))
+    np.add.at(summed, where, blocks)
+    if fixed:
+        free = ~np.isin(3 * unique[:, None] + np.arange(3), np.fromiter(fixed, dtype=np.int64))
+        summed *= free[:, :, None] * free[:, None, :]
+    return unique.astype(np.int64), summed
+
+
 def gathered_blocks(V, dofs: np.ndarray, blocks: np.ndarray, fixed: set[int], limit: int | None = None):
     """Nodes' 3x3 blocks (this rank's block dofs (n,), blocks (n, 3, 3)) as one sparse (CSR)
     matrix over global scalar dofs, the same on every rank: (scalar dofs (m,), B (m, m)), a
     node's ranks' shares summed, the supports' dofs left out (they stay identity). None if more
     than ``limit`` nodes. (Sparse: the dense m x m, made and converted every Newton iteration,
     was a twentieth of an atlas mode's time.)"""
-    comm = V.mesh.comm
-    index_map = V.dofmap.index_map
-    nodes = np.concatenate(comm.allgather(index_map.local_to_global(np.asarray(dofs, dtype=np.int32))))
-    blocks = np.concatenate(comm.allgather(np.asarray(blocks).reshape(-1, 3, 3)))
-    unique, where = np.unique(nodes, return_inverse=True)
+    unique, summed = gathered_node_blocks(V, dofs, blocks, set())
     if limit is not None and len(unique) > limit:
         return None
-    first = 3 * where[:, None, None]
+    first = 3 * np.arange(len(unique))[:, None, None]
     rows, columns = first + np.arange(3)[None, :, None], first + np.arange(3)[None, None, :]
     size = 3 * len(unique)
     B = scipy.sparse.csr_matrix(
-        (blocks.ravel(), (np.broadcast_to(rows, blocks.shape).ravel(), np.broadcast_to(columns, blocks.shape).ravel())),
+        (summed.ravel(), (np.broadcast_to(rows, summed.shape).ravel(), np.broadcast_to(columns, summed.shape).ravel())),
         shape=(size, size),
-    )  # (duplicates, the ranks' shares, summed)
+    )
     scalar = (3 * unique[:, None] + np.arange(3)).ravel()
     keep = np.flatnonzero([d not in fixed for d in scalar.tolist()])
     return scalar[keep], B[keep][:, keep]

@@ -5,12 +5,14 @@ The preconditioner of contact_preconditioner.py is a factor of K plus the contac
 the nodes pressed when it was built: as the pressed set moves, GMRES needs more iterations
 until a new factor is made (1.2 s each on the 5 mm brain; an atlas's settled states took
 about 150 GMRES iterations and half a factorisation each). Here every Newton iteration gets
-the exact inverse of K + C, C the pressed nodes' tangent blocks as they are (unsymmetric where
-a node's normal turns; their symmetric, positive part where K + C is singular), by the
-Woodbury formula on K's factor (linalg/compliance.py): two triangular solves an application,
-and the compliance between the pressed nodes' dofs, solved once for each node over the
-factor's life (an atlas's modes press the same few hundred nodes again and again). Flexible
-GMRES is left only the follower load's tangent. Used where K's own factor is at hand: a
+the inverse of K + C, C the pressed nodes' tangent blocks as they are (unsymmetric where a
+node's normal turns; their symmetric, positive part where K + C is singular), by the Woodbury
+formula on K's factor (linalg/compliance.py): two triangular solves an application, and the
+compliance between the directions the pressed nodes' blocks need (one on a flat face of the
+skull, up to three where the normal turns; less than a thousandth of a block's stiffness left
+out), solved once for each over the factor's life (an atlas's modes press the same few hundred
+nodes again and again). Flexible GMRES is left the follower load's tangent and what was left
+out. Used where K's own factor is at hand: a
 linear material, a factor (not AMG), and no node touching the skull at rest (K alone may be
 singular there).
 """
@@ -25,7 +27,7 @@ from petsc4py import PETSc
 from ..errors import SolverError
 from ..linalg.compliance import Compliance
 from ..linalg.solver import has_package
-from .contact_preconditioner import fixed_global, gathered_blocks
+from .contact_preconditioner import fixed_global, gathered_node_blocks
 
 FACTOR_KINDS = ("cholesky", "lu")
 
@@ -59,11 +61,11 @@ class ExactContactSolve:
         left the follower load's tangent alone; where K plus them is singular (a node's normal
         turning at a concave corner can make its block indefinite), K and their symmetric,
         positive part (as the former factor held)."""
-        scalar, B = gathered_blocks(self.contact.V, *blocks, self._fixed)
-        if not self.compliance.set(scalar, B):  # (the positive part only then: eigh of every block)
-            scalar, B = gathered_blocks(self.contact.V, *self.contact.stiffness(blocks), self._fixed)
-            self.compliance.set(scalar, B)
-        self.pressed = len(scalar) // 3
+        nodes, B = gathered_node_blocks(self.contact.V, *blocks, self._fixed)
+        if not self.compliance.set(nodes, B):  # (the positive part only then: eigh of every block)
+            nodes, B = gathered_node_blocks(self.contact.V, *self.contact.stiffness(blocks), self._fixed)
+            self.compliance.set(nodes, B)
+        self.pressed = len(nodes)
 
     def __call__(self, A: PETSc.Mat, rhs: PETSc.Vec, x: PETSc.Vec, rtol: float, t: float, assembled=None) -> int:
         """x = A^-1 rhs to the relative tolerance rtol by flexible GMRES (x starts from zero),
