@@ -239,7 +239,7 @@ def write(rows: list[dict], folder: Path) -> None:
     rows = sorted((r for r in rows if not r.get("whole")), key=lambda r: (-r["voxel_mm"], r["group"]))
     stopped = [r for r in rows if "stopped" in r]
     (folder / "resolution.json").write_text(json.dumps({"rows": rows + whole}, indent=1) + "\n")
-    commands = sorted({r["command"] for r in rows})
+    commands = sorted({r["command"] for r in rows + whole})
     lines = [
         "# The skull atlas at 5, 3 and 2 mm: one pose's chain measured, the default atlas extrapolated",
         "",

@@ -19,7 +19,10 @@ into benchmarks/results/update_skull.{csv,md}.
 --atlas FOLDER: an atlas `brainshift atlas` wrote for the same scene (--voxel, --skull), read
 instead of built (its build's time is the one reported, from its atlas.json).
 
-    python benchmarks/update.py [--voxel 0.005] [--skull 0.003] [--atlas FOLDER]
+--no-fit: no `brainshift fit` (its columns "-"): at 3 mm its dozens of full-model solves per
+operation would take hours; the update's own numbers are unchanged.
+
+    python benchmarks/update.py [--voxel 0.005] [--skull 0.003] [--atlas FOLDER] [--no-fit]
 """
 
 from __future__ import annotations
@@ -93,6 +96,7 @@ def main() -> None:
     parser.add_argument("--voxel", type=float, default=0.005)
     parser.add_argument("--skull", type=float, default=None, help="a rigid skull this far out (m)")
     parser.add_argument("--atlas", default=None, help="read this atlas folder instead of building one")
+    parser.add_argument("--no-fit", action="store_true", help="skip brainshift fit (its columns '-')")
     parser.add_argument("--out", default=None)
     args = parser.parse_args()
     logs.configure("WARNING")
@@ -118,10 +122,11 @@ def main() -> None:
     exposed = np.flatnonzero(boundary & (points[:, 1] > 0.03))
     centre = points[exposed].mean(axis=0)
     deep = np.flatnonzero(~boundary & (np.linalg.norm(points - centre, axis=1) < DEEP))
-    forward = ForwardModel(load_scene("brain", base))
-    names = ["fluid.level", "material.G", "gravity.angle_z"]
-    params = fit_parameters(forward.scene, names, forward.heights())
-    fit_vertices = GlobalVertices(forward.model.mesh)
+    if not args.no_fit:
+        forward = ForwardModel(load_scene("brain", base))
+        names = ["fluid.level", "material.G", "gravity.angle_z"]
+        params = fit_parameters(forward.scene, names, forward.heights())
+        fit_vertices = GlobalVertices(forward.model.mesh)
     rows = []
     for seed, (name, (overrides, values, extra)) in enumerate(OPERATIONS.items()):
         truth_points, truth, truth_s = truth_state(base, overrides, values, extra, folder)
@@ -141,10 +146,13 @@ def main() -> None:
             float(np.abs(scratch[-1].weights - result.weights).max()),
             float(np.abs(scratch[-1].spread - result.spread).max()) / max(float(result.spread.max()), 1e-300),
         )
-        t = time.perf_counter()
-        fitted = fit(forward, target, params, NOISE)
-        fit_s = time.perf_counter() - t
-        u_fit = fit_vertices.values(forward.sim.u)
+        if args.no_fit:
+            fitted, fit_s, u_fit = None, float("nan"), np.full_like(truth, np.nan)
+        else:
+            t = time.perf_counter()
+            fitted = fit(forward, target, params, NOISE)
+            fit_s = time.perf_counter() - t
+            u_fit = fit_vertices.values(forward.sim.u)
 
         def errors(u):
             e = np.linalg.norm(u - truth, axis=1) * 1e3
@@ -181,13 +189,14 @@ def main() -> None:
                 "update_total_scratch_ms": float(np.median([r.seconds["total_ms"] for r in scratch])),
                 "warm_against_scratch": same,
                 "fit_s": fit_s,
-                "fit_solves": fitted.solves,
+                "fit_solves": fitted.solves if fitted else 0,
                 "truth_solve_s": truth_s,
                 "skull_rows": int(result.skull.get("nodes_with_rows", 0)),
             }
         )
         print(rows[-1], flush=True)
-    forward.destroy()
+    if not args.no_fit:
+        forward.destroy()
     out = Path(args.out)
     with open(out.with_suffix(".csv"), "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
@@ -199,7 +208,7 @@ def main() -> None:
         "",
         f"{machine_line()}; one rank; `python benchmarks/update.py --voxel {args.voxel:g}"
         f"{'' if args.skull is None else f' --skull {args.skull:g}'}"
-        f"{'' if args.atlas is None else ' --atlas ATLAS'}`"
+        f"{'' if args.atlas is None else ' --atlas ATLAS'}{' --no-fit' if args.no_fit else ''}`"
         + (
             ""
             if args.atlas is None
@@ -227,12 +236,12 @@ def main() -> None:
     for r in rows + [dict(mean, operation="**mean**")]:
         lines.append(
             f"| {r['operation']} | {r['truth_shift_max_mm']:.1f} | {r['prior_deep_mm']:.2f} | "
-            f"{r['fit_deep_mm']:.2f} | **{r['update_deep_mm']:.2f}** | {r['prior_all_mm']:.2f} | "
-            f"{r['fit_all_mm']:.2f} | {r['update_all_mm']:.2f} | {r['update_loo_rms_mm']:.2f} | "
+            f"{_or_dash(r['fit_deep_mm'], '.2f')} | **{r['update_deep_mm']:.2f}** | {r['prior_all_mm']:.2f} | "
+            f"{_or_dash(r['fit_all_mm'], '.2f')} | {r['update_all_mm']:.2f} | {r['update_loo_rms_mm']:.2f} | "
             f"{r['update_spread_deep_mm']:.2f} / {r['bootstrap_spread_deep_mm']:.2f} | "
             f"{r['posterior_covers_deep']:.0%} / {r['bootstrap_covers_deep']:.0%} | "
             f"{r['update_fit_ms']:.1f} / {r['update_total_ms']:.0f} | {r['update_total_bootstrap_ms']:.0f} | "
-            f"{r['update_total_scratch_ms']:.0f} | {r['fit_s']:.1f} |"
+            f"{r['update_total_scratch_ms']:.0f} | {_or_dash(r['fit_s'], '.1f')} |"
         )
     lines += [
         "",
@@ -246,7 +255,11 @@ def main() -> None:
         "from scratch: the whole update with every refit solved by NNLS "
         "from scratch (atlas/combine.py WARM_START = False; median of 3), the baseline of the warm-started "
         f"refits (the same weights and spread to {max(r['warm_against_scratch'] for r in rows):.1e}). "
-        "fit s: `brainshift fit`'s calibration (3 parameters) on the same points, in the same run."
+        + (
+            "fit: not run (--no-fit)."
+            if args.no_fit
+            else "fit s: `brainshift fit`'s calibration (3 parameters) on the same points, in the same run."
+        )
         + (
             ""
             if args.skull is None
@@ -257,6 +270,10 @@ def main() -> None:
     ]
     out.with_suffix(".md").write_text("\n".join(lines) + "\n")
     print(f"wrote {out}.md and .csv")
+
+
+def _or_dash(value: float, spec: str) -> str:
+    return "-" if np.isnan(value) else format(value, spec)
 
 
 if __name__ == "__main__":
