@@ -6,9 +6,9 @@ contact stiffness along them, by the Sherman-Morrison-Woodbury formula
 two triangular solves an application, however many nodes are pressed. A node's 3x3 block B
 is taken along the directions that carry it: a node pressed on a smooth wall has one, k n n^T,
 and only where its normal turns (a skull's edge, a staircase step) does it need a second or
-a third. A node's directions are added as its blocks need them (the eigenvectors of the block's
-symmetric part outside the directions it has whose eigenvalues exceed SHARE of the block's
-largest), and B is taken as D (D^T B D) D^T on them: exact with all three.
+a third. A node's directions are added as its blocks need them (the directions outside those it has
+that carry more than SHARE of the block's stiffness, B's and B^T's alike), and B is taken as
+D (D^T B D) D^T on them: exact with all it carries.
 G, the compliance of K between the directions ever needed, is kept and grows as they join:
 a direction's column K^-1 w is solved once (with the others that join with it, in one
 multi-right-hand-side solve), its rows at the directions known then kept, and the rest of G
@@ -143,19 +143,27 @@ class Compliance:
                 P[i] += np.outer(self.direction[k], self.direction[k])
         return P
 
-    def _cover(self, nodes: np.ndarray, S: np.ndarray, strong: np.ndarray) -> None:
-        """Learn the directions the strong nodes' symmetric blocks S need, in one solve: the
-        eigenvectors of S outside a node's known directions whose eigenvalues exceed SHARE of
-        its largest (adding them one by one, the largest first, would end at the same ones)."""
-        scale = np.abs(np.linalg.eigvalsh(S)).max(axis=1) if len(S) else np.zeros(0)
+    def _cover(self, nodes: np.ndarray, blocks: np.ndarray, strong: np.ndarray) -> None:
+        """Learn the directions the strong nodes' blocks B need, in one solve: the eigenvectors
+        of M = B B^T + B^T B (whose range is B's and B^T's: all of an unsymmetric block; for a
+        symmetric one 2 B^2, B's own eigenvectors) outside a node's known directions whose
+        stiffness (the root of M's eigenvalue over 2) exceeds SHARE of its largest (adding them
+        one by one, the largest first, would end at the same ones)."""
+        M = blocks @ blocks.transpose(0, 2, 1) + blocks.transpose(0, 2, 1) @ blocks
+        scale = np.linalg.eigvalsh(M).max(axis=1) if len(M) else np.zeros(0)
         outside = np.eye(3) - self._projectors(nodes)
-        values, vectors = np.linalg.eigh(outside @ S @ outside)
-        floor = max(self.share, 1e-9) * scale  # (round-off: never a fourth direction)
-        need = strong[:, None] & (np.abs(values) > floor[:, None])  # (n, 3): node, eigenvalue
+        values, vectors = np.linalg.eigh(outside @ M @ outside)
+        floor = max(self.share, 1e-9) ** 2 * scale  # (round-off: never a fourth direction)
+        need = strong[:, None] & (values > floor[:, None])  # (n, 3): node, eigenvalue
         which, k = np.nonzero(need)
+        new = vectors[which, :, k]  # (m, 3), unit
+        # rank 0's choice on every rank: round-off near the floor must not give the ranks
+        # different columns to solve (a collective solve of different sizes waits for ever)
+        which, new = self.comm.bcast(
+            (which, new / np.linalg.norm(new, axis=1)[:, None]) if len(which) else (which, new)
+        )
         if len(which):
-            new = vectors[which, :, k]  # (m, 3), unit
-            self.learn(nodes[which], new / np.linalg.norm(new, axis=1)[:, None])
+            self.learn(nodes[which], new)
 
     # -- the preconditioner for the nodes pressed now ----------------------------------------------
     def set(self, nodes: np.ndarray, blocks: np.ndarray) -> bool:
@@ -164,10 +172,9 @@ class Compliance:
         False, and the former change kept, if K plus them is singular (to round-off)."""
         nodes = np.asarray(nodes, dtype=np.int64)
         blocks = np.asarray(blocks, dtype=float).reshape(-1, 3, 3)
-        S = 0.5 * (blocks + blocks.transpose(0, 2, 1))
         size = np.abs(blocks).reshape(len(blocks), -1).max(axis=1) if len(blocks) else np.zeros(0)
         strong = size > self.weak * size.max(initial=0.0)
-        self._cover(nodes, S, strong)
+        self._cover(nodes, blocks, strong)
         chosen, pieces = [], []
         for i in np.flatnonzero(strong):
             where = self._of_node.get(int(nodes[i]), [])
@@ -184,10 +191,15 @@ class Compliance:
             warnings.simplefilter("ignore", scipy.linalg.LinAlgWarning)  # (singular: told below)
             core = scipy.linalg.lu_factor(np.eye(len(chosen)) + C @ self.G[np.ix_(chosen, chosen)], check_finite=False)
         pivots = np.abs(np.diag(core[0]))
-        if not (np.isfinite(core[0]).all() and pivots.min() > 1e-12 * max(pivots.max(), 1.0)):
+        regular = bool(np.isfinite(core[0]).all() and pivots.min() > 1e-12 * max(pivots.max(), 1.0))
+        if not self.comm.bcast(regular):  # (rank 0's verdict on every rank, as the directions)
             return False  # det(K + W C W^T) = det K det(I + C G): singular with the core
         self.chosen, self._C, self._core = chosen, C, core
         return True
+
+    def clear(self) -> None:
+        """No node in the preconditioner: K alone (the directions learned are kept)."""
+        self.chosen, self._C, self._core = np.zeros(0, dtype=np.int64), scipy.sparse.csr_matrix((0, 0)), None
 
     def solve(self, rhs: PETSc.Vec, x: PETSc.Vec) -> None:
         """x = (K + W C W^T)^-1 rhs."""

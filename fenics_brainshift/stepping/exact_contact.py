@@ -9,8 +9,8 @@ the inverse of K + C, C the pressed nodes' tangent blocks as they are (unsymmetr
 node's normal turns; their symmetric, positive part where K + C is singular), by the Woodbury
 formula on K's factor (linalg/compliance.py): two triangular solves an application, and the
 compliance between the directions the pressed nodes' blocks need (one on a flat face of the
-skull, up to three where the normal turns; less than a thousandth of a block's stiffness left
-out), solved once for each over the factor's life (an atlas's modes press the same few hundred
+skull, up to three where the normal turns; a direction carrying less than a thousandth of the
+block's stiffness left out), solved once for each over the factor's life (an atlas's modes press the same few hundred
 nodes again and again). Flexible GMRES is left the follower load's tangent and what was left
 out. Used where K's own factor is at hand: a
 linear material, a factor (not AMG), and no node touching the skull at rest (K alone may be
@@ -64,7 +64,8 @@ class ExactContactSolve:
         nodes, B = gathered_node_blocks(self.contact.V, *blocks, self._fixed)
         if not self.compliance.set(nodes, B):  # (the positive part only then: eigh of every block)
             nodes, B = gathered_node_blocks(self.contact.V, *self.contact.stiffness(blocks), self._fixed)
-            self.compliance.set(nodes, B)
+            if not self.compliance.set(nodes, B):  # (K SPD plus PSD blocks: only by round-off) K alone,
+                self.compliance.clear()  # not the former nodes' preconditioner; GMRES has the rest to do
         self.pressed = len(nodes)
 
     def __call__(self, A: PETSc.Mat, rhs: PETSc.Vec, x: PETSc.Vec, rtol: float, t: float, assembled=None) -> int:
