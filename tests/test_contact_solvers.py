@@ -475,12 +475,7 @@ def test_newton_in_contact_keeps_ks_one_factor_and_settles_where_refactoring_doe
     exact.compliance.share = exact.compliance.weak = 0.0  # every direction of every pressed node
     exact.prepare(newton_static.tangent.contact_blocks)
     exact.compliance.solve(rhs, x)
-    # (exact on one rank and on three; on two its residual was 8e-6 of the right-hand side's,
-    # where the preconditioner of commit 78d711b was exact: a defect not yet found, said in
-    # issue 51's notes; flexible GMRES makes it up, and the atlas on 1, 2 and 3 ranks agrees)
-    exactness = 1e-8 if COMM.size != 2 else 1e-4
-    assert np.abs(x.getArray() - expected.getArray()).max() <= exactness * np.abs(expected.getArray()).max()
-    assert np.abs(x.getArray() - expected.getArray()).max() < near * np.abs(expected.getArray()).max()
+    assert np.abs(x.getArray() - expected.getArray()).max() <= 1e-8 * np.abs(expected.getArray()).max() < near
     given, real_set = [], exact.compliance.set  # where K plus the blocks is singular: their positive part
     exact.compliance.set = lambda nodes, B: given.append(B) or (len(given) > 1 and real_set(nodes, B))
     exact.prepare(newton_static.tangent.contact_blocks)

@@ -152,9 +152,12 @@ class Compliance:
         M = blocks @ blocks.transpose(0, 2, 1) + blocks.transpose(0, 2, 1) @ blocks
         scale = np.linalg.eigvalsh(M).max(axis=1) if len(M) else np.zeros(0)
         outside = np.eye(3) - self._projectors(nodes)
-        values, vectors = np.linalg.eigh(outside @ M @ outside)
-        floor = max(self.share, 1e-9) ** 2 * scale  # (round-off: never a fourth direction)
-        need = strong[:, None] & (values > floor[:, None])  # (n, 3): node, eigenvalue
+        values, vectors = np.linalg.eigh(outside @ M @ outside)  # (ascending: a node's m known ones ~0, first)
+        known = np.array([len(self._of_node.get(n, ())) for n in nodes.tolist()], dtype=int)
+        # (share 0: every direction with any stiffness, however little: a floor at round-off
+        # left out one carrying 3e-10 of a block on two ranks, and the solve was off by 1e-6)
+        new_only = np.arange(3)[None, :] >= known[:, None]  # never a fourth direction
+        need = strong[:, None] & new_only & (values > self.share**2 * scale[:, None])  # (n, 3)
         which, k = np.nonzero(need)
         new = vectors[which, :, k]  # (m, 3), unit
         # rank 0's choice on every rank: round-off near the floor must not give the ranks
