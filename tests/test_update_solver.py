@@ -7,6 +7,8 @@ scratch by Lawson and Hanson's NNLS."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy.optimize import minimize
@@ -454,3 +456,96 @@ def test_the_posterior_spread_is_that_of_the_exact_vertex_from_an_answer_of_nnls
             rtol=1e-4,
             atol=0.0,
         )
+
+
+def _past_the_prior(seed: int = 5, count: int = 300, past: int = 12):
+    """A problem whose prior (the weights nearest the scene's prediction, here a mix of three
+    states) is past `past` of `count` skull-like rows (a mix of settled states can be a little
+    past the skull where none of them is), and an atlas-like holder of what prepared.py keeps."""
+    from types import SimpleNamespace
+
+    from fenics_brainshift.atlas.combine import Constraints
+
+    base = _problem((0.5, 2.0), seed=seed)
+    m = base.C.shape[1]
+    family = np.zeros(m, dtype=bool)
+    family[:40] = True
+    prior = np.zeros(m)
+    prior[[3, 17, 29]] = [0.5, 0.3, 0.2]
+    prior[-1] = 0.25  # (the swelling its bounds fix)
+    cross = base.gram @ prior  # (the prediction: this mix exactly)
+    rng = np.random.default_rng(seed)
+    R = rng.normal(size=(count, m)).cumsum(axis=0) * 1e-3
+    room = rng.uniform(0.5, 3.0, count) * 1e-3 * np.linalg.norm(R, axis=1)
+    room[rng.choice(count, past, replace=False)] *= -0.2  # the prior past these
+    C, d = np.vstack([base.C, R]), np.r_[base.d, R @ prior - room]
+    problem = Problem(base.A, base.b, base.groups, base.noise, base.gram, cross, C, d)
+    atlas = SimpleNamespace(
+        once={"prior_weights": prior, "skull_at_prior": (np.arange(count), Constraints(C, d))},
+        gram=base.gram,
+        cross=cross,
+        family=family,
+    )
+    return problem, atlas, prior
+
+
+@pytest.mark.parametrize("alpha", [1e-4, 1e-2, 1.0])
+def test_the_first_fit_starts_inside_the_rows_the_prior_is_past(alpha, monkeypatch):
+    """prepared.start_inside: the weights nearest the prediction inside every row (no row
+    past, its regulariser no larger than SLSQP's over the same rows, the family's unused
+    weights exactly 0); the first fit from it reaches NNLS's minimiser without NNLS. From the
+    prior itself, past more rows than it has free weights, the active-set method has no step
+    (every update at 3 mm then solved by NNLS from scratch: 0.4 s of 0.5)."""
+    from fenics_brainshift.atlas import combine
+    from fenics_brainshift.atlas.prepared import start_inside
+
+    problem, atlas, prior = _past_the_prior()
+    C, d = problem.unit_rows
+    assert (C @ prior - d).min() < -1e-4  # (the prior is past rows)
+    start = start_inside(atlas)
+    assert (C @ start - d).min() >= -1e-9
+    G = problem.gram + 1e-9 * np.trace(problem.gram) / len(problem.gram) * np.eye(len(problem.gram))
+    regulariser = lambda x: x @ G @ x - 2 * problem.cross @ x  # noqa: E731
+    other = minimize(
+        regulariser,
+        start + 1e-3,
+        jac=lambda x: 2 * (G @ x - problem.cross),
+        method="SLSQP",
+        constraints=[{"type": "ineq", "fun": lambda x: problem.C @ x - problem.d, "jac": lambda x: problem.C}],
+        options={"ftol": 1e-16, "maxiter": 1000},
+    )
+    assert regulariser(start) <= regulariser(other.x) + 1e-9 * abs(regulariser(start))
+    assert np.count_nonzero(start[:40]) < 40 and np.count_nonzero(start[:40] == 0.0) > 0
+    H, g = _hessian(problem, alpha, np.arange(len(problem.b)))
+    exact = least_distance(H, g, problem.C, problem.d)
+    from_prior = solve_on_active(H, g, C, d, prior, problem.partner, bounds=problem.bounds, infeasible=0.1)
+    assert from_prior is None  # (no step)
+    monkeypatch.setattr(combine, "least_distance", lambda *a: pytest.fail("NNLS was called"))
+    fit = dataclasses.replace(problem, anchor=start).solve(alpha, near=start)
+    assert np.abs(fit - exact).max() <= 1e-6 * max(np.abs(exact).max(), 1.0)
+
+
+@pytest.mark.parametrize("vertex", [0, 11, 25])
+def test_a_refit_past_rows_eased_to_hold_the_first_start_goes_in_from_it(vertex, monkeypatch):
+    """rows.ease: skull rows re-linearised at a fit and eased so that the first start (here
+    the prior, past 40 of them) is inside, a tenth of SKULL_SLACK off each: a refit from a
+    start past many of them reaches NNLS's minimiser from the anchor without NNLS. Eased to
+    hold the anchor exactly, it sat on more rows than it had free weights, and NNLS was needed
+    (a round of an update at 3 mm took 0.4 s more)."""
+    from fenics_brainshift.atlas import combine
+    from fenics_brainshift.atlas.rows import ease
+
+    problem, _, prior = _past_the_prior(past=40)
+    n = len(problem.d) - 300
+    C, d = ease(problem.C[n:], problem.d[n:], prior)
+    eased = dataclasses.replace(problem, d=np.r_[problem.d[:n], d], constraints=None, anchor=prior)
+    assert np.all(C @ prior - d > 0) and np.count_nonzero(d < problem.d[n:]) == 40
+    start = np.eye(len(prior))[vertex]
+    Cu, du = eased.unit_rows
+    assert np.count_nonzero(Cu @ start - du < -1e-3) > 10  # (past many rows)
+    alpha = 1e-2
+    H, g = _hessian(eased, alpha, np.arange(len(eased.b)))
+    exact = least_distance(H, g, eased.C, eased.d)
+    monkeypatch.setattr(combine, "least_distance", lambda *a: pytest.fail("NNLS was called"))
+    c = eased.solve(alpha, near=start)
+    assert np.abs(c - exact).max() <= 1e-6 * max(np.abs(exact).max(), 1.0)

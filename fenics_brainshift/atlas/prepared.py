@@ -15,6 +15,8 @@ from .rows import SkullRows
 from .store import Atlas
 from .surface_patch import MovingSurface
 
+PRIOR_ROUND_OFF = 1e-9  # (relative to its largest) a family weight NNLS left this small is its round-off
+
 
 def bounds(atlas) -> tuple[np.ndarray, np.ndarray]:
     """The amplitude bounds of the swelling modes (their coefficient: (theta - prior) / step)."""
@@ -46,13 +48,14 @@ def prepare(atlas: Atlas) -> float:
     """What every update of this atlas needs, made once when it is loaded (as a navigation
     system keeps it in memory): the prior's weights, the mesh's locator, the surface points are
     measured against, the skull's distance tree and rows over the boundary nodes, and the nodes
-    near the skull at the prior's weights with their rows (every update's first round). Returns
-    the seconds it took."""
+    near the skull at the prior's weights with their rows (every update's first round) and the
+    start inside them. Returns the seconds it took."""
     start = time.perf_counter()
     prior_weights(atlas)
     locator(atlas)
     moving_surface(atlas)
     skull_at_prior(atlas)
+    start_inside(atlas)
     return time.perf_counter() - start
 
 
@@ -81,13 +84,40 @@ def locator(atlas) -> MeshLocator:
 
 
 def _prior_weights(atlas) -> np.ndarray:
-    from .active_set import least_distance
-
     lower, upper = bounds(atlas)
     C, d = weight_constraints(atlas.family, lower, upper, (1.0, 1.0))  # at the scene's own G
+    return _nearest_prediction(atlas, C, d)
+
+
+def start_inside(atlas) -> np.ndarray:
+    """The weights nearest the scene's own prediction inside every row of the update's first
+    round (the weights' bounds and the skull's rows at the prior's weights): where its first
+    fit starts. The prior's own weights can be a little past a skull's rows (a mix of settled
+    states, each inside, is not always), and a start past rows that outnumber its free
+    weights fell to NNLS from scratch in every update (0.4 s of 0.5 at 3 mm: update_skull_3mm.md
+    at commit b59c598). Without a skull, the prior's weights. Once per atlas."""
+    if "start_inside" not in atlas.once:
+        at_prior = skull_at_prior(atlas)
+        if at_prior is None:
+            atlas.once["start_inside"] = prior_weights(atlas)
+        else:
+            constraints = at_prior[1]
+            atlas.once["start_inside"] = _nearest_prediction(atlas, constraints.C, constraints.d)
+    return atlas.once["start_inside"]
+
+
+def _nearest_prediction(atlas, C: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """argmin R(c) (the mean square distance from the scene's prediction) subject to C c >= d,
+    the family's weights NNLS leaves at round-off (1e-11) set to 0: at 0 they are, and a start
+    whose every weight is free takes the active-set method more steps than it has."""
+    from .active_set import least_distance
+
     H = atlas.gram.copy()
     H[np.diag_indices_from(H)] += 1e-9 * np.trace(H) / len(H)
-    return least_distance(H, atlas.cross, C, d)
+    c = least_distance(H, atlas.cross, C, d)
+    family = atlas.family
+    c[family & (np.abs(c) <= PRIOR_ROUND_OFF * np.abs(c[family]).max())] = 0.0
+    return c
 
 
 def combination(c: np.ndarray, modes: np.ndarray) -> np.ndarray:

@@ -22,6 +22,7 @@ OUTSIDE_CELLS = 2.0  # a pre-operative point farther than this many cells outsid
 SKULL_MARGIN = 1.5e-3  # m: nodes with less room than this get a skull row (the rest cannot reach it)
 SKULL_SLACK = 0.1e-3  # m past the skull a row allows: the modes' own contact is settled to a
 # tolerance ([skull] tolerance), and a mix of states each a hair past cannot be wholly inside
+EASED = 0.1  # of SKULL_SLACK: how far inside an eased row (ease) its start is kept
 
 
 class PointRows:
@@ -157,3 +158,13 @@ class SkullRows:
         C = np.einsum("nd,ndm->nm", grad, self.by_node[nodes])
         u = self._at(c)[1][nodes]
         return C, np.einsum("nd,nd->n", grad, u) - phi - SKULL_SLACK
+
+
+def ease(C: np.ndarray, d: np.ndarray, inside: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Skull rows C c >= d linearised at a fit, eased where weights known to be inside the
+    skull (the update's first start: prepared.start_inside) would break them: such a row
+    misjudges the far side. Eased rows keep those weights a tenth of SKULL_SLACK inside, not on
+    them: a start on more rows than it has free weights leaves the active-set method no step,
+    and the refit fell to NNLS from scratch, the slowest solve there is. The depth at the fit is
+    measured on the skull itself after the round (update.py)."""
+    return C, np.minimum(d, C @ inside - EASED * SKULL_SLACK)

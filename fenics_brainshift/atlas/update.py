@@ -37,8 +37,9 @@ from .prepared import (
     prior_weights,
     skull_at_prior,
     skull_rows,
+    start_inside,
 )
-from .rows import PointRows
+from .rows import PointRows, ease
 from .store import Atlas
 from .surface_patch import PATCH_MARGIN, PATCH_TRIES
 from .update_checks import PAST_SKULL, against_prediction, check_near, other_frame
@@ -227,26 +228,23 @@ def _rounds(atlas, data_rows, noise: float, skull, point_to_point: bool, C0, d0,
     """Step 2-3 of the update: alpha and the fit, the rows taken again at the new weights.
     data_rows(c) -> (A, b, groups, each point's error at c: signed to the surface)."""
     c = prior_weights(atlas)
+    inside = start_inside(atlas)  # (the prior's weights may be past the skull's rows; these are not)
     curve, cv_s, deepest = [], 0.0, 0.0
     nodes = np.zeros(0, dtype=np.int64)
     for round_ in range(ROUNDS):
         A, b, groups, residual = data_rows(c)
-        problem = Problem(A, b, groups, noise, atlas.gram, atlas.cross, C0, d0, anchor=prior_weights(atlas))
+        problem = Problem(A, b, groups, noise, atlas.gram, atlas.cross, C0, d0, anchor=inside)
         if skull is not None and round_ == 0:  # (c: the prior's weights)
             nodes, constraints = skull_at_prior(atlas)
             problem = problem.with_all(constraints)
         elif skull is not None:  # the nodes near the skull at these weights join those before
             nodes = np.union1d(nodes, skull.near(c))
             C, d = skull.rows(c, nodes)
-            # a row linearised here that the prior's weights would break misjudges the far side
-            # (the prior is a settled state, inside the skull): eased to keep the prior inside,
-            # so every refit has a start inside all its rows (else NNLS from scratch, the slowest
-            # solve there is); the depth at the fit is measured on the skull itself after the round
-            problem = problem.with_constraints(C, np.minimum(d, C @ prior_weights(atlas)))
-        near = c
+            problem = problem.with_constraints(*ease(C, d, inside))
+        near = inside if round_ == 0 else c
         if alpha is None:  # alpha once, at the first rows (the nearest points change little after)
             t = time.perf_counter()
-            alpha, curve, near = choose_alpha(problem, near=c)  # (its fit to every point at alpha: nearer than c)
+            alpha, curve, near = choose_alpha(problem, near=near)  # (its fit to every point at alpha: nearer)
             cv_s = time.perf_counter() - t
         c_new = problem.solve(alpha, near=near)
         # how far the round moved the fit at the points (the rows' own measure: a pair's coordinates,
