@@ -43,7 +43,7 @@ class ForwardModel:
         resection.Cuts made when asked (Simulation.cut_now: an atlas's resection stages)."""
         from ..runner import Simulation, build_model
 
-        if scene.fluid is not None and scene.fluid.follower_tol > FOLLOWER_TOL:
+        if scene.fluid is not None and scene.fluid.follower_tolerance(time_step=False) > FOLLOWER_TOL:
             # finite differences of the residuals need the answers tighter than a run does
             scene = dataclasses.replace(scene, fluid=dataclasses.replace(scene.fluid, follower_tol=FOLLOWER_TOL))
         self.scene = scene

@@ -275,9 +275,10 @@ def build_model(scene: Scene, comm: MPI.Intracomm, more_cuts: tuple | list = ())
     return model
 
 
-def follower_tolerance(scene: Scene) -> float:
-    """Where the follower-load fixed-point iteration stops (relative change of u)."""
-    return scene.fluid.follower_tol if scene.fluid is not None else 1e-4
+def follower_tolerance(scene: Scene, time_step: bool = False) -> float:
+    """Where the follower-load fixed-point iteration stops (relative change of u), in a time
+    step or a settled state ([fluid] follower_tol, else that one's default)."""
+    return scene.fluid.follower_tolerance(time_step) if scene.fluid is not None else 1e-4
 
 
 def solver_settings(scene: Scene) -> dict:

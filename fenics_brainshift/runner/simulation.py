@@ -157,7 +157,7 @@ class Simulation:
                 build.integrator(self.scene),
                 (self.scene.damping.a, self.scene.damping.b),
                 self.solves,
-                build.follower_tolerance(self.scene),
+                build.follower_tolerance(self.scene, time_step=True),
             )
             if self.model.nonlinear or self.contact is not None:  # Newton in every step
                 self.dynamic = NewtonDynamicStepper(*common, contact=self.contact)
