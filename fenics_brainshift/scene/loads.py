@@ -33,9 +33,9 @@ class Gravity:
 FLUID_RULES = ("consistent", "paper", "quadrature")
 # where the follower load's fixed point stops, as a fraction of |u|. A settled state: on the
 # 8 mm brain demo 1e-4 keeps the frontal pole within 0.1 um of 1e-6's answer in half the solves.
-# A time step: its fixed point's error is then far below the step's own (the 8 mm demo: 0.005 mm
-# over the run, against 0.69 mm between dt = 0.2 and 0.05 s; docs/performance.md), in about
-# half the solves of 1e-4 (tests/test_follower_step.py)
+# A time step: its fixed point's error is then under a hundredth of the time step's own (dt
+# against dt / 4 on the 10 mm brain's drain), in about half the solves of 1e-4
+# (tests/test_follower_step.py; benchmarks/results/hyperelastic.md)
 SETTLED_FOLLOWER_TOL = 1e-4
 STEP_FOLLOWER_TOL = 1e-2
 
