@@ -813,6 +813,52 @@ def test_the_update_keeps_the_brain_inside_the_skull(skull_atlas):
     assert inside.warning is None or "passes the skull" not in inside.warning
 
 
+def test_an_update_whose_prior_is_past_the_skull_s_rows_starts_inside_them(skull_atlas, monkeypatch):
+    """The prior's weights can be a little past the skull's rows linearised at them (a mix of
+    settled states can be where none of them is: the 3 mm atlas's, whose every update then
+    solved its first fit by NNLS from scratch, 0.4 s of 0.5), here made so by a deeper prior (one
+    state of the family 1.5 times over). The first fit starts inside every row of its round
+    (prepared.start_inside), every problem's anchor is inside its rows (rows taken again are
+    eased to keep it so: rows.ease), and the weights are those of every refit solved from
+    scratch (combine.WARM_START = False)."""
+    from fenics_brainshift.atlas import combine
+    from fenics_brainshift.atlas.active_set import ACTIVE
+    from fenics_brainshift.atlas.prepared import prepare, prior_weights, skull_at_prior
+
+    atlas = dataclasses.replace(skull_atlas, once={})  # (its own prepared state)
+    deeper = prior_weights(atlas).copy()
+    deeper[atlas.family] = 1.5 * np.eye(len(deeper))[np.flatnonzero(atlas.family)[4]][atlas.family]
+    atlas.once["prior_weights"] = deeper
+    prepare(atlas)
+    C, d = skull_at_prior(atlas)[1].unit_rows
+    assert np.count_nonzero(C @ deeper - d < -1e-6) > 2  # (the case guarded)
+    U = atlas.vertex_modes.astype(float)
+    picked = _top(atlas.points)[::5][:20]
+    pre = atlas.points[picked]
+    truth = np.tensordot(np.eye(len(U))[2], U, axes=1)
+    target = Target(pre + truth[picked], None, [f"p{i}" for i in range(len(pre))])  # (on the surface: rounds)
+    solves, solve = [], combine.Problem.solve
+
+    def recorded(problem, alpha, rows=None, near=None):
+        solves.append((problem, near))
+        return solve(problem, alpha, rows, near)
+
+    monkeypatch.setattr(combine.Problem, "solve", recorded)
+    warm = update(atlas, target, 0.3e-3, samples=0)
+
+    def inside(problem, c):
+        C, d = problem.unit_rows
+        return np.all(C @ c - d >= -ACTIVE * (1.0 + np.abs(d)))
+
+    assert inside(solves[0][0], solves[0][1])  # the first fit's start
+    assert all(inside(problem, problem.anchor) for problem, _ in solves)
+    assert len({id(problem) for problem, _ in solves}) > 1  # (rows taken again: a second round)
+    monkeypatch.setattr(combine, "WARM_START", False)
+    scratch = update(atlas, target, 0.3e-3, samples=0)
+    assert warm.alpha == scratch.alpha
+    assert np.abs(warm.weights - scratch.weights).max() <= 1e-6
+
+
 def test_an_atlas_built_on_two_ranks_is_the_one_built_on_one(atlas, tmp_path):
     """(A subprocess under mpirun of its own: serial pass only, mpirun cannot nest.)"""
     out = tmp_path / "a2"

@@ -516,6 +516,8 @@ def test_the_first_fit_starts_inside_the_rows_the_prior_is_past(alpha, monkeypat
     )
     assert regulariser(start) <= regulariser(other.x) + 1e-9 * abs(regulariser(start))
     assert np.count_nonzero(start[:40]) < 40 and np.count_nonzero(start[:40] == 0.0) > 0
+    nnls = least_distance(G, problem.cross, problem.C, problem.d)  # (the answer before its round-off is set to 0)
+    assert start[:40].sum() == pytest.approx(nnls[:40].sum(), abs=1e-15)  # (the family's sum kept)
     H, g = _hessian(problem, alpha, np.arange(len(problem.b)))
     exact = least_distance(H, g, problem.C, problem.d)
     from_prior = solve_on_active(H, g, C, d, prior, problem.partner, bounds=problem.bounds, infeasible=0.1)

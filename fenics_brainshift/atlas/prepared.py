@@ -15,7 +15,7 @@ from .rows import SkullRows
 from .store import Atlas
 from .surface_patch import MovingSurface
 
-PRIOR_ROUND_OFF = 1e-9  # (relative to its largest) a family weight NNLS left this small is its round-off
+ROUND_OFF = 1e-9  # (relative to the largest) a family weight NNLS leaves this small is round-off (3 mm: 2e-11)
 
 
 def bounds(atlas) -> tuple[np.ndarray, np.ndarray]:
@@ -108,15 +108,21 @@ def start_inside(atlas) -> np.ndarray:
 
 def _nearest_prediction(atlas, C: np.ndarray, d: np.ndarray) -> np.ndarray:
     """argmin R(c) (the mean square distance from the scene's prediction) subject to C c >= d,
-    the family's weights NNLS leaves at round-off (1e-11) set to 0: at 0 they are, and a start
-    whose every weight is free takes the active-set method more steps than it has."""
+    the family's weights NNLS leaves at round-off set to 0 and their sum added to the largest
+    (the family's sum, which rows bound, unchanged): at 0 they are, and a start whose every
+    weight is free takes the active-set method more steps than it has."""
     from .active_set import least_distance
 
     H = atlas.gram.copy()
     H[np.diag_indices_from(H)] += 1e-9 * np.trace(H) / len(H)
     c = least_distance(H, atlas.cross, C, d)
-    family = atlas.family
-    c[family & (np.abs(c) <= PRIOR_ROUND_OFF * np.abs(c[family]).max())] = 0.0
+    family = np.flatnonzero(atlas.family)
+    weights = c[family]
+    small = np.abs(weights) <= ROUND_OFF * np.abs(weights).max()
+    largest = int(np.argmax(weights))
+    weights[largest] += weights[small].sum()
+    weights[small] = 0.0
+    c[family] = weights
     return c
 
 

@@ -161,10 +161,11 @@ class SkullRows:
 
 
 def ease(C: np.ndarray, d: np.ndarray, inside: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Skull rows C c >= d linearised at a fit, eased where weights known to be inside the
-    skull (the update's first start: prepared.start_inside) would break them: such a row
-    misjudges the far side. Eased rows keep those weights a tenth of SKULL_SLACK inside, not on
-    them: a start on more rows than it has free weights leaves the active-set method no step,
-    and the refit fell to NNLS from scratch, the slowest solve there is. The depth at the fit is
+    """Skull rows C c >= d linearised at a fit, eased where the update's first start (inside
+    the rows of its first round, which allow SKULL_SLACK past the skull: prepared.start_inside)
+    would break them: such a row misjudges the far side. Eased rows keep that start a tenth of
+    SKULL_SLACK inside, not on them (a fit may then pass the skull there by that much more): a
+    start on more rows than it has free weights leaves the active-set method no step, and the
+    refit fell to NNLS from scratch, the slowest solve there is. The depth at the fit is
     measured on the skull itself after the round (update.py)."""
     return C, np.minimum(d, C @ inside - EASED * SKULL_SLACK)
