@@ -11,8 +11,9 @@ and .json.
 
     python benchmarks/patient_resolution.py --scan SCAN [--case NAME] [--voxels 3,2] [--ranks 2] [--levels 2]
 
---report writes the .md again from the .json. SCAN: a DICOM folder or image that prepare takes (the results file names it; the scans are
-public and not shipped: benchmarks/prepare_cases.py lists where they are).
+--report writes the .md again from the .json. SCAN: a DICOM folder or image that prepare takes
+(the results file names it; the scans are public and not shipped: benchmarks/prepare_cases.py
+lists where they are).
 """
 
 from __future__ import annotations
