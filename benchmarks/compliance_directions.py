@@ -6,6 +6,7 @@ the 3 mm gap skull, at 5 and 3 mm voxels, each way its own process, in one run.
 Writes benchmarks/results/compliance_directions.md and .json.
 
     python benchmarks/compliance_directions.py [--voxels 0.005,0.003] [--levels 14]
+    python benchmarks/compliance_directions.py --by-level 0.003 0.05   (compliance_by_level.md)
 
 The ways: "three a node" (every pressed node's three coordinate directions, as before: the
 blocks exact), "every direction" (share 0: only the directions a block has, so still exact:
@@ -93,8 +94,14 @@ def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--voxels", default="0.005,0.003", help="m, comma-separated")
     parser.add_argument("--levels", type=int, default=14)
+    parser.add_argument(
+        "--by-level", nargs=2, metavar=("VOXEL", "WAY"), help="compare WAY's chain with three a node's, mode by mode"
+    )
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results")
     args = parser.parse_args(argv)
+    if args.by_level:
+        by_level(float(args.by_level[0]), args.by_level[1], args.levels, args.out)
+        return
     command = f"python benchmarks/compliance_directions.py --voxels {args.voxels} --levels {args.levels}"
     rows = []
     with tempfile.TemporaryDirectory(prefix="directions_") as tmp:
@@ -125,6 +132,43 @@ def main(argv=None) -> None:
                 rows.append(row)
                 print(json.dumps(row), flush=True)
     write(rows, command, args.out)
+
+
+def by_level(voxel: float, way: str, levels: int, folder: Path) -> None:
+    """One chain built with every pressed node's three directions and one with WAY (both
+    processes at once: no time is measured), compared mode by mode: where the contact states
+    part. Writes compliance_by_level.md."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from fenics_brainshift.atlas import store
+
+    with tempfile.TemporaryDirectory(prefix="directions_") as tmp:
+        work = Path(tmp)
+        with ThreadPoolExecutor(2) as pool:
+            done = [pool.submit(build, w, voxel, levels, work / n) for w, n in ((None, "three"), (way, "way"))]
+            for future in done:
+                future.result()
+        three, other = store.read(work / "three"), store.read(work / "way")
+    lines = [
+        f"# Three a node's chain against {way}'s, mode by mode",
+        "",
+        f"{machine_line()}; `python benchmarks/compliance_directions.py --by-level {voxel:g} {way} --levels "
+        f"{levels}`. The bundled brain at {voxel * 1e3:g} mm, skull 3 mm out; one pose's chain of levels and the "
+        "swelling mode, built twice; each mode's largest distance between the two (mm) and the nodes farther "
+        "apart than 0.1 mm.",
+        "",
+        "| mode | level m | largest shift mm | apart, max mm | nodes apart > 0.1 mm |",
+        "|---|---:|---:|---:|---:|",
+    ]
+    for k, scenario in enumerate(three.scenarios):
+        apart = np.linalg.norm(three.vertex_modes[k] - other.vertex_modes[k], axis=1) * 1e3
+        level = (scenario.get("values") or {}).get("fluid.level")
+        lines.append(
+            f"| {scenario['kind']} | {'-' if level is None else format(level, '.3f')} | "
+            f"{np.linalg.norm(three.vertex_modes[k], axis=1).max() * 1e3:.2f} | {apart.max():.4f} | "
+            f"{int((apart > 0.1).sum())} of {len(apart):,} |"
+        )
+    (folder / "compliance_by_level.md").write_text("\n".join(lines) + "\n")
 
 
 def write(rows: list[dict], command: str, folder: Path) -> None:
