@@ -75,7 +75,7 @@ def compare(args: list[str], repeats: int, work: Path, ways=tuple(WAYS), warm: b
                 "wall_s": statistics.median(times[way]),
                 "all_s": times[way],
                 "modes_s": info["modes_s"],
-                "vertex_mm": 1e3 * float(np.abs(atlas.vertex_modes - one.vertex_modes).max()),
+                "vertex_mm": 1e3 * float(np.abs(np.asarray(atlas.vertex_modes) - one.vertex_modes).max()),
                 "surface_mm": 1e3 * float(np.abs(atlas.surface_modes - one.surface_modes).max()),
             }
         )

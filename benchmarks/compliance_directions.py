@@ -87,7 +87,7 @@ def build(way, voxel: float, levels: int, out: Path) -> dict:
 def modes(folder: Path) -> np.ndarray:
     from fenics_brainshift.atlas import store
 
-    return store.read(folder).vertex_modes
+    return np.asarray(store.read(folder).vertex_modes)
 
 
 def main(argv=None) -> None:

@@ -118,7 +118,7 @@ def main() -> None:
     prepare_s = prepare(atlas)  # (once per atlas, as `brainshift update` does on loading it)
     points = atlas.points
     boundary = np.zeros(len(points), dtype=bool)
-    boundary[atlas.surface_vertices] = True
+    boundary[atlas.boundary.vertices] = True
     exposed = np.flatnonzero(boundary & (points[:, 1] > 0.03))
     centre = points[exposed].mean(axis=0)
     deep = np.flatnonzero(~boundary & (np.linalg.norm(points - centre, axis=1) < DEEP))

@@ -117,7 +117,7 @@ def main() -> None:
     prepare_s = [prepare(a) for a in stages]
     points = atlas.points
     boundary = np.zeros(len(points), dtype=bool)
-    boundary[atlas.surface_vertices] = True
+    boundary[atlas.boundary.vertices] = True
     rows = []
     for seed, (name, (where, overrides, values)) in enumerate(OPERATIONS.items()):
         t = time.perf_counter()

@@ -150,7 +150,7 @@ def true_state(overrides) -> np.ndarray:
 def regions(atlas) -> dict:
     points = atlas.points
     boundary = np.zeros(len(points), dtype=bool)
-    boundary[atlas.surface_vertices] = True
+    boundary[atlas.boundary.vertices] = True
     exposed = boundary & (points[:, 1] > 0.03)
     centre = points[exposed].mean(axis=0)
     deep = ~boundary & (np.linalg.norm(points - centre, axis=1) < DEEP_MM * 1e-3)

@@ -285,40 +285,40 @@ def test_an_atlas_survives_its_files_and_refuses_another_mesh(atlas, tmp_path):
 @pytest.mark.parametrize(
     "damage, words",
     [
-        ("a NaN in a mode", "the modes hold 1 numbers that are not finite"),
         ("a NaN in the regulariser", "the regulariser hold 1 numbers"),
-        ("a mode changed", "the regulariser's diagonal and the modes disagree"),
-        ("a cross term changed", "cross terms and the modes disagree"),
+        ("a cross term changed", "regulariser/cross is not what the build wrote"),
+        ("an off-diagonal changed", "regulariser/gram is not what the build wrote"),
+        ("a prior square changed", "regulariser@prior_square is not what the build wrote"),
         ("a NaN stiffness", "stiffness"),
-        ("an off-diagonal changed", "the regulariser and the modes disagree"),
         ("an infinite prior square", "prior square hold 1 numbers"),
         ("a NaN on the fine surface", "the fine surface hold 1 numbers"),
         ("a surface triangle past the points", "the fine surface's triangles name vertices 0 to 100000000"),
         ("a negative surface triangle", "the fine surface's triangles name vertices -5"),
+        ("a boundary mode changed", "boundary/by_node is not what the build wrote"),
+        ("a NaN in the boundary's modes", "the boundary's modes hold 1 numbers"),
     ],
 )
 def test_a_damaged_atlas_is_named_damaged_in_one_line(atlas, tmp_path, capsys, damage, words):
-    """Bytes changed in atlas.h5 or a number in atlas.json (a copy gone wrong): each ended in a
-    traceback or in an update from a wrong atlas; now the update refuses the atlas as damaged."""
+    """Bytes changed in what an update reads whole from atlas.h5, or a number in atlas.json (a
+    copy gone wrong): each ended in a traceback or in an update from a wrong atlas; now the
+    update refuses the atlas as damaged, naming what."""
     import h5py
 
     from fenics_brainshift.cli import main
 
     store.write(tmp_path / "a", atlas)
     with h5py.File(tmp_path / "a" / "atlas.h5", "r+") as f:
-        if damage == "a NaN in a mode":
-            f["modes/vertex"][2, 5, 1] = np.nan
-        elif damage == "a NaN in the regulariser":
+        if damage == "a NaN in the regulariser":
             f["regulariser/gram"][1, 2] = np.nan
-        elif damage == "a mode changed":
-            f["modes/vertex"][3, 7, 2] += 0.01
         elif damage == "a cross term changed":
             f["regulariser/cross"][4] *= 1.01
         elif damage == "an off-diagonal changed":
             gram = f["regulariser/gram"][...]
             gram[1, 3] *= 10.0
-            gram[3, 1] = gram[1, 3]  # (symmetric: only the modes can tell)
+            gram[3, 1] = gram[1, 3]  # (symmetric: only its record can tell)
             f["regulariser/gram"][...] = gram
+        elif damage == "a prior square changed":
+            f["regulariser"].attrs["prior_square"] *= 1 + 1e-12  # (the prior agrees to 1e-6: its record tells)
         elif damage == "an infinite prior square":
             f["regulariser"].attrs["prior_square"] = np.inf
         elif damage == "a NaN on the fine surface":
@@ -327,15 +327,93 @@ def test_a_damaged_atlas_is_named_damaged_in_one_line(atlas, tmp_path, capsys, d
             f["surface/triangles"][3, 1] = 100_000_000
         elif damage == "a negative surface triangle":
             f["surface/triangles"][3, 1] = -5
+        elif damage == "a boundary mode changed":
+            f["boundary/by_node"][5, 1, 3] *= -1.0
+        elif damage == "a NaN in the boundary's modes":
+            f["boundary/modes"][3, 5, 1] = np.nan
     if damage == "a NaN stiffness":
         index = json.loads((tmp_path / "a" / "atlas.json").read_text())
         index["stiffness"]["G"] = float("nan")
         (tmp_path / "a" / "atlas.json").write_text(json.dumps(index))
-    write_markups(tmp_path / "p.mrk.json", ["a", "b", "c"], atlas.points[_top(atlas.points)[:3]] * 1e3)
-    code = main(["update", str(tmp_path / "a"), "--target", str(tmp_path / "p.mrk.json"), "--out", str(tmp_path / "u")])
+    _markups(tmp_path, atlas, noise=0.3e-3)
+    points = ["--target", str(tmp_path / "intra.mrk.json"), "--pre", str(tmp_path / "pre.mrk.json")]
+    code = main(["update", str(tmp_path / "a"), *points, "--out", str(tmp_path / "u")])
     err = capsys.readouterr().err
     assert code == 2 and "is damaged" in err and words in err and "Traceback" not in err, err
     assert not (tmp_path / "u").exists()
+
+
+def _far_from(atlas, pre: np.ndarray, result) -> tuple[int, int]:
+    """(a mode the update's weights leave at 0, an interior node in no cell of a point or probe)."""
+    from fenics_brainshift.atlas.prepared import locator
+
+    where = np.concatenate([pre, np.array(list(atlas.info["probes"].values()))])
+    read = np.unique(locator(atlas).weights(where)[0])
+    interior = np.setdiff1d(np.arange(len(atlas.points)), np.concatenate([read, atlas.boundary.vertices]))
+    return int(np.flatnonzero(result["weights"] == 0)[0]), int(interior[len(interior) // 2])
+
+
+@pytest.mark.parametrize("damage", ["a NaN at a point's node", "a sign at a point's node", "a used mode", "unread"])
+def test_the_update_reads_and_checks_only_the_modes_it_uses(atlas, tmp_path, capsys, damage):
+    """atlas.h5's modes are mapped, not read (mode_file.py): an update reads every mode at the
+    nodes of its points' cells and the few modes its weights use, and checks each piece as it
+    reads it. Damage there is named in one line; damage nowhere an update reads leaves its
+    answer exactly as it was."""
+    import mmap
+
+    import h5py
+
+    from fenics_brainshift.atlas.prepared import locator
+    from fenics_brainshift.cli import main
+
+    store.write(tmp_path / "a", atlas)
+    pre, _ = _markups(tmp_path, atlas, noise=0.3e-3)
+    points = ["--target", str(tmp_path / "intra.mrk.json"), "--pre", str(tmp_path / "pre.mrk.json")]
+    args = ["update", str(tmp_path / "a"), *points, "--noise", "0.3", "--out"]
+    assert main([*args, str(tmp_path / "clean")]) == 0
+    clean = json.loads((tmp_path / "clean" / "update.json").read_text())
+    weights = np.array(clean["weights"])
+    read = store.read(tmp_path / "a")
+    assert isinstance(read.vertex_modes._values.base, mmap.mmap)  # (mapped, not read)
+    node = int(locator(atlas).weights(pre[:1])[0][0, 0])
+    unused, far = _far_from(atlas, pre, {"weights": weights})
+    with h5py.File(tmp_path / "a" / "atlas.h5", "r+") as f:
+        modes = f["modes/vertex"]
+        if damage == "a NaN at a point's node":
+            modes[2, node, 1] = np.nan
+        elif damage == "a sign at a point's node":
+            modes[2, node, 1] = -modes[2, node, 1]
+        elif damage == "a used mode":
+            modes[int(np.argmax(weights)), far, 0] += 1e-6
+        else:
+            modes[unused, far, 0] += 1e-3
+    code = main([*args, str(tmp_path / "u")])
+    err = capsys.readouterr().err
+    if damage == "unread":
+        assert code == 0, err
+        again = json.loads((tmp_path / "u" / "update.json").read_text())
+        assert again["weights"] == clean["weights"] and again["residual_rms_mm"] == clean["residual_rms_mm"]
+        return
+    named = f"the modes at node {node}" if "point" in damage else f"mode {int(np.argmax(weights))} is not"
+    assert code == 2 and "is damaged" in err and named in err and "Traceback" not in err, err
+    assert not (tmp_path / "u").exists()
+
+
+def test_an_update_reads_a_few_modes_and_nodes_of_a_mapped_atlas(atlas, atlas_folder, tmp_path):
+    """What an update of a read atlas reads whole: the modes its weights use (the answer) and
+    its posterior's free ones (the spread); at nodes: its points' cells' and the probes'. The
+    rest stays on disk (and unchecked: nothing read, nothing used)."""
+    from fenics_brainshift.atlas.update import update as run_update
+
+    read = store.read(atlas_folder)
+    pre, intra = _markups(tmp_path, atlas, noise=0.3e-3)
+    target = Target(intra, pre, [f"P{i}" for i in range(20)])
+    result = run_update(read, target, 0.3e-3)
+    modes = read.vertex_modes
+    assert 0 < modes._mode_ok.sum() <= np.count_nonzero(result.weights) + len(modes) // 4
+    assert 0 < modes._node_ok.sum() <= 4 * len(pre)
+    direct = run_update(atlas, target, 0.3e-3)  # (the built atlas in memory: its modes in float64)
+    assert np.abs(result.displacement - direct.displacement).max() < 1e-6
 
 
 @pytest.fixture(scope="module")
@@ -604,8 +682,8 @@ def test_skull_rows_screened_by_the_distance_bound_are_those_of_every_node(skull
     from fenics_brainshift.atlas.prepared import skull_rows as _skull
     from fenics_brainshift.atlas.rows import SKULL_MARGIN, SkullRows
 
-    cached = _skull(skull_atlas, skull_atlas.vertex_modes)
-    modes = skull_atlas.vertex_modes[:, skull_atlas.surface_vertices].astype(float)
+    cached = _skull(skull_atlas)
+    modes = skull_atlas.boundary.modes.astype(float)
     rows = SkullRows(cached.skull, cached.points, modes)  # (a reference of its own)
 
     def room_at_every_node(c):  # (by the skull itself, not through the rows' caches)
@@ -643,8 +721,8 @@ def test_skull_rows_are_the_room_linearised_at_the_weights(skull_atlas):
     from fenics_brainshift.atlas.prepared import skull_rows as _skull
     from fenics_brainshift.atlas.rows import SKULL_SLACK, SkullRows
 
-    cached = _skull(skull_atlas, skull_atlas.vertex_modes)
-    modes = skull_atlas.vertex_modes[:, skull_atlas.surface_vertices].astype(float)
+    cached = _skull(skull_atlas)
+    modes = skull_atlas.boundary.modes.astype(float)
     rows = SkullRows(cached.skull, cached.points, modes)
     family = np.flatnonzero(skull_atlas.family)
     rng = np.random.default_rng(5)
@@ -687,7 +765,7 @@ def test_with_a_skull_a_mode_is_the_full_models_contact_state(skull_atlas, atlas
         load_scene("brain", COARSE + SKULL + [f"gravity.vector=[{g[0]}, {g[1]}, {g[2]}]", "fluid.level=0.04"])
     )
     assert np.abs(skull_atlas.vertex_modes[k] - u).max() < 0.05e-3
-    rows = _skull(skull_atlas, skull_atlas.vertex_modes.astype(float))
+    rows = _skull(skull_atlas)
     family = np.flatnonzero(skull_atlas.family)
     room = [rows.room(np.eye(len(skull_atlas.scenarios))[i]).min() for i in family]
     tolerance = skull_atlas.info["contact_tolerance_m"]  # the scene's 0.01 mm, loosened for the modes

@@ -262,7 +262,7 @@ def test_labels_among_the_pre_operative_points_are_pairs_and_the_rest_touches(at
     write_markups(tmp_path / "pre.mrk.json", ["A", "B", "C"], pre * 1e3)
     c = np.zeros(len(atlas.scenarios))
     c[4] = 1.0
-    u = np.tensordot(c, atlas.vertex_modes.astype(float), axes=1)
+    u = np.tensordot(c, atlas.vertex_modes[:].astype(float), axes=1)
     touches = _touches(atlas, count=4, seed=3, weights=(0.0, 1.0))
     measured = _wire(np.vstack([pre + u[top], touches]))
     labels = ["A", "B", "C", "s1", "s2", "s3", "s4"]

@@ -64,7 +64,7 @@ def skull_at_prior(atlas):
     weights' constraints with those nodes' rows (combine.Constraints, what the solvers derive
     from them made once); or None without a skull."""
     if "skull_at_prior" not in atlas.once:
-        skull, c = skull_rows(atlas, atlas.vertex_modes), prior_weights(atlas)
+        skull, c = skull_rows(atlas), prior_weights(atlas)
         if skull is None:
             atlas.once["skull_at_prior"] = None
         else:
@@ -141,33 +141,19 @@ def moving_surface(atlas) -> MovingSurface:
                 atlas.surface_points, atlas.surface_triangles, atlas.surface_modes, atlas.prior_surface
             )
         else:
-            vertices, triangles = boundary_triangles(atlas.points, atlas.tetrahedra)
+            boundary = atlas.boundary
             surface = MovingSurface(
-                atlas.points[vertices], triangles, atlas.vertex_modes[:, vertices, :], atlas.prior_vertex[vertices]
+                atlas.points[boundary.vertices],
+                boundary.triangles,
+                boundary.modes,
+                atlas.prior_vertex[boundary.vertices],
+                by_vertex=boundary.by_node,
             )
         atlas.once["moving_surface"] = surface
     return atlas.once["moving_surface"]
 
 
-def boundary_triangles(points: np.ndarray, tetrahedra: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(vertices, triangles over them) of the mesh's boundary, each triangle ordered so that
-    its normal points out of its tetrahedron."""
-    faces = tetrahedra[:, [[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]]].reshape(-1, 3)
-    key = np.sort(faces, axis=1)
-    _, first, counts = np.unique(key, axis=0, return_index=True, return_counts=True)
-    faces = faces[first[counts == 1]]
-    opposite = tetrahedra[
-        np.repeat(np.arange(len(tetrahedra)), 4)[first[counts == 1]],
-        np.tile(np.arange(4), len(tetrahedra))[first[counts == 1]],
-    ]
-    a, b, c = (points[faces[:, i]] for i in range(3))
-    inward = np.einsum("ni,ni->n", np.cross(b - a, c - a), points[opposite] - a) > 0
-    faces[inward] = faces[inward][:, [0, 2, 1]]
-    vertices, triangles = np.unique(faces, return_inverse=True)
-    return vertices, triangles.reshape(-1, 3)
-
-
-def skull_rows(atlas, modes: np.ndarray) -> SkullRows | None:
+def skull_rows(atlas) -> SkullRows | None:
     """The skull's rows over the mesh's boundary nodes, or None for an atlas without a skull
     (made once per atlas: its distance tree and the nodes' modes)."""
     if atlas.skull_triangles is None:
@@ -175,6 +161,6 @@ def skull_rows(atlas, modes: np.ndarray) -> SkullRows | None:
     if "skull_rows" not in atlas.once:
         tri = atlas.skull_triangles
         skull = RigidSkull(tri.reshape(-1, 3), np.arange(3 * len(tri)).reshape(-1, 3), gap=atlas.skull_gap)
-        nodes = atlas.surface_vertices
-        atlas.once["skull_rows"] = SkullRows(skull, atlas.points[nodes], modes[:, nodes, :])
+        boundary = atlas.boundary
+        atlas.once["skull_rows"] = SkullRows(skull, atlas.points[boundary.vertices], boundary.modes, boundary.by_node)
     return atlas.once["skull_rows"]

@@ -88,13 +88,16 @@ class SkullRows:
     The distances at the last weights asked are kept too: a round asks the depth, the nodes
     near and their rows at the same weights."""
 
-    def __init__(self, skull, points: np.ndarray, modes: np.ndarray):
+    def __init__(self, skull, points: np.ndarray, modes: np.ndarray, by_node: np.ndarray | None = None):
         self.skull, self.points = skull, points  # the boundary nodes and their modes (M, B, 3)
         # float64 and contiguous once, in two layouts: by weight (a combination of the few
-        # weights not 0 is one product) and by node (a row of C is then a node's contiguous
-        # (3, M) block: gathering the nodes' columns from the first layout was most of rows())
+        # weights not 0 is one product) and by node (B, 3, M) (a row of C is then a node's
+        # contiguous block: gathering the nodes' columns from the first layout was most of
+        # rows()); the second as stored (atlas.h5's boundary/by_node), else transposed here
         self.flat = np.ascontiguousarray(modes.reshape(len(modes), -1), dtype=float)
-        self.by_node = np.ascontiguousarray(self.flat.T.reshape(len(points), 3, len(modes)))
+        if by_node is None:
+            by_node = self.flat.T.reshape(len(points), 3, len(modes))
+        self.by_node = np.ascontiguousarray(by_node, dtype=float)
         self._known = None  # (u (B, 3), room (B,)): each node where its room was last measured
         self._last = None  # (weights, u (B, 3), room (B,) NaN where not measured, grad (B, 3))
 

@@ -2,15 +2,21 @@
 reads: the scene, the scenarios, the timings). Written by rank 0 through temporary files
 renamed into place, so a killed build leaves no atlas that looks whole.
 
-atlas.h5:
-  mesh/points (N, 3) m, mesh/tetrahedra (C, 4), mesh/surface_vertices (B,)
-  modes/vertex (M, N, 3) float32, modes/surface (M, S, 3) float32: the settled states of the
-      family (first) and the swelling perturbation modes (last), m
+atlas.h5 (format 2):
+  mesh/points (N, 3) m, mesh/tetrahedra (C, 4)
+  modes/vertex (M, N, 3) float32, contiguous: the settled states of the family (first) and the
+      swelling perturbation modes (last), m; mapped, not read (mode_file.py)
+  boundary/vertices (B,), boundary/triangles (T, 3), boundary/modes (M, B, 3) and
+      boundary/by_node (B, 3, M) float32: the modes at the mesh's boundary (boundary.py)
+  modes/surface (M, S, 3) float32, surface/points (S, 3), surface/triangles: the fine surface
+      (absent: the mesh's boundary)
   prior/vertex (N, 3), prior/surface (S, 3): the scene's own settled state
   regulariser/gram (M, M), regulariser/cross (M,), regulariser/prior_square: the mean over
       the vertices of |sum c_k u_k - u_prior|^2 = c.G.c - 2 c.h + p (m^2)
-  surface/points (S, 3), surface/triangles: the fine surface (absent: the mesh's boundary)
   skull/triangles (T, 3, 3), attribute gap: the skull the combination must respect
+  checks/mode_crc32 (M,), checks/node_weights (M, 3), checks/node_sum (N,): what each piece of
+      modes/vertex is checked against as it is read (mode_file.py); the group's attributes:
+      the CRC-32 of every dataset read whole
 """
 
 from __future__ import annotations
@@ -18,6 +24,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -25,8 +32,11 @@ import numpy as np
 
 from .. import json_text
 from ..errors import InputError
+from . import mode_file
+from .boundary import Boundary
+from .mode_file import StoredModes, mode_crc, node_sums, node_weights
 
-FORMAT = 1
+FORMAT = 2
 STAGES = "stages"  # the folder of a resection's stages, each an atlas of its own
 
 
@@ -38,7 +48,7 @@ class Atlas:
 
     points: np.ndarray
     tetrahedra: np.ndarray
-    vertex_modes: np.ndarray  # (M, N, 3)
+    vertex_modes: np.ndarray  # (M, N, 3) float32: an array, or read as asked from atlas.h5 (mode_file.StoredModes)
     prior_vertex: np.ndarray
     gram: np.ndarray
     cross: np.ndarray
@@ -62,20 +72,14 @@ class Atlas:
         return np.array([s["kind"] == "family" for s in self.scenarios])
 
     @property
-    def surface_vertices(self) -> np.ndarray:
-        if "surface_vertices" not in self.once:
-            self.once["surface_vertices"] = boundary_vertices(self.tetrahedra)
-        return self.once["surface_vertices"]
+    def boundary(self) -> Boundary:
+        """The mesh's boundary and the modes there (read from atlas.h5, else made once)."""
+        if "boundary" not in self.once:
+            self.once["boundary"] = Boundary.of(self.points, self.tetrahedra, self.vertex_modes)
+        return self.once["boundary"]
 
     def mesh_id(self) -> str:
         return mesh_id(self.points, self.tetrahedra)
-
-
-def boundary_vertices(tetrahedra: np.ndarray) -> np.ndarray:
-    """The vertices on a mesh's boundary (of faces of one tetrahedron)."""
-    faces = np.sort(tetrahedra[:, [[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]]].reshape(-1, 3), axis=1)
-    unique, counts = np.unique(faces, axis=0, return_counts=True)
-    return np.unique(unique[counts == 1])
 
 
 def mesh_id(points: np.ndarray, tetrahedra: np.ndarray) -> str:
@@ -97,24 +101,31 @@ def write(folder: Path, atlas: Atlas) -> str:
     h5, index = folder / "atlas.h5", folder / "atlas.json"
     tmp = folder / ".atlas.h5.tmp"
     build_id = os.urandom(8).hex()  # in both files: an index of another build is told apart
+    boundary = atlas.boundary
     with h5py.File(tmp, "w") as f:
         f.attrs["format"] = FORMAT
         f.attrs["mesh_id"] = atlas.mesh_id()
         f.attrs["build_id"] = build_id
         f["mesh/points"], f["mesh/tetrahedra"] = atlas.points, atlas.tetrahedra
         # contiguous: chunked and compressed, the file is a fifth smaller and reads 5-17x slower
-        # (benchmarks/results/atlas_storage.md); a mode at a time (no single-precision copy of all)
-        _write_modes(f, "modes/vertex", atlas.vertex_modes)
+        # (benchmarks/results/atlas_storage.md), and only a contiguous array can be mapped
+        _write_vertex_modes(f, atlas.vertex_modes)
+        f["boundary/vertices"], f["boundary/triangles"] = boundary.vertices, boundary.triangles
+        f["boundary/modes"], f["boundary/by_node"] = boundary.modes, boundary.by_node
         f["prior/vertex"] = atlas.prior_vertex
         f["regulariser/gram"], f["regulariser/cross"] = atlas.gram, atlas.cross
         f["regulariser"].attrs["prior_square"] = atlas.prior_square
         if atlas.surface_points is not None:
             f["surface/points"], f["surface/triangles"] = atlas.surface_points, atlas.surface_triangles
-            _write_modes(f, "modes/surface", atlas.surface_modes)
+            surface = f.create_dataset("modes/surface", shape=atlas.surface_modes.shape, dtype=np.float32)
+            for k in range(len(atlas.surface_modes)):  # (a mode at a time: no single-precision copy of all)
+                surface[k] = atlas.surface_modes[k]
             f["prior/surface"] = atlas.prior_surface
         if atlas.skull_triangles is not None:
             f["skull/triangles"] = atlas.skull_triangles
             f["skull"].attrs["gap"] = np.nan if atlas.skull_gap is None else atlas.skull_gap
+        for name, values in _read_whole(f).items():
+            f["checks"].attrs[name] = _crc(values)
     info = {
         "format": FORMAT,
         "mesh_id": atlas.mesh_id(),
@@ -132,11 +143,35 @@ def write(folder: Path, atlas: Atlas) -> str:
     return build_id
 
 
-def _write_modes(f, name: str, modes: np.ndarray) -> None:
-    """Modes (M, n, 3) in single precision, one at a time."""
-    dataset = f.create_dataset(name, shape=modes.shape, dtype=np.float32)
+def _write_vertex_modes(f, modes) -> None:
+    """modes/vertex in single precision, a mode at a time (no single-precision copy of all),
+    and what each piece is checked against when read (mode_file.py)."""
+    dataset = f.create_dataset("modes/vertex", shape=modes.shape, dtype=np.float32)
+    weights, crc, sums = node_weights(len(modes)), np.zeros(len(modes), dtype=np.uint32), 0.0
     for k in range(len(modes)):
-        dataset[k] = modes[k]
+        mode = np.asarray(modes[k], dtype=np.float32)
+        dataset[k], crc[k] = mode, mode_crc(mode)
+        sums = sums + node_sums(mode[None], weights[k : k + 1])[0]
+    f["checks/mode_crc32"], f["checks/node_weights"], f["checks/node_sum"] = crc, weights, sums
+
+
+def _read_whole(f) -> dict[str, np.ndarray]:
+    """What an update reads whole (every dataset but modes/vertex, and the groups' numbers),
+    named as in checks' attributes ("mesh/points", "regulariser@prior_square")."""
+    whole = {}
+
+    def visit(name, item):
+        if hasattr(item, "shape") and name != "modes/vertex" and not name.startswith("checks"):
+            whole[name] = item[...]
+        elif not hasattr(item, "shape") and name != "checks":
+            whole.update({f"{name}@{key}": np.float64(value) for key, value in item.attrs.items()})
+
+    f.visititems(visit)
+    return whole
+
+
+def _crc(values: np.ndarray) -> int:
+    return zlib.crc32(np.ascontiguousarray(values))
 
 
 def _remove_stages(folder: Path) -> None:
@@ -201,29 +236,39 @@ def read(folder: str | Path) -> Atlas:
         )
     try:
         info = json.loads(index.read_text())
-        with h5py.File(h5, "r") as f:
+        # one open file for h5py and the map of the modes: the same file, though a build replace it meanwhile
+        with open(h5, "rb") as handle, h5py.File(handle, "r") as f:
             if int(f.attrs["format"]) != FORMAT:
                 raise InputError(
                     f"ATLAS: '{h5}' is of format {int(f.attrs['format'])}, this brainshift reads "
                     f"{FORMAT}: build it again"
                 )
             stored_id, build_id = str(f.attrs["mesh_id"]), str(f.attrs.get("build_id", ""))
-            atlas = Atlas(
-                f["mesh/points"][...],
-                f["mesh/tetrahedra"][...],
-                f["modes/vertex"][...],
-                f["prior/vertex"][...],
-                f["regulariser/gram"][...],
-                f["regulariser/cross"][...],
-                float(f["regulariser"].attrs["prior_square"]),
-                info["scenarios"],
+            whole, recorded = _read_whole(f), dict(f["checks"].attrs)
+            modes = StoredModes(
+                _mapped(f["modes/vertex"], handle),
+                f["checks/mode_crc32"][...],
+                f["checks/node_weights"][...],
+                f["checks/node_sum"][...],
+                str(folder),
             )
-            if "surface" in f:
-                atlas.surface_points, atlas.surface_triangles = f["surface/points"][...], f["surface/triangles"][...]
-                atlas.surface_modes, atlas.prior_surface = f["modes/surface"][...], f["prior/surface"][...]
-            if "skull" in f:
-                gap = float(f["skull"].attrs["gap"])
-                atlas.skull_triangles, atlas.skull_gap = f["skull/triangles"][...], None if np.isnan(gap) else gap
+        atlas = Atlas(
+            whole["mesh/points"],
+            whole["mesh/tetrahedra"],
+            modes,
+            whole["prior/vertex"],
+            whole["regulariser/gram"],
+            whole["regulariser/cross"],
+            float(whole["regulariser@prior_square"]),
+            info["scenarios"],
+        )
+        if "surface/points" in whole:
+            atlas.surface_points, atlas.surface_triangles = whole["surface/points"], whole["surface/triangles"]
+            atlas.surface_modes, atlas.prior_surface = whole["modes/surface"], whole["prior/surface"]
+        if "skull/triangles" in whole:
+            gap = float(whole["skull@gap"])
+            atlas.skull_triangles, atlas.skull_gap = whole["skull/triangles"], None if np.isnan(gap) else gap
+        boundary = Boundary(*(whole[f"boundary/{name}"] for name in ("vertices", "triangles", "modes", "by_node")))
     except InputError:
         raise
     except Exception as exc:  # a truncated or foreign file (h5py, JSON, a missing dataset)
@@ -244,25 +289,36 @@ def read(folder: str | Path) -> Atlas:
             f"ATLAS: '{folder}': atlas.json names {len(atlas.scenarios)} modes, atlas.h5 holds "
             f"{len(atlas.vertex_modes)} over {atlas.vertex_modes.shape[1]} nodes; build it again"
         )
-    problem = damage(atlas)
+    changed = [name for name in whole if recorded.get(name) != _crc(whole[name])]
+    problem = damage(atlas, boundary) or (changed and f"{changed[0]} is not what the build wrote (its CRC-32)")
     if problem:
         raise InputError(f"ATLAS: '{folder}' is damaged: {problem}; build it again (or copy it again)")
+    atlas.once["boundary"] = boundary
     return atlas
 
 
-def damage(atlas: Atlas) -> str | None:
-    """What in an atlas's arrays is not what its build wrote, or None: every number finite, the
-    stiffness's bounds ordered and positive, and the regulariser (its Gram matrix, cross terms
-    and prior square) equal to what the modes and the prior give, checked in O(modes x nodes):
-    the diagonal, the cross terms, and the Gram's action on two random weight vectors (a changed
-    entry anywhere moves w.G.w), without the O(modes^2 x nodes) Gram itself."""
+def _mapped(dataset, handle):
+    """A contiguous float32 dataset mapped (pages read as they are touched, mode_file.py); one
+    stored otherwise (an atlas.h5 repacked with compression) is read whole."""
+    offset = dataset.id.get_offset()
+    if dataset.chunks is None and dataset.compression is None and dataset.dtype == "<f4" and offset is not None:
+        return mode_file.mapped(handle, offset, dataset.shape)
+    return dataset[...].astype(np.float32)
+
+
+def damage(atlas: Atlas, boundary: Boundary) -> str | None:
+    """What in an atlas's arrays read whole is not what a build writes, or None: every number
+    finite, cells naming vertices there are, the stiffness's bounds ordered and positive, the
+    regulariser symmetric and its prior square the prior's. (Whether each is what this build
+    wrote: the CRC-32s; the modes/vertex pieces: as they are read, mode_file.py.)"""
     arrays = {
-        "the modes": atlas.vertex_modes,
         "the prior": atlas.prior_vertex,
         "the regulariser": atlas.gram,
         "the regulariser's cross terms": atlas.cross,
         "the regulariser's prior square": np.array([atlas.prior_square]),
         "the mesh's points": atlas.points,
+        "the boundary's modes": boundary.modes,
+        "the boundary's modes by node": boundary.by_node,
         "the fine surface": atlas.surface_points,
         "the fine surface's modes": atlas.surface_modes,
         "the fine surface's prior": atlas.prior_surface,
@@ -274,6 +330,7 @@ def damage(atlas: Atlas) -> str | None:
             return f"{name} hold {bad} numbers that are not finite"
     for name, cells, corners, count in (
         ("the mesh's tetrahedra", atlas.tetrahedra, 4, len(atlas.points)),
+        ("the boundary's triangles", boundary.triangles, 3, len(boundary.vertices)),
         ("the fine surface's triangles", atlas.surface_triangles, 3,
          0 if atlas.surface_points is None else len(atlas.surface_points)),
     ):  # fmt: skip
@@ -283,10 +340,16 @@ def damage(atlas: Atlas) -> str | None:
             return f"{name} are not rows of {corners} vertex numbers"
         if len(cells) and not (0 <= cells.min() and cells.max() < count):
             return f"{name} name vertices {cells.min()} to {cells.max()}, past the {count} there are"
+    n, m = len(atlas.points), len(atlas.vertex_modes)
+    vertices = boundary.vertices
+    if not (len(vertices) and np.issubdtype(vertices.dtype, np.integer) and 0 <= vertices.min() and vertices.max() < n):
+        return "the boundary's vertices are not vertices of the mesh"
+    if boundary.modes.shape != (m, len(vertices), 3) or boundary.by_node.shape != (len(vertices), 3, m):
+        return "the boundary's modes are not one value a mode and boundary vertex"
     if atlas.surface_points is not None and (
-        atlas.surface_modes is None or atlas.surface_modes.shape[1:] != atlas.surface_points.shape
+        atlas.surface_modes is None or atlas.surface_modes.shape != (m, *atlas.surface_points.shape)
     ):
-        return "the fine surface's modes are not one value a surface point"
+        return "the fine surface's modes are not one value a mode and surface point"
     stiffness = atlas.info.get("stiffness") or {}
     numbers = [stiffness.get(k) for k in ("lower", "G", "upper") if k in stiffness]
     if numbers and not (
@@ -295,24 +358,9 @@ def damage(atlas: Atlas) -> str | None:
         and numbers == sorted(numbers)
     ):
         return f"atlas.json's stiffness {stiffness} is not 0 < lower <= G <= upper"
-    n, m = len(atlas.points), len(atlas.vertex_modes)
-    prior = atlas.prior_vertex.ravel().astype(np.float64)
-    if atlas.gram.shape != (m, m) or not np.array_equal(atlas.gram, atlas.gram.T):
+    if atlas.gram.shape != (m, m) or not np.array_equal(atlas.gram, atlas.gram.T) or atlas.cross.shape != (m,):
         return "the regulariser is not a symmetric matrix of one row a mode"
-    weights = np.random.default_rng(0).standard_normal((2, m))
-    squares, cross, combined = np.empty(m), np.empty(m), np.zeros((2, prior.size))
-    for k in range(m):  # (a mode at a time in float64: no float64 copy of every mode)
-        mode = atlas.vertex_modes[k].ravel().astype(np.float64)
-        squares[k], cross[k] = mode @ mode / n, mode @ prior / n
-        combined += weights[:, k : k + 1] * mode
-    scale = max(float(squares.max(initial=0.0)), float(prior @ prior / n), 1e-300)
-    if abs(atlas.prior_square - prior @ prior / n) > 1e-6 * scale:
+    prior = atlas.prior_vertex.ravel()
+    if abs(atlas.prior_square - prior @ prior / n) > 1e-6 * max(prior @ prior / n, 1e-300):
         return "the regulariser's prior square and the prior disagree"
-    if np.abs(np.diag(atlas.gram) - squares).max(initial=0.0) > 1e-6 * scale:
-        return "the regulariser's diagonal and the modes disagree"
-    if np.abs(atlas.cross - cross).max(initial=0.0) > 1e-6 * scale:
-        return "the regulariser's cross terms and the modes disagree"
-    actions = np.einsum("bi,ij,bj->b", weights, atlas.gram, weights)
-    if np.abs(actions - np.einsum("bi,bi->b", combined, combined) / n).max() > 1e-6 * scale * m:
-        return "the regulariser and the modes disagree"
     return None

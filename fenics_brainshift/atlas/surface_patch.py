@@ -28,7 +28,9 @@ class MovingSurface:
     """A triangulated surface (S vertices at rest, their modes (M, S, 3), float32 as stored)
     and its state at reference weights c_ref (the prior's)."""
 
-    def __init__(self, points: np.ndarray, triangles: np.ndarray, modes: np.ndarray, reference: np.ndarray):
+    def __init__(
+        self, points: np.ndarray, triangles: np.ndarray, modes: np.ndarray, reference: np.ndarray, by_vertex=None
+    ):
         self.points, self.triangles, self.modes = points, np.asarray(triangles), modes
         self.reference = reference  # (S, 3) displacement at the prior's state
         self.at_reference = points + reference
@@ -38,7 +40,7 @@ class MovingSurface:
         # by vertex (a patch's modes are then a few contiguous blocks: gathered from the first
         # layout they were most of a small update's time)
         self._flat = modes.reshape(len(modes), -1)
-        self.by_vertex = np.ascontiguousarray(modes.transpose(1, 2, 0))  # (S, 3, M)
+        self.by_vertex = np.ascontiguousarray(modes.transpose(1, 2, 0) if by_vertex is None else by_vertex)  # (S, 3, M)
         order = np.argsort(self.triangles.ravel(), kind="stable")
         self._owner = order // 3  # triangles sorted by corner, and where each vertex's begin
         self._start = np.searchsorted(self.triangles.ravel()[order], np.arange(len(points) + 1))

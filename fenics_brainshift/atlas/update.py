@@ -27,7 +27,6 @@ from ..errors import InputError
 from . import posterior
 from .combine import Problem, bootstrap, choose_alpha, leave_one_out, weight_constraints
 from .prepared import (
-    boundary_triangles,
     bounds,
     combination,
     family_sum,
@@ -184,7 +183,7 @@ def _errors(atlas, target, u: np.ndarray, surface_u) -> np.ndarray:
     if len(others):
         shift = surface_u
         if atlas.surface_points is None:
-            shift = u[boundary_triangles(atlas.points, atlas.tetrahedra)[0]]
+            shift = u[atlas.boundary.vertices]
         out[others] = np.abs(moving_surface(atlas).distances(shift, target.measured[others]))
     return out
 
@@ -293,7 +292,7 @@ def _update(atlas, target, noise: float, samples: int, keep_inside: bool, alpha:
         )
     else:
         against = against or mirrored
-    skull = skull_rows(atlas, modes) if keep_inside else None
+    skull = skull_rows(atlas) if keep_inside else None
     whole = None  # (point to surface: the whole surface's displacement at the fit, as its patch was checked)
     setup_s = time.perf_counter() - start
 
@@ -348,7 +347,7 @@ def _update(atlas, target, noise: float, samples: int, keep_inside: bool, alpha:
             "kept_inside": keep_inside,
             "nodes_with_rows": int(len(nodes)),
             "rounds": round_ + 1,
-            "deepest_past_mm": (deepest if skull is not None else skull_rows(atlas, modes).deepest(c)) * 1e3,
+            "deepest_past_mm": (deepest if skull is not None else skull_rows(atlas).deepest(c)) * 1e3,
         }
     warning = (
         "; ".join(

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from .prepared import locator
 from .stages import present_in
 
 
@@ -46,19 +47,15 @@ def write_outputs(out: Path, atlas, target, result, image, spread_image, whole=N
         write_slicer_stl(out / "surface_final.stl", moved * 1e3, atlas.surface_triangles)
     probes = atlas.info.get("probes") or {}
     if probes:
-        from .locate import MeshLocator
-
         names = list(probes)
         points = np.array([probes[k] for k in names])
-        index, weight, _ = MeshLocator(atlas.points, atlas.tetrahedra).weights(points)
+        index, weight, _ = locator(atlas).weights(points)
         moved = points + np.einsum("nj,njd->nd", weight, u[index])
         write_markups(out / "probes_final.mrk.json", names, moved * 1e3)
     pairs = target.pairs
     if len(pairs):  # the pre-operative points where the update puts them (points to the surface have none)
-        from .locate import MeshLocator
-
         pre = target.pre[pairs]
-        index, weight, _ = MeshLocator(atlas.points, atlas.tetrahedra).weights(pre)
+        index, weight, _ = locator(atlas).weights(pre)
         write_markups(
             out / "targets_updated.mrk.json",
             [target.labels[i] for i in pairs],

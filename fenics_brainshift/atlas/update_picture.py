@@ -79,11 +79,11 @@ def _sampled_planes(image, atlas, result, centre: np.ndarray) -> list[_Plane]:
     """The image, the updated shift and its spread on the three planes through centre (mm)."""
     from scipy.ndimage import map_coordinates
 
-    from .locate import MeshLocator
+    from .prepared import locator as prepared_locator
 
     n = int(round(2 * HALF_WIDTH_MM / STEP_MM)) + 1
     offsets = (np.arange(n) - (n - 1) / 2) * STEP_MM
-    locator = MeshLocator(atlas.points, atlas.tetrahedra)
+    locator = prepared_locator(atlas)  # (made once per atlas)
     out = []
     for name, right, up, normal, left_right, bottom_top in PLANES:
         right, up = np.array(right, float), np.array(up, float)

@@ -144,6 +144,7 @@ def session_factory(args):
     atlas_id = atlas.info.get("build_id") or atlas.mesh_id()  # (the folder's atlas; the stage is its own option)
     if stage:
         atlas = store.read_stage(args.atlas, atlas, stage)
+    atlas.vertex_modes.verify()  # (held for an operation: every mode read and checked now, none during it)
     pre = targets = None
     digest = {}
     for name in ("pre", "targets"):
