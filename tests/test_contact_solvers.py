@@ -634,3 +634,47 @@ def test_the_tangent_as_an_action_is_the_assembled_tangent(shared_tmp, septa, de
     solver.tangent._action.set(None, None)
     action.mult(x, y)
     assert COMM.allreduce(float(np.abs(y.array - z.array).max()), op=MPI.MAX) > 1e-6 * scale
+
+
+def test_newton_without_descent_settles_only_where_the_residual_is_immaterial():
+    """newton_iterate on a residual no step lowers (a node held where the skull's facets meet):
+    without a measure of what matters it fails; with one, it settles where the measure says
+    the residual is immaterial, and fails where it says not."""
+    from types import SimpleNamespace
+
+    from fenics_brainshift.stepping.newton_iteration import newton_iterate
+
+    def field():
+        return SimpleNamespace(x=SimpleNamespace(array=np.zeros(3), scatter_forward=lambda: None))
+
+    x, dx = field(), field()
+
+    def solve(forcing):
+        dx.x.array[:] = 1.0
+
+    def run(immaterial):
+        args = (lambda: 1e-4, solve, lambda: 1.0, 1e-9, 1e-12, 25)
+        return newton_iterate(x, dx, *args, stall=1e3, immaterial=immaterial)[0]
+
+    assert not run(None)
+    assert run(lambda: True)
+    assert not run(lambda: False)
+
+
+def test_the_settled_measure_is_a_share_of_the_skull_s_tolerance_at_a_node_s_stiffness(floor):
+    """The block on the floor: a residual at one dof of R_i = s K_ii (it would move that node by
+    s) is immaterial below SETTLED_MOVE x [skull] tolerance and not above (on every rank count:
+    the largest over the ranks)."""
+    sim = Simulation(scene_from_dict(_block([], {"file": floor, "tolerance": 1e-6})), COMM)
+    sim.solve_to_settled(0.0)
+    engaged = sim.static.engaged
+    K = sim.model.assemble(sim.model.stiffness_form(), with_bcs=True)
+    diagonal = K.getDiagonal().getArray(readonly=True)
+    limit = newton.SETTLED_MOVE * 1e-6
+    for share, expected in ((0.9, True), (1.1, False)):
+        engaged._R.set(0.0)
+        if COMM.rank == COMM.size - 1:  # (one dof, on one rank: the others must agree)
+            free = np.flatnonzero(diagonal != 1.0)
+            engaged._R.getArray()[free[-1]] = -share * limit * diagonal[free[-1]]
+        assert engaged._immaterial() is expected
+    assert engaged.settled_by_move == 1

@@ -36,6 +36,10 @@ class ContactWhenReached:
     def contact_rounds(self) -> int:
         return self.engaged.contact_rounds if self.engaged is not None else 0
 
+    @property
+    def settled_by_move(self) -> int:
+        return self.engaged.settled_by_move if self.engaged is not None else 0
+
     def solve(self, t: float) -> int:
         if self.engaged is None:
             before = self.state.u.x.array.copy()

@@ -35,6 +35,7 @@ def newton_iterate(
     stall: float = 1.0,
     watchdog: int = 0,
     step_limit=None,
+    immaterial=None,
 ):
     """Newton's iteration on the Function x with a backtracking line search on |R|.
 
@@ -49,7 +50,9 @@ def newton_iterate(
     with ``watchdog`` > 0, a step is taken without descent, as far as ``step_limit()`` allows
     (a fraction of dx, no less than the shortest tried), and Newton fails unless the next
     ``watchdog`` iterations bring |R| below where it was (the watchdog technique: Chamberlain,
-    Powell, Lemarechal and Pedersen 1982). That is for contact: a node off the skull adds
+    Powell, Lemarechal and Pedersen 1982). ``immaterial()``, when given, says whether the
+    residual just evaluated is too small to matter (the contact's settled measure, newton.py):
+    then no descent counts as converged too. Watchdog and measure are for contact: a node off the skull adds
     nothing to the tangent, so the whole step takes a falling body as far past the skull as it
     would fall, and while the tail of the pressure's rounded kink (steep at a tight tolerance)
     still holds it, each halving of the step only halves the distance left, or finds no
@@ -83,8 +86,8 @@ def newton_iterate(
             trial = residual()
             if trial < (1.0 - 1e-4 * alpha) * norm:
                 break
-        else:  # no descent: fine if already at round-off (within ``stall`` targets)
-            if trial <= stall * target():
+        else:  # no descent: fine if already at round-off (within ``stall`` targets) or immaterial
+            if trial <= stall * target() or (immaterial is not None and immaterial()):
                 return True, history + [trial]
             if not watchdog or watched is not None:
                 return False, history
