@@ -47,11 +47,12 @@ MAX_CONTACT_ROUNDS = 30  # augmented-Lagrangian multiplier updates per settled s
 # 0.019 mm apart (benchmarks/results/skull_atlas.md); 1000 saved no more
 FIRST_LOOSER = 100.0
 WATCHDOG = 10  # with contact: iterations a step taken without descent has to bring |R| below where it was
-# with contact, Newton without descent has settled when the residual left would move no node by more
-# than this share of [skull] tolerance under the node's own stiffness (|R_i| / K_ii): a node pressed
-# where the skull's facets meet (the distance's gradient turns there) can hold |R| at 1e-5-1e-4 of
-# the loads, which no line search lowers (the 5 mm chris_t1 patient drained 28 mm: 0.3-1 um; a
-# scratch run, docs/limits.md)
+# with contact, Newton that would fail (no descent; its watchdog's or all its iterations spent) has
+# settled when the residual left would move no node by more than this share of [skull] tolerance
+# under the node's own stiffness (|R_i| / K_ii): a node pressed where the skull's facets meet (the
+# distance's gradient turns there) can hold |R| at 1e-5-1e-4 of the loads, which no step lowers, or
+# lowers by a percent an iteration (prepared patients drained 28 and 99 mm: 0.1-1 um; scratch runs,
+# docs/limits.md)
 SETTLED_MOVE = 1e-2
 
 
@@ -96,7 +97,7 @@ class NewtonStatic:
         self._t_settled: float | None = None
         self._floor = 0.0  # |R| round-off leaves (newton_iteration.round_off_floor), with K
         self._K_diagonal = None  # K's, for the contact's settled measure (immaterial)
-        self.settled_by_move = 0  # Newton solves ended without descent, the residual immaterial (SETTLED_MOVE)
+        self.settled_by_move = 0  # Newton solves that would have failed, the residual immaterial (SETTLED_MOVE)
 
     def setup(self) -> None:
         """The preconditioner at rest (a factor of K, or AMG), reused by every Newton step."""
@@ -244,9 +245,9 @@ class NewtonStatic:
 
     def _globalisation(self) -> tuple:
         """(stall, watchdog, step_limit, immaterial) of newton_iterate: with contact, round-off
-        at the kink and a residual that moves no node by more than SETTLED_MOVE of the skull's
-        tolerance count as converged, and a step without descent may be taken up to the first
-        node's contact; without, none of these."""
+        at the kink counts as converged, and so does, where Newton would fail, a residual that
+        moves no node by more than SETTLED_MOVE of the skull's tolerance; a step without descent
+        may be taken up to the first node's contact; without contact, none of these."""
         if self.contact is None:
             return 1.0, 0, None, None
         return (
@@ -269,7 +270,7 @@ class NewtonStatic:
         if largest > SETTLED_MOVE * self.contact.tolerance:
             return False
         self.settled_by_move += 1
-        log.debug("  Newton: no descent, the residual moves no node by more than %.3g um: settled", largest * 1e6)
+        log.debug("  Newton: stuck, the residual moves no node by more than %.3g um: settled", largest * 1e6)
         return True
 
     # -- a settled state, with load stepping ------------------------------------------------------

@@ -51,16 +51,20 @@ def newton_iterate(
     (a fraction of dx, no less than the shortest tried), and Newton fails unless the next
     ``watchdog`` iterations bring |R| below where it was (the watchdog technique: Chamberlain,
     Powell, Lemarechal and Pedersen 1982). ``immaterial()``, when given, says whether the
-    residual just evaluated is too small to matter (the contact's settled measure, newton.py):
-    then no descent counts as converged too. Watchdog and measure are for contact: a node off the skull adds
-    nothing to the tangent, so the whole step takes a falling body as far past the skull as it
-    would fall, and while the tail of the pressure's rounded kink (steep at a tight tolerance)
-    still holds it, each halving of the step only halves the distance left, or finds no
-    descent; the step as far as the first node's contact lets the next iteration press it.
-    Returns (converged, the |R| history); on failure x is wherever it stopped."""
+    residual at x (the last evaluated) is too small to matter (the contact's settled measure,
+    newton.py): where Newton would fail otherwise (no descent, the watchdog's iterations spent,
+    or the iterations while |R| still creeps down), it has converged then. Watchdog and measure
+    are for contact: a node off the skull adds nothing to the tangent, so the whole step takes a
+    falling body as far past the skull as it would fall, and while the tail of the pressure's
+    rounded kink (steep at a tight tolerance) still holds it, each halving of the step only
+    halves the distance left, or finds no descent; the step as far as the first node's contact
+    lets the next iteration press it. Returns (converged, the |R| history); on failure x is wherever it stopped."""
 
     def target():
         return rtol * max(scale(), 1e-300)
+
+    def settled() -> bool:
+        return immaterial is not None and immaterial()
 
     norm = residual()
     history = [norm]
@@ -71,7 +75,7 @@ def newton_iterate(
         if watched is not None and norm < (1.0 - 1e-4) * watched[0]:
             watched = None  # the step paid off
         elif watched is not None and iteration - watched[1] > watchdog:
-            return False, history
+            return settled(), history
         # no more exact than the target needs either: the last solve then takes a few Krylov
         # iterations, not dozens (a tenth of the reduction still left, as a margin)
         forcing = min(1e-2, max(norm / max(scale(), 1e-300), 0.1 * target() / norm, krylov_floor))
@@ -87,7 +91,7 @@ def newton_iterate(
             if trial < (1.0 - 1e-4 * alpha) * norm:
                 break
         else:  # no descent: fine if already at round-off (within ``stall`` targets) or immaterial
-            if trial <= stall * target() or (immaterial is not None and immaterial()):
+            if trial <= stall * target() or settled():
                 return True, history + [trial]
             if not watchdog or watched is not None:
                 return False, history
@@ -99,4 +103,4 @@ def newton_iterate(
         norm = trial
         history.append(norm)
         log.debug("  Newton: |R| %.3e after a step of %g%s", norm, alpha, " (watched)" if watched else "")
-    return norm <= target(), history
+    return norm <= target() or settled(), history
