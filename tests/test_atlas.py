@@ -343,6 +343,82 @@ def test_a_damaged_atlas_is_named_damaged_in_one_line(atlas, tmp_path, capsys, d
     assert not (tmp_path / "u").exists()
 
 
+def test_atlas_h5_metadata_is_checksummed_so_damage_there_is_one_line(atlas, tmp_path):
+    """atlas.h5 is written in HDF5's 1.10 format (superblock and object headers checksummed)
+    with fixed-length ids: byte flips in the default format's metadata crashed libhdf5 (a
+    variable-length id read from the unchecked global heap) or hung it. Flips across the
+    metadata now read as before or are refused in one line."""
+    import h5py
+
+    store.write(tmp_path / "a", atlas)
+    h5 = tmp_path / "a" / "atlas.h5"
+    with h5py.File(h5, "r") as f:
+        assert f.libver == ("v110", "v110")
+        assert all(h5py.check_string_dtype(f.attrs.get_id(k).dtype).length for k in ("mesh_id", "build_id"))
+        data = []  # (offset, size) of each dataset's values: the rest of the file is metadata
+        f.visititems(
+            lambda n, o: data.append((o.id.get_offset(), o.id.get_storage_size())) if hasattr(o, "shape") else None
+        )  # noqa: E501
+    clean = h5.read_bytes()
+    in_data = np.zeros(len(clean), dtype=bool)
+    for offset, size in data:
+        if offset is not None:
+            in_data[offset : offset + size] = True
+    metadata = np.flatnonzero(~in_data)
+    outcomes = set()
+    for offset in metadata[:: max(1, len(metadata) // 40)]:
+        damaged = bytearray(clean)
+        damaged[offset] ^= 0x5A
+        h5.write_bytes(bytes(damaged))
+        try:
+            read = store.read(tmp_path / "a")
+            assert np.array_equal(read.points, atlas.points)
+            outcomes.add("read")
+        except InputError as exc:
+            assert "\n" not in str(exc) and ("cannot be read" in str(exc) or "damaged" in str(exc)), str(exc)
+            outcomes.add("refused")
+    assert "refused" in outcomes
+
+
+def test_stored_modes_read_as_numpy_indexes_or_not_at_all(atlas, tmp_path):
+    """Every form the update uses reads what numpy's indexing of the modes gives (whole modes:
+    an int, a negative int, a slice, a mask, an array; every mode at nodes: a 1-D or 2-D array,
+    negative, repeated, with `:` or `...` before them); a form it does not read (numpy's
+    `[..., k]` takes the components) is refused, not read another way."""
+    store.write(tmp_path / "a", atlas)
+    stored, plain = store.read(tmp_path / "a").vertex_modes, np.asarray(atlas.vertex_modes, dtype=np.float32)
+    mask = np.zeros(len(plain), dtype=bool)
+    mask[[1, 4]] = True
+    nodes = np.array([[3, 3, -1], [0, 17, 5]])
+    for key in (2, -1, slice(1, 5), mask, np.array([4, 0, 4]), (slice(None), nodes, slice(None)),
+                (Ellipsis, nodes, slice(None)), (slice(None), np.array([-2, 9]))):  # fmt: skip
+        np.testing.assert_array_equal(stored[key], plain[key])
+    for key in ((Ellipsis, np.array([0, 1])), (slice(None), slice(2, 5), slice(None)), (0, 3)):
+        with pytest.raises(TypeError):
+            stored[key]
+
+
+def test_a_served_atlas_is_held_against_a_copy_over_it_in_place(atlas, tmp_path):
+    """`brainshift serve` holds every mode in memory (StoredModes.hold): another atlas copied
+    over atlas.h5 in place (the same inode) changes no mode it serves; a group the checks name
+    but the file no longer holds (a skull deleted) is damage."""
+    import h5py
+
+    store.write(tmp_path / "a", atlas)
+    other = dataclasses.replace(atlas, vertex_modes=2.0 * np.asarray(atlas.vertex_modes), once={})
+    store.write(tmp_path / "b", other)
+    served = store.read(tmp_path / "a")
+    served.vertex_modes.hold()
+    with open(tmp_path / "a" / "atlas.h5", "r+b") as f:  # (cp's way: the same file, new bytes)
+        f.write((tmp_path / "b" / "atlas.h5").read_bytes())
+    np.testing.assert_array_equal(served.vertex_modes[3], np.asarray(atlas.vertex_modes[3], dtype=np.float32))
+    store.write(tmp_path / "c", atlas)
+    with h5py.File(tmp_path / "c" / "atlas.h5", "r+") as f:
+        del f["surface"]
+    with pytest.raises(InputError, match="is damaged: surface/.* is missing"):
+        store.read(tmp_path / "c")
+
+
 def _far_from(atlas, pre: np.ndarray, result) -> tuple[int, int]:
     """(a mode the update's weights leave at 0, an interior node in no cell of a point or probe)."""
     from fenics_brainshift.atlas.prepared import locator

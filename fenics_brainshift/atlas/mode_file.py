@@ -61,8 +61,9 @@ def mapped(handle, offset: int, shape: tuple) -> np.ndarray:
 class StoredModes:
     """Modes (M, N, 3) float32 read as they are asked for: ``modes[k]``, ``modes[used]`` (whole
     modes) and ``modes[:, nodes, :]`` or ``modes[..., nodes, :]`` (every mode at some nodes),
-    each returned as a new array and checked the first time it is read; ``verify()`` reads and
-    checks all of it (a service that holds the atlas for an operation)."""
+    each returned as a new array and checked the first time it is read; ``hold()`` reads and
+    checks all of it into memory (a service that holds the atlas for an operation).
+    ``np.asarray(modes)`` reads and checks every mode."""
 
     def __init__(self, values, crc: np.ndarray, weights: np.ndarray, sums: np.ndarray, folder: str):
         self._values = values  # numpy.memmap of atlas.h5 (or an array read whole: store.py)
@@ -86,7 +87,8 @@ class StoredModes:
 
     def __getitem__(self, key):
         key = key if isinstance(key, tuple) else (key,)
-        if len(key) in (2, 3) and (key[0] is Ellipsis or _whole(key[0])) and all(map(_whole, key[2:])):
+        nodes_form = (len(key) == 3 and key[0] is Ellipsis) or (len(key) in (2, 3) and _whole(key[0]))
+        if nodes_form and all(map(_whole, key[2:])):
             if not isinstance(key[1], slice):
                 return self._at_nodes(np.asarray(key[1]))
         if len(key) <= 3 and key[0] is not Ellipsis and all(map(_whole, key[1:])):
@@ -127,6 +129,7 @@ class StoredModes:
             self._mapping.madvise(mmap.MADV_WILLNEED, int(run[0]) * mmap.PAGESIZE, len(run) * mmap.PAGESIZE)
 
     def _at_nodes(self, nodes: np.ndarray) -> np.ndarray:
+        nodes = np.where(nodes < 0, nodes + self.shape[1], nodes)  # (numpy's negative indices, as numbers)
         unique, inverse = np.unique(nodes.ravel(), return_inverse=True)
         self._will_need_nodes(unique[~self._node_ok[unique]])
         block = np.array(self._values[:, unique, :])
@@ -144,13 +147,21 @@ class StoredModes:
             self._damaged(f"the modes at node {int(nodes[todo][bad][0])} are not what the build wrote")
         self._node_ok[nodes[todo]] = True
 
-    def verify(self) -> None:
-        """Read and check every mode (touching every page once: later reads are from memory)."""
-        self._modes(slice(None))
+    def hold(self) -> None:
+        """Read every mode into memory and check it, the file's mapping dropped: for a service
+        that holds the atlas for an operation. A mapped file copied over in place (the same
+        inode) changes what later reads return, and one truncated kills the reader (SIGBUS);
+        pages the kernel dropped are read from disk again. Held, none of that reaches it."""
+        held = np.array(self._values)  # (one copy: the modes in the process's own memory)
+        for k in np.flatnonzero(~self._mode_ok):
+            if mode_crc(held[k]) != int(self._crc[k]):
+                self._damaged(f"mode {k} is not what the build wrote (its CRC-32)")
+        self._mode_ok[:] = True
         step = max(1, 2**20 // (12 * len(self)))  # (nodes a slab: every mode at them about a megabyte)
         for start in range(0, self.shape[1], step):
             nodes = np.arange(start, min(start + step, self.shape[1]))
-            self.check_nodes(nodes, np.asarray(self._values[:, nodes[0] : nodes[-1] + 1, :]))
+            self.check_nodes(nodes, held[:, nodes[0] : nodes[-1] + 1, :])
+        self._values, self._mapping = held, None
 
     def _damaged(self, problem: str):
         raise InputError(f"ATLAS: '{self._folder}' is damaged: {problem}; build it again (or copy it again)")

@@ -48,7 +48,7 @@ class Atlas:
 
     points: np.ndarray
     tetrahedra: np.ndarray
-    vertex_modes: np.ndarray  # (M, N, 3) float32: an array, or read as asked from atlas.h5 (mode_file.StoredModes)
+    vertex_modes: np.ndarray | StoredModes  # (M, N, 3) float32: an array (a build's), or read as asked (read())
     prior_vertex: np.ndarray
     gram: np.ndarray
     cross: np.ndarray
@@ -102,10 +102,14 @@ def write(folder: Path, atlas: Atlas) -> str:
     tmp = folder / ".atlas.h5.tmp"
     build_id = os.urandom(8).hex()  # in both files: an index of another build is told apart
     boundary = atlas.boundary
-    with h5py.File(tmp, "w") as f:
+    # the HDF5 1.10 file format: its metadata checksummed, so damage there is an error HDF5 names, not
+    # a crash in it (a flipped byte in the default format's metadata crashed or hung the reader); the
+    # ids fixed-length strings, kept in the checksummed object header (a variable-length string lives
+    # in the global heap, unchecked)
+    with h5py.File(tmp, "w", libver=("v110", "v110")) as f:
         f.attrs["format"] = FORMAT
-        f.attrs["mesh_id"] = atlas.mesh_id()
-        f.attrs["build_id"] = build_id
+        f.attrs["mesh_id"] = np.bytes_(atlas.mesh_id())
+        f.attrs["build_id"] = np.bytes_(build_id)
         f["mesh/points"], f["mesh/tetrahedra"] = atlas.points, atlas.tetrahedra
         # contiguous: chunked and compressed, the file is a fifth smaller and reads 5-17x slower
         # (benchmarks/results/atlas_storage.md), and only a contiguous array can be mapped
@@ -168,6 +172,10 @@ def _read_whole(f) -> dict[str, np.ndarray]:
 
     f.visititems(visit)
     return whole
+
+
+def _text(value) -> str:
+    return value.decode("ascii") if isinstance(value, bytes) else str(value)
 
 
 def _crc(values: np.ndarray) -> int:
@@ -243,7 +251,7 @@ def read(folder: str | Path) -> Atlas:
                     f"ATLAS: '{h5}' is of format {int(f.attrs['format'])}, this brainshift reads "
                     f"{FORMAT}: build it again"
                 )
-            stored_id, build_id = str(f.attrs["mesh_id"]), str(f.attrs.get("build_id", ""))
+            stored_id, build_id = _text(f.attrs["mesh_id"]), _text(f.attrs.get("build_id", b""))
             whole, recorded = _read_whole(f), dict(f["checks"].attrs)
             modes = StoredModes(
                 _mapped(f["modes/vertex"], handle),
@@ -274,6 +282,14 @@ def read(folder: str | Path) -> Atlas:
     except Exception as exc:  # a truncated or foreign file (h5py, JSON, a missing dataset)
         raise InputError(f"ATLAS: '{folder}' cannot be read ({type(exc).__name__}: {exc}); build it again") from None
     atlas.info = {k: v for k, v in info.items() if k != "scenarios"}
+    # damage first: a changed byte in the mesh is damage, not an index of another mesh
+    changed = [name for name in whole if recorded.get(name) != _crc(whole[name])]
+    changed += [name for name in recorded if name not in whole]  # (a group gone: the skull, the fine surface)
+    problem = damage(atlas, boundary) or (
+        changed and f"{changed[0]} is {'not what the build wrote (its CRC-32)' if changed[0] in whole else 'missing'}"
+    )
+    if problem:
+        raise InputError(f"ATLAS: '{folder}' is damaged: {problem}; build it again (or copy it again)")
     if info.get("mesh_id") != stored_id or atlas.mesh_id() != stored_id:
         raise InputError(
             f"ATLAS: atlas.json and atlas.h5 in '{folder}' are of different meshes (an atlas copied over "
@@ -289,10 +305,6 @@ def read(folder: str | Path) -> Atlas:
             f"ATLAS: '{folder}': atlas.json names {len(atlas.scenarios)} modes, atlas.h5 holds "
             f"{len(atlas.vertex_modes)} over {atlas.vertex_modes.shape[1]} nodes; build it again"
         )
-    changed = [name for name in whole if recorded.get(name) != _crc(whole[name])]
-    problem = damage(atlas, boundary) or (changed and f"{changed[0]} is not what the build wrote (its CRC-32)")
-    if problem:
-        raise InputError(f"ATLAS: '{folder}' is damaged: {problem}; build it again (or copy it again)")
     atlas.once["boundary"] = boundary
     return atlas
 

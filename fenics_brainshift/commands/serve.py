@@ -144,7 +144,7 @@ def session_factory(args):
     atlas_id = atlas.info.get("build_id") or atlas.mesh_id()  # (the folder's atlas; the stage is its own option)
     if stage:
         atlas = store.read_stage(args.atlas, atlas, stage)
-    atlas.vertex_modes.verify()  # (held for an operation: every mode read and checked now, none during it)
+    atlas.vertex_modes.hold()  # (every mode read, checked and kept in memory for the operation: mode_file.py)
     pre = targets = None
     digest = {}
     for name in ("pre", "targets"):
