@@ -201,7 +201,9 @@ def one_case(name: str, data: Path, chain: bool, work: Path, ranks: int = 1) -> 
     if chain and (folder / "scene.toml").is_file() and earlier.is_file():  # prepared by an earlier call: on from there
         return chain_steps(json.loads(earlier.read_text()), folder, log, ranks)
     log.unlink(missing_ok=True)
-    record = {"case": name, "what": what, "source": source}
+    from fenics_brainshift.bench import machine_line
+
+    record = {"case": name, "what": what, "source": source, "machine": machine_line()}
     code, seconds = brainshift(["prepare", str(data / path), "-o", str(folder), *extra], log)
     prepared = json.loads((folder / "prepare.json").read_text()) if (folder / "prepare.json").is_file() else {}
     record.update(
@@ -354,13 +356,16 @@ def _atlas_cell(r: dict) -> str:
 
 
 def report() -> None:
-    from fenics_brainshift.bench import machine_line
 
     rows = [json.loads(p.read_text()) for p in sorted(RESULTS.glob("*.json"))]
+    machines = {}  # machine: the cases measured on it (each case's record says)
+    for r in rows:
+        machines.setdefault(r.get("machine", "not recorded"), []).append(r["case"])
+    on = "; ".join(f"{m} ({', '.join(cases)})" for m, cases in machines.items())
     lines = [
         "# Real scans through `brainshift prepare` (and on)",
         "",
-        f"Machine: {machine_line()}. Command: `OMP_NUM_THREADS=1 python benchmarks/prepare_cases.py --data DATA "
+        f"Machines: {on}. Command: `OMP_NUM_THREADS=1 python benchmarks/prepare_cases.py --data DATA "
         f"--chain [--ranks 2]` then `--report` (one thread a process; the atlas on the ranks its cell "
         f"names, every other step one process).",
         "",

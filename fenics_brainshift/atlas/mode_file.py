@@ -6,8 +6,9 @@ at 3 mm, 1.7 GB with a patient's fine surface: benchmarks/results/patient_resolu
 an update uses little of it: every mode at the nodes around its points (its rows), every mode
 at the boundary (the skull's rows and the surface: stored apart, contiguous, read whole) and,
 over the whole mesh, the few modes its weights use (the answer and its spread). The mode array
-is contiguous and uncompressed (store.py says why), so it is mapped (numpy.memmap), not read:
-the operating system reads the pages an update touches, and the process holds no other copy.
+is contiguous and uncompressed (store.py says why), so it is mapped (mmap), not read: the
+operating system reads the pages an update touches, and the process holds no other copy. A
+service that holds the atlas for an operation reads it all into memory instead (hold()).
 
 Each piece is checked against what the build recorded, before it is used: a whole mode
 against its CRC-32 (exact); the modes at a node against a weighted sum of them there
