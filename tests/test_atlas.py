@@ -353,7 +353,7 @@ def test_atlas_h5_metadata_is_checksummed_so_damage_there_is_one_line(atlas, tmp
     store.write(tmp_path / "a", atlas)
     h5 = tmp_path / "a" / "atlas.h5"
     with h5py.File(h5, "r") as f:
-        assert f.libver == ("v110", "v110")
+        assert f.id.get_create_plist().get_version()[0] >= 2  # (the superblock: 2 and up are checksummed)
         assert all(h5py.check_string_dtype(f.attrs.get_id(k).dtype).length for k in ("mesh_id", "build_id"))
         data = []  # (offset, size) of each dataset's values: the rest of the file is metadata
         f.visititems(
