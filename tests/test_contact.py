@@ -510,7 +510,6 @@ def test_the_skull_advice_follows_how_deep_the_deepest_node_was(deepest, words):
     finite): the general advice."""
     from types import SimpleNamespace
 
-    from fenics_brainshift.stepping.newton import NewtonStatic
+    from fenics_brainshift.stepping.contact_verdict import contact_note
 
-    stepper = SimpleNamespace(contact=SimpleNamespace(tolerance=1e-6))
-    assert re.search(words, NewtonStatic._contact_note(stepper, deepest))
+    assert re.search(words, contact_note(SimpleNamespace(tolerance=1e-6), deepest))

@@ -15,7 +15,7 @@ from fenics_brainshift.linalg.low_rank import LowRankUpdate
 from fenics_brainshift.physics.contact import SkullContact
 from fenics_brainshift.runner import Simulation
 from fenics_brainshift.scene import scene_from_dict
-from fenics_brainshift.stepping import contact_preconditioner, exact_contact, newton, newton_dynamic
+from fenics_brainshift.stepping import contact_preconditioner, contact_verdict, exact_contact, newton, newton_dynamic
 from fenics_brainshift.stepping.contact_preconditioner import ContactPreconditioner
 from fenics_brainshift.stepping.newton_dynamic import NewtonDynamicStepper
 
@@ -676,7 +676,7 @@ def test_the_settled_measure_is_a_share_of_the_skull_s_tolerance_at_a_node_s_sti
     engaged = sim.static.engaged
     K = sim.model.assemble(sim.model.stiffness_form(), with_bcs=True)
     diagonal = K.getDiagonal().getArray(readonly=True)
-    limit = newton.SETTLED_MOVE * 1e-6
+    limit = contact_verdict.SETTLED_MOVE * 1e-6
     for share, expected in ((0.9, True), (1.1, False)):
         engaged._R.set(0.0)
         if COMM.rank == COMM.size - 1:  # (one dof, on one rank: the others must agree)

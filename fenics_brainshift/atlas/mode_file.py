@@ -50,9 +50,8 @@ def node_sums(block: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.nd
 def mapped(handle, offset: int, shape: tuple) -> np.ndarray:
     """The float32 array (shape) at offset in an open file, mapped read-only, its pages read at
     random: every mode at a node is a page per mode, and the kernel's read-ahead around each
-    read 343 MB of the 3 mm atlas's 417 to gather 80 nodes from a cold disk (0.40 s); without it
-    98 MB, page fault after page fault (1.6 s); StoredModes asks for the pages it will read at
-    once (MADV_WILLNEED: 0.25 s). (Scratch runs of that gather.)"""
+    would read most of the file to gather a few nodes; StoredModes asks for the pages it will
+    read at once instead (MADV_WILLNEED; the cold-disk times: update_command_cold.md)."""
     mapping = mmap.mmap(handle.fileno(), 0, access=mmap.ACCESS_READ)
     if hasattr(mapping, "madvise"):  # (Linux and macOS)
         mapping.madvise(mmap.MADV_RANDOM)
@@ -117,9 +116,8 @@ class StoredModes:
 
     def _will_need_nodes(self, nodes: np.ndarray) -> None:
         """Ask the kernel for the pages of every mode at these nodes at once, so that the disk reads
-        them in parallel (a scratch run, 80 nodes of the 3 mm atlas: from a cold disk 1.6 s page
-        fault after page fault, 0.25 s asked for at once; from the page cache 24 ms more, so only
-        for nodes not read before)."""
+        them in parallel, not a page fault after another (benchmarks/update_command.py --cold);
+        only for nodes not read before (from the page cache the calls cost time too)."""
         if self._mapping is None or not len(nodes):
             return
         size = self._values[0].nbytes

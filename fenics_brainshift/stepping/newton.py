@@ -17,13 +17,13 @@ import numpy as np
 import ufl
 from dolfinx import fem
 from dolfinx.fem.petsc import assemble_vector
-from mpi4py import MPI
 from petsc4py import PETSc
 
 from .. import compat
 from ..errors import SolverError
 from ..linalg import solve_preconditioned_by
 from ..logs import get_logger
+from . import contact_verdict
 from .contact_preconditioner import ContactPreconditioner
 from .exact_contact import FACTOR_KINDS, ExactContactSolve
 from .newton_iteration import newton_iterate, round_off_floor
@@ -47,13 +47,6 @@ MAX_CONTACT_ROUNDS = 30  # augmented-Lagrangian multiplier updates per settled s
 # 0.019 mm apart (benchmarks/results/skull_atlas.md); 1000 saved no more
 FIRST_LOOSER = 100.0
 WATCHDOG = 10  # with contact: iterations a step taken without descent has to bring |R| below where it was
-# with contact, Newton that would fail (no descent; its watchdog's or all its iterations spent) has
-# settled when the residual left would move no node by more than this share of [skull] tolerance
-# under the node's own stiffness (|R_i| / K_ii): a node pressed where the skull's facets meet (the
-# distance's gradient turns there) can hold |R| at 1e-5-1e-4 of the loads, which no step lowers, or
-# lowers by a percent an iteration (prepared patients drained 28 and 99 mm: 0.1-1 um; scratch runs,
-# docs/limits.md)
-SETTLED_MOVE = 1e-2
 
 
 class NewtonStatic:
@@ -96,8 +89,7 @@ class NewtonStatic:
         self.cuts = 0  # load steps halved, over the run
         self._t_settled: float | None = None
         self._floor = 0.0  # |R| round-off leaves (newton_iteration.round_off_floor), with K
-        self._K_diagonal = None  # K's, for the contact's settled measure (immaterial)
-        self.settled_by_move = 0  # Newton solves that would have failed, the residual immaterial (SETTLED_MOVE)
+        self._settled: contact_verdict.SettledMeasure | None = None  # with contact and K: is a residual immaterial?
 
     def setup(self) -> None:
         """The preconditioner at rest (a factor of K, or AMG), reused by every Newton step."""
@@ -132,7 +124,8 @@ class NewtonStatic:
         stiffness of the nodes touching the skull at rest (they may carry the body: K alone
         can be singular)."""
         self._K = self.model.assemble(self.model.stiffness_form(), with_bcs=True)
-        self._K_diagonal = None
+        if self.contact is not None:
+            self._settled = contact_verdict.SettledMeasure(self._K, self.contact.tolerance, self.model.comm)
         self._floor = round_off_floor(self._K, self.model.cell_size())
         if self.contact is not None and not (self._exact_possible() and not self.contact.pressing(self.state.u)):
             self._contact_pc.rebuild(self.contact.tangent_blocks(self.state.u))
@@ -246,7 +239,7 @@ class NewtonStatic:
     def _globalisation(self) -> tuple:
         """(stall, watchdog, step_limit, immaterial) of newton_iterate: with contact, round-off
         at the kink counts as converged, and so does, where Newton would fail, a residual that
-        moves no node by more than SETTLED_MOVE of the skull's tolerance; a step without descent
+        moves no node by more than contact_verdict.SETTLED_MOVE of the skull's tolerance; a step without descent
         may be taken up to the first node's contact; without contact, none of these."""
         if self.contact is None:
             return 1.0, 0, None, None
@@ -258,20 +251,13 @@ class NewtonStatic:
         )
 
     def _immaterial(self) -> bool:
-        """Would the residual just evaluated move no node by more than SETTLED_MOVE x [skull]
-        tolerance under the node's own stiffness (|R_i| / K_ii, K with supports: 1 on their
-        rows, where R is 0)?"""
-        if self._K is None:
-            return False
-        if self._K_diagonal is None:
-            self._K_diagonal = self._K.getDiagonal()
-        move = np.abs(self._R.getArray(readonly=True)) / np.abs(self._K_diagonal.getArray(readonly=True))
-        largest = self.model.comm.allreduce(float(move.max(initial=0.0)), op=MPI.MAX)
-        if largest > SETTLED_MOVE * self.contact.tolerance:
-            return False
-        self.settled_by_move += 1
-        log.debug("  Newton: stuck, the residual moves no node by more than %.3g um: settled", largest * 1e6)
-        return True
+        """Is the residual just evaluated too small to matter (contact_verdict.SettledMeasure)?"""
+        return self._settled is not None and self._settled(self._R)
+
+    @property
+    def settled_by_move(self) -> int:
+        """Newton solves that would have failed, counted settled: their residual immaterial."""
+        return self._settled.settled if self._settled is not None else 0
 
     # -- a settled state, with load stepping ------------------------------------------------------
     def forget_settled(self) -> None:
@@ -373,7 +359,9 @@ class NewtonStatic:
                 done = fraction
                 step = min(2.0 * step, 1.0 - done) if done < 1.0 else step
                 continue
-            deepest = self._deepest() if 0.5 * step < MIN_FRACTION else None  # where the last try stopped
+            deepest = None  # (where the last try stopped)
+            if 0.5 * step < MIN_FRACTION:
+                deepest = contact_verdict.deepest(self.contact, self.state.u, self.model.comm)
             self.state.u.x.array[:] = saved
             step *= 0.5
             self.cuts += 1
@@ -384,7 +372,7 @@ class NewtonStatic:
                     f"{MIN_FRACTION:g} of it (residual {self.history[-1]:.2e}); the body may have "
                     f"no equilibrium under these loads (a support missing?), or the material "
                     f"lost stability (Saint Venant-Kirchhoff does under strong compression)"
-                    + self._contact_note(deepest)
+                    + contact_verdict.contact_note(self.contact, deepest)
                 )
             log.info(
                 "  t=%g s: Newton did not converge; %s cut to %g",
@@ -396,29 +384,6 @@ class NewtonStatic:
         self.state.t = t
         return self.iterations
 
-    def _deepest(self) -> float | None:
-        """How far the deepest node is past the skull in the current state (None without
-        contact, or where the state is not finite)."""
-        if self.contact is None:
-            return None
-        if not self.model.comm.allreduce(bool(np.isfinite(self.state.u.x.array).all()), op=MPI.LAND):
-            return None
-        return self.contact.penetration(self.state.u)
-
-    def _contact_note(self, deepest: float | None) -> str:
-        """The skull's part in a settled state that was not found, for its message."""
-        if self.contact is None:
-            return ""
-        where = "" if deepest is None else f"the deepest node {deepest:.3g} m past the skull where Newton stopped, "
-        if deepest is not None and deepest <= self.contact.tolerance:  # not the tolerance: the skull's shape
-            advice = (
-                "the deepest node is within it, a looser one will not help; the skull's shape where the "
-                "body presses it may be the cause, docs/limits.md"
-            )
-        else:
-            advice = "if the body is held, a looser tolerance may settle"
-        return f"; with skull contact: {where}[skull] tolerance = {self.contact.tolerance:g} m ({advice})"
-
     def destroy(self) -> None:
         for matrix in (self._P, self._K):
             if matrix is not None:
@@ -428,4 +393,6 @@ class NewtonStatic:
             self._contact_pc.destroy()
         if self._exact is not None:
             self._exact.destroy()
+        if self._settled is not None:
+            self._settled.destroy()
         self.solves.destroy()
