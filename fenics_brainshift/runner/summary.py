@@ -80,8 +80,8 @@ def summary(sim, h, stopped, setup_s: float) -> dict:
         out["skull_contact"] = {
             **sim.contact.report(sim.state.u),
             "multiplier_updates": getattr(solver, "contact_rounds", 0),
-            # Newton solves that ended without descent, the residual moving no node by more than
-            # 1 % of the tolerance (stepping/contact_verdict.py SETTLED_MOVE)
+            # Newton solves that ended without descent, their step from there moving no node by
+            # more than a fifth of the tolerance (stepping/contact_verdict.py SETTLED_MOVE)
             "settled_without_descent": getattr(solver, "settled_by_move", 0),
             "states_without_contact": getattr(solver, "skipped", 0),
             "contact_from_s": getattr(solver, "engaged_at", None),

@@ -89,7 +89,8 @@ class NewtonStatic:
         self.cuts = 0  # load steps halved, over the run
         self._t_settled: float | None = None
         self._floor = 0.0  # |R| round-off leaves (newton_iteration.round_off_floor), with K
-        self._settled: contact_verdict.SettledMeasure | None = None  # with contact and K: is a residual immaterial?
+        self._settled = contact_verdict.SettledMeasure(contact.tolerance, model.comm) if contact else None
+        self._loads = (0.0, 1.0)  # (t, factor) of the Newton solve under way
 
     def setup(self) -> None:
         """The preconditioner at rest (a factor of K, or AMG), reused by every Newton step."""
@@ -124,8 +125,6 @@ class NewtonStatic:
         stiffness of the nodes touching the skull at rest (they may carry the body: K alone
         can be singular)."""
         self._K = self.model.assemble(self.model.stiffness_form(), with_bcs=True)
-        if self.contact is not None:
-            self._settled = contact_verdict.SettledMeasure(self._K, self.contact.tolerance, self.model.comm)
         self._floor = round_off_floor(self._K, self.model.cell_size())
         if self.contact is not None and not (self._exact_possible() and not self.contact.pressing(self.state.u)):
             self._contact_pc.rebuild(self.contact.tangent_blocks(self.state.u))
@@ -222,6 +221,7 @@ class NewtonStatic:
     def _newton(self, t: float, factor: float) -> bool:
         """Newton from the current state to the loads (t, factor); False if it failed (the
         state is then wherever it stopped: the caller restores it)."""
+        self._loads = (t, factor)
         converged, self.history = newton_iterate(
             self.state.u,
             self._du,
@@ -238,9 +238,9 @@ class NewtonStatic:
 
     def _globalisation(self) -> tuple:
         """(stall, watchdog, step_limit, immaterial) of newton_iterate: with contact, round-off
-        at the kink counts as converged, and so does, where Newton would fail, a residual that
-        moves no node by more than contact_verdict.SETTLED_MOVE of the skull's tolerance; a step without descent
-        may be taken up to the first node's contact; without contact, none of these."""
+        at the kink counts as converged, and so does, where Newton would fail, a state whose step
+        is tiny (contact_verdict); a step without descent may be taken up to the first node's
+        contact; without contact, none of these."""
         if self.contact is None:
             return 1.0, 0, None, None
         return (
@@ -251,12 +251,16 @@ class NewtonStatic:
         )
 
     def _immaterial(self) -> bool:
-        """Is the residual just evaluated too small to matter (contact_verdict.SettledMeasure)?"""
-        return self._settled is not None and self._settled(self._R)
+        """Is Newton's step from here (into du: Newton stops either way) tiny (contact_verdict)?"""
+        try:
+            self._solve_step(self._loads[1], self._loads[0], self.solves.settings["rtol"])
+        except SolverError:
+            return False
+        return self._settled(compat.petsc_vec(self._du))
 
     @property
     def settled_by_move(self) -> int:
-        """Newton solves that would have failed, counted settled: their residual immaterial."""
+        """Newton solves that would have failed, counted settled: their step tiny."""
         return self._settled.settled if self._settled is not None else 0
 
     # -- a settled state, with load stepping ------------------------------------------------------
@@ -393,6 +397,4 @@ class NewtonStatic:
             self._contact_pc.destroy()
         if self._exact is not None:
             self._exact.destroy()
-        if self._settled is not None:
-            self._settled.destroy()
         self.solves.destroy()
