@@ -716,3 +716,72 @@ def test_a_support_by_label_holds_the_nodes_its_voxels_hold(shared_tmp):
     assert held_label == held_where > 0
     assert by_where[1] > 1e-6
     assert np.allclose(by_label, by_where, rtol=1e-10, atol=0)  # round-off of the solves
+
+
+@pytest.mark.usefixtures("serial_only")
+def test_a_lateral_craniotomy_is_warned_of_and_brought_up_by_turning_the_head(patient, tmp_path, caplog):
+    """A craniotomy on the right, a little anterior, with the head supine: its rim lies deep
+    below the brain's top (warned of: most of the brain drains); --position craniotomy-up
+    turns gravity to run from the craniotomy's centre through the brain's centroid (computed
+    here from the labels written), and the rim then lies just below the top."""
+    import logging
+    import tomllib
+
+    from fenics_brainshift.images.frames import LPS_TO_RAS
+    from fenics_brainshift.patients.carry import index_to_lps
+
+    t1 = sitk.ReadImage(str(patient / "P" / "t1.nii.gz"))
+    brain = _found_mask(patient)
+    shell = brain & ~ndimage.binary_erosion(brain)
+    voxels = index_to_lps(t1, np.argwhere(shell)[:, ::-1].astype(float)) @ LPS_TO_RAS
+    centre = voxels[np.argmax(voxels @ np.array([1.0, 0.5, 0.0]))]  # right, 27 degrees above the horizontal
+    argv = ["--voxel", "8", "--affine-only", "--craniotomy", ",".join(f"{v:.1f}" for v in centre)]
+    logger = logging.getLogger("fenics_brainshift")  # (it does not propagate once the CLI configured it)
+    logger.addHandler(caplog.handler)
+    try:
+        assert _prepare([str(patient / "dicom"), "-o", str(tmp_path / "S"), *argv]) == 0
+        supine = json.loads((tmp_path / "S" / "prepare.json").read_text())
+        assert any("a surgeon turns the head" in r.getMessage() for r in caplog.records)
+        caplog.clear()
+        assert _prepare([str(patient / "dicom"), "-o", str(tmp_path / "T"), "--position", "craniotomy-up", *argv]) == 0
+        turned = json.loads((tmp_path / "T" / "prepare.json").read_text())
+        assert not any("turns the head" in r.getMessage() for r in caplog.records)
+    finally:
+        logger.removeHandler(caplog.handler)
+    assert supine["craniotomy"]["brain_top_above_rim_mm"] > 40.0 and supine["craniotomy_rim_deep"] is True
+    labels = sitk.ReadImage(str(tmp_path / "T" / "labels.nii.gz"))
+    found = sitk.GetArrayFromImage(labels) > 0
+    centroid = index_to_lps(labels, np.argwhere(found)[:, ::-1].mean(axis=0)[None, :])[0] @ LPS_TO_RAS
+    expected = (centroid - np.array(turned["craniotomy"]["centre_mm"])) / np.linalg.norm(
+        centroid - np.array(turned["craniotomy"]["centre_mm"])
+    )
+    gravity = np.array(turned["gravity"]) / 9.81
+    assert np.degrees(np.arccos(np.clip(gravity @ expected, -1, 1))) < 1.0
+    rim = turned["craniotomy"]["brain_top_above_rim_mm"]
+    assert rim < 0.5 * supine["craniotomy"]["brain_top_above_rim_mm"] and "craniotomy_rim_deep" not in turned
+    assert turned["craniotomy"]["centre_height"] > 0.9
+    supine_gravity = np.array(supine["gravity"]) / 9.81
+    turn = np.degrees(np.arccos(np.clip(gravity @ supine_gravity, -1, 1)))
+    assert turned["craniotomy"]["head_turned_from_supine_deg"] == pytest.approx(turn, abs=0.2)
+    assert turn > 20.0  # (36 degrees here: the brain is long front to back)
+    scene = tomllib.loads((tmp_path / "T" / "scene.toml").read_text())
+    assert np.allclose(scene["gravity"]["vector"], turned["gravity"], atol=1e-5)
+    assert f"the head turned {turn:.0f} degrees from supine" in (tmp_path / "T" / "scene.toml").read_text()
+
+
+def test_over_the_tumour_anywhere_when_the_head_is_turned():
+    """over_tumour_centre: with the head as it lies, the surface point nearest the tumour above
+    it; turned (up None), the nearest of all: a sphere's surface and a tumour below its equator."""
+    from fenics_brainshift.patients.position import over_tumour_centre
+
+    grid = sitk.Image(20, 20, 20, sitk.sitkUInt8)  # 1 mm, origin 0: RAS = (-i, -j, k)
+    tumour = np.zeros((20, 20, 20), bool)
+    tumour[5, 10, 10] = True  # k = 5: RAS (-10, -10, 5)
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(4000, 3))
+    surface = np.array([-10.0, -10.0, 10.0]) + 9.0 * d / np.linalg.norm(d, axis=1)[:, None]
+    up = np.array([0.0, 0.0, 1.0])
+    as_lies = over_tumour_centre(tumour, grid, surface, up)
+    anywhere = over_tumour_centre(tumour, grid, surface, None)
+    assert as_lies[2] >= 5.0 and np.linalg.norm(as_lies - [-10, -10, 5]) == pytest.approx(np.sqrt(81 - 25), abs=0.5)
+    assert anywhere[2] < 3.0 and np.linalg.norm(anywhere - [-10, -10, 5]) == pytest.approx(4.0, abs=0.3)

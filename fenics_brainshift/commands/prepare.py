@@ -33,15 +33,16 @@ def add(sub) -> None:
     prep.add_argument(
         "--position",
         default="supine",
-        help="the head on the table: supine, prone, left, right (side down), or angles 'ax,ay,az' "
-        "(degrees, the supine gravity turned about the head's x, y, z)",
+        help="the head on the table: supine, prone, left, right (side down), angles 'ax,ay,az' "
+        "(degrees, the supine gravity turned about the head's x, y, z), or craniotomy-up (the head "
+        "turned so the craniotomy is uppermost, as for a lateral or low lesion; needs --craniotomy)",
     )
     prep.add_argument(
         "--craniotomy",
         metavar="X,Y,Z|tumour",
         help="the craniotomy's centre, RAS mm as 3D Slicer shows it, or 'tumour': over the tumour "
-        "(--tumour) on the brain's upper side as the head lies (default: the brain's highest "
-        "point)",
+        "(--tumour) on the brain's upper side as the head lies, or anywhere with --position "
+        "craniotomy-up (default: the brain's highest point)",
     )
     prep.add_argument("--craniotomy-radius", type=float, default=25.0, help="the craniotomy's radius, mm")
     prep.add_argument("--gap", type=float, default=3.0, help="the CSF layer between brain and inner skull, mm")

@@ -119,6 +119,12 @@ def _stored(image: sitk.Image) -> sitk.Image:
     return image
 
 
+def _position_words(position: str, levels: dict) -> str:
+    if "head_turned_from_supine_deg" in levels:
+        return f"{position}: the head turned {levels['head_turned_from_supine_deg']:.0f} degrees from supine"
+    return f"{position}, along the head's anatomy"
+
+
 def scene_text(args, present: dict, gravity, levels: dict, septa: dict, probes: dict, forced: str | None = None) -> str:
     """scene.toml, with the reasons beside the values."""
     import tomllib
@@ -151,7 +157,7 @@ def scene_text(args, present: dict, gravity, levels: dict, septa: dict, probes: 
         f"nu = {material['nu']}",
         f"density = {material['density']}",
         "",
-        f"[gravity]           # {args.position}, along the head's anatomy",
+        f"[gravity]           # {_position_words(args.position, levels)}",
         f"vector = {vec(gravity)}",
         "",
         "[fluid]             # CSF from above the brain down to the craniotomy rim's lowest point",

@@ -7,7 +7,9 @@ prone towards anterior; lying on the left side (left lateral decubitus) towards 
 the right side towards the right. ANGLES "ax,ay,az" turn the supine direction about the
 anatomical x, then y, then z axis (degrees), as `brainshift fit`'s gravity.angle_* do. The
 direction is carried into the patient's frame by the rotation of the registration's affine
-part, so a head scanned tilted gets gravity along its own anatomy.
+part, so a head scanned tilted gets gravity along its own anatomy. CRANIOTOMY_UP turns the
+head so the craniotomy is uppermost, as a surgeon positions it for a lateral or low lesion:
+gravity from the craniotomy's centre towards the brain's centroid.
 """
 
 from __future__ import annotations
@@ -21,6 +23,8 @@ from .carry import index_to_lps
 
 G = 9.81
 POSITIONS = {"supine": (0.0, -1.0, 0.0), "prone": (0.0, 1.0, 0.0), "left": (-1.0, 0.0, 0.0), "right": (1.0, 0.0, 0.0)}
+CRANIOTOMY_UP = "craniotomy-up"
+DEEP_RIM_MM = 40.0  # a rim this far below the brain's top as the head lies drains most of the brain: a warning
 RIM_RADIUS = 25.0  # mm: a craniotomy of 5 cm
 MAX_FROM_SURFACE = 30.0  # mm: a craniotomy centre farther from the brain's surface is a frame or unit slip
 
@@ -30,13 +34,15 @@ def anatomical_gravity(position: str) -> np.ndarray:
     text = str(position).strip().lower()
     if text in POSITIONS:
         return np.array(POSITIONS[text])
+    if text == CRANIOTOMY_UP:  # chosen once the craniotomy is known (craniotomy_up_gravity); supine till then
+        return np.array(POSITIONS["supine"])
     try:
         angles = [float(v) for v in text.split(",")]
     except ValueError:
         angles = []
     if len(angles) != 3 or not np.all(np.isfinite(angles)):
         raise InputError(
-            f"--position: '{position}' is not one of {', '.join(POSITIONS)} nor three angles "
+            f"--position: '{position}' is not one of {', '.join([*POSITIONS, CRANIOTOMY_UP])} nor three angles "
             f'"ax,ay,az" in degrees (the supine direction turned about x, then y, then z)'
         )
     return Rotation.from_euler("xyz", angles, degrees=True).apply(POSITIONS["supine"])
@@ -89,11 +95,27 @@ def craniotomy_levels(
     }
 
 
-def over_tumour_centre(tumour: np.ndarray, patient, surface_ras_mm: np.ndarray, up: np.ndarray) -> np.ndarray:
+def over_tumour_centre(tumour: np.ndarray, patient, surface_ras_mm: np.ndarray, up: np.ndarray | None) -> np.ndarray:
     """The craniotomy's centre over the tumour: the brain surface's point nearest to the
-    tumour's centroid among those above it as the head lies (RAS mm)."""
+    tumour's centroid among those above it as the head lies (RAS mm); with ``up`` None (the
+    head is turned to bring the craniotomy up), among all."""
     centroid = index_to_lps(patient, np.argwhere(tumour)[:, ::-1].mean(axis=0)[None, :])[0] @ LPS_TO_RAS
-    heights = surface_ras_mm @ (up / np.linalg.norm(up))
-    above = surface_ras_mm[heights >= centroid @ (up / np.linalg.norm(up))]
-    candidates = above if len(above) else surface_ras_mm
+    candidates = surface_ras_mm
+    if up is not None:
+        heights = surface_ras_mm @ (up / np.linalg.norm(up))
+        above = surface_ras_mm[heights >= centroid @ (up / np.linalg.norm(up))]
+        candidates = above if len(above) else surface_ras_mm
     return candidates[int(np.argmin(np.linalg.norm(candidates - centroid, axis=1)))]
+
+
+def is_craniotomy_up(position: str) -> bool:
+    return str(position).strip().lower() == CRANIOTOMY_UP
+
+
+def craniotomy_up_direction(centre_ras_mm: np.ndarray, brain, patient) -> np.ndarray:
+    """Up (unit, patient RAS) with the head turned so the craniotomy is uppermost: from the
+    centroid of the brain (a mask on the patient's grid, [k, j, i]) through the craniotomy's
+    centre."""
+    centroid = index_to_lps(patient, np.argwhere(brain)[:, ::-1].mean(axis=0)[None, :])[0] @ LPS_TO_RAS
+    up = np.asarray(centre_ras_mm, dtype=float) - centroid
+    return up / np.linalg.norm(up)

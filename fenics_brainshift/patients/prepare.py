@@ -32,7 +32,16 @@ from .fit_measures import fit_measures
 from .folder import PREPARE_RECORD, SUPPORT, check_output, write_folder, written_in_place
 from .gate import fit_problem, hints
 from .overview import write_overview
-from .position import G, anatomical_gravity, craniotomy_levels, over_tumour_centre, patient_direction
+from .position import (
+    DEEP_RIM_MM,
+    G,
+    anatomical_gravity,
+    craniotomy_levels,
+    craniotomy_up_direction,
+    is_craniotomy_up,
+    over_tumour_centre,
+    patient_direction,
+)
 from .registration import register, shows_head, stripped_region
 from .series import read_t1, series_metadata
 from .tumour import read_tumour, tumour_report
@@ -82,10 +91,15 @@ def prepare(args) -> list[str]:
     litres, ratio = _judged(args, out, patient, template, registration, found, report)
 
     surface_mm = _surface(largest_part(found.brain), patient, step=2)[0]  # (not a tumour's part off the brain)
-    up = -_gravity(position, registration)
+    up, turned = -_gravity(position, registration), is_craniotomy_up(args.position)
     if centre is None and _over_tumour(args):
-        centre = over_tumour_centre(tumour, patient, surface_mm, up)
+        centre = over_tumour_centre(tumour, patient, surface_mm, None if turned else up)
+    if turned:  # the head turned so the craniotomy is uppermost
+        supine_up = up
+        up = craniotomy_up_direction(centre, found.brain, patient)
     levels = craniotomy_levels(surface_mm, up, centre, args.craniotomy_radius)
+    if turned:
+        levels["head_turned_from_supine_deg"] = round(float(np.degrees(np.arccos(np.clip(up @ supine_up, -1, 1)))), 1)
     if levels["centre_height"] < DOWN_SIDE:
         log.warning(
             "prepare: the craniotomy at (%s) mm lies on the brain's lower side as the head lies (--position "
@@ -96,7 +110,16 @@ def prepare(args) -> list[str]:
             100 * levels["centre_height"],
         )
         report["craniotomy_on_lower_side"] = True
-    gravity = _gravity(position, registration) * G
+    elif levels["brain_top_above_rim_mm"] > DEEP_RIM_MM:
+        log.warning(
+            "prepare: the craniotomy's rim lies %.0f mm below the brain's top as the head lies (--position %s): "
+            "drained to it, most of the brain stands above the CSF; a surgeon turns the head to bring the "
+            "craniotomy up: --position craniotomy-up",
+            levels["brain_top_above_rim_mm"],
+            args.position,
+        )
+        report["craniotomy_rim_deep"] = True
+    gravity = -up * G
     times["anatomy"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -148,6 +171,8 @@ def _checked_arguments(args) -> tuple[Path, np.ndarray, np.ndarray | None]:
     if _over_tumour(args) and not args.tumour:
         raise InputError("--craniotomy tumour: give the tumour's segmentation with --tumour (or the centre as X,Y,Z)")
     centre = _point(args.craniotomy, "--craniotomy") if args.craniotomy and not _over_tumour(args) else None
+    if is_craniotomy_up(args.position) and not args.craniotomy:
+        raise InputError("--position craniotomy-up: give the craniotomy to bring up (--craniotomy X,Y,Z or tumour)")
     if not 0.5 <= args.gap <= 10.0:
         raise InputError(f"--gap: {args.gap:g} mm; the CSF layer between brain and skull is 0.5-10 mm (default 3)")
     if not 5.0 <= args.craniotomy_radius <= 60.0:
