@@ -667,6 +667,41 @@ def test_newton_that_would_fail_settles_only_where_the_residual_is_immaterial(re
     assert not run(lambda: False)
 
 
+def test_the_settled_measure_neither_moves_newtons_step_nor_judges_a_residual_it_could_not_evaluate():
+    """newton_iterate on a residual no step lowers: the measure solves its own step into dx
+    (newton.py's does) and says no; the watchdog's step must still follow Newton's step, not the
+    measure's. And a trial whose residual could not be evaluated (inf: no fluid level for the
+    shape) is never judged settled, though the measure says yes."""
+    from types import SimpleNamespace
+
+    from fenics_brainshift.stepping.newton_iteration import newton_iterate
+
+    def field():
+        return SimpleNamespace(x=SimpleNamespace(array=np.zeros(3), scatter_forward=lambda: None))
+
+    x, dx = field(), field()
+    visited = []
+
+    def solve(forcing):
+        dx.x.array[:] = 1.0
+
+    def flat():
+        visited.append(x.x.array.copy())
+        return 1e-4
+
+    def measure_writing_dx():
+        dx.x.array[:] = -5.0
+        return False
+
+    args = (flat, solve, lambda: 1.0, 1e-9, 1e-12, 25)
+    assert not newton_iterate(x, dx, *args, stall=1e3, watchdog=2, immaterial=measure_writing_dx)[0]
+    assert not any((v < 0).any() for v in visited)  # every trial along Newton's step, the watched one too
+    norms = iter([1e-4] + [np.inf] * 100)
+    x.x.array[:] = 0.0
+    args = (lambda: next(norms), solve, lambda: 1.0, 1e-9, 1e-12, 25)
+    assert not newton_iterate(x, dx, *args, stall=1e3, immaterial=lambda: True)[0]
+
+
 @pytest.mark.parametrize("engaged_when", ["at rest", "on the way"])
 def test_a_stuck_state_settles_where_newtons_step_from_it_is_a_share_of_the_tolerance(floor, shared_tmp, engaged_when):
     """A residual R at one dof of a settled block: Newton's step from there, J^-1 R (J the
@@ -698,4 +733,5 @@ def test_a_stuck_state_settles_where_newtons_step_from_it_is_a_share_of_the_tole
         engaged._R.set(0.0)
         engaged._R.axpy(share * limit / largest, one)
         assert engaged._immaterial() is expected
-    assert engaged.settled_by_move == 1
+    assert engaged.settled_measure.settled == 1
+    assert engaged.settled_measure.largest_settled == pytest.approx(0.9 * limit, rel=1e-6)

@@ -444,6 +444,7 @@ def _bad_inputs(base: Path, tmp: Path) -> dict:
         "craniotomy far away": ([dicom, "--craniotomy", "0,0,400"], "from the brain's surface"),
         "craniotomy not numbers": ([dicom, "--craniotomy", "1,2"], "three numbers"),
         "position": ([dicom, "--position", "sitting"], "--position"),
+        "craniotomy-up with no craniotomy": ([dicom, "--position", "craniotomy-up"], "give the craniotomy to bring up"),
         "gap in metres": ([dicom, "--gap", "0.003"], "--gap"),
         "radius not a number": ([dicom, "--craniotomy-radius", "nan"], "--craniotomy-radius"),
         "someone's folder": ([dicom, "-o", str(tmp / "notes")], "not a folder"),

@@ -34,7 +34,7 @@ def anatomical_gravity(position: str) -> np.ndarray:
     text = str(position).strip().lower()
     if text in POSITIONS:
         return np.array(POSITIONS[text])
-    if text == CRANIOTOMY_UP:  # chosen once the craniotomy is known (craniotomy_up_gravity); supine till then
+    if text == CRANIOTOMY_UP:  # chosen once the craniotomy is known (craniotomy_up_direction); supine till then
         return np.array(POSITIONS["supine"])
     try:
         angles = [float(v) for v in text.split(",")]
@@ -118,4 +118,9 @@ def craniotomy_up_direction(centre_ras_mm: np.ndarray, brain, patient) -> np.nda
     centre."""
     centroid = index_to_lps(patient, np.argwhere(brain)[:, ::-1].mean(axis=0)[None, :])[0] @ LPS_TO_RAS
     up = np.asarray(centre_ras_mm, dtype=float) - centroid
+    if np.linalg.norm(up) < 20.0:  # (the surface's checks come later: a centre inside would turn anywhere)
+        raise InputError(
+            f"--craniotomy: ({', '.join(f'{v:g}' for v in centre_ras_mm)}) mm is {np.linalg.norm(up):.0f} mm from "
+            f"the brain's centroid, not on its surface; give the craniotomy's centre on the head (RAS mm)"
+        )
     return up / np.linalg.norm(up)

@@ -96,10 +96,11 @@ def prepare(args) -> list[str]:
         centre = over_tumour_centre(tumour, patient, surface_mm, None if turned else up)
     if turned:  # the head turned so the craniotomy is uppermost
         supine_up = up
-        up = craniotomy_up_direction(centre, found.brain, patient)
+        up = craniotomy_up_direction(centre, largest_part(found.brain), patient)
     levels = craniotomy_levels(surface_mm, up, centre, args.craniotomy_radius)
     if turned:
         levels["head_turned_from_supine_deg"] = round(float(np.degrees(np.arccos(np.clip(up @ supine_up, -1, 1)))), 1)
+        _warn_if_feet_up(up, registration, levels)
     if levels["centre_height"] < DOWN_SIDE:
         log.warning(
             "prepare: the craniotomy at (%s) mm lies on the brain's lower side as the head lies (--position "
@@ -110,7 +111,7 @@ def prepare(args) -> list[str]:
             100 * levels["centre_height"],
         )
         report["craniotomy_on_lower_side"] = True
-    elif levels["brain_top_above_rim_mm"] > DEEP_RIM_MM:
+    if levels["brain_top_above_rim_mm"] > DEEP_RIM_MM and not turned:
         log.warning(
             "prepare: the craniotomy's rim lies %.0f mm below the brain's top as the head lies (--position %s): "
             "drained to it, most of the brain stands above the CSF; a surgeon turns the head to bring the "
@@ -156,6 +157,19 @@ def prepare(args) -> list[str]:
         f"prepared {out}: brain {litres:.2f} l, the template explains {100 * ratio:.0f} % of the scan's variance "
         f"in it, {time.perf_counter() - began:.0f} s; run it: brainshift run {out / 'scene.toml'}"
     ]
+
+
+def _warn_if_feet_up(up: np.ndarray, registration, levels: dict) -> None:
+    """A head turned so far that its vertex points below the horizontal (a craniotomy on the
+    skull base): no table holds a patient so; warned of."""
+    superior = _gravity(np.array([0.0, 0.0, 1.0]), registration)  # the head's superior, patient RAS
+    if up @ superior < -0.3:
+        log.warning(
+            "prepare: --position craniotomy-up turns the head %.0f degrees from supine, its vertex below the "
+            "horizontal (the craniotomy at (%s) mm faces the feet): check --craniotomy",
+            levels["head_turned_from_supine_deg"],
+            ", ".join(f"{v:.0f}" for v in levels["centre_mm"]),
+        )
 
 
 def _over_tumour(args) -> bool:

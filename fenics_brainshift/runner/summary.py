@@ -77,12 +77,15 @@ def summary(sim, h, stopped, setup_s: float) -> dict:
         out["fluid_assemblies"], out["fluid_reuses"] = model.fluid.assemblies, model.fluid.reuses
     if sim.contact is not None:
         solver = sim.dynamic if dynamic else sim.static
+        measure = getattr(solver, "settled_measure", None)
         out["skull_contact"] = {
             **sim.contact.report(sim.state.u),
             "multiplier_updates": getattr(solver, "contact_rounds", 0),
             # Newton solves that ended without descent, their step from there moving no node by
-            # more than a fifth of the tolerance (stepping/contact_verdict.py SETTLED_MOVE)
-            "settled_without_descent": getattr(solver, "settled_by_move", 0),
+            # more than a fifth of the tolerance (stepping/contact_verdict.py SETTLED_MOVE), and
+            # the largest such step
+            "settled_without_descent": measure.settled if measure is not None else 0,
+            "settled_largest_step_m": measure.largest_settled if measure is not None else 0.0,
             "states_without_contact": getattr(solver, "skipped", 0),
             "contact_from_s": getattr(solver, "engaged_at", None),
         }

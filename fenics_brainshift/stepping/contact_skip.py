@@ -37,8 +37,8 @@ class ContactWhenReached:
         return self.engaged.contact_rounds if self.engaged is not None else 0
 
     @property
-    def settled_by_move(self) -> int:
-        return self.engaged.settled_by_move if self.engaged is not None else 0
+    def settled_measure(self):
+        return self.engaged.settled_measure if self.engaged is not None else None
 
     def solve(self, t: float) -> int:
         if self.engaged is None:

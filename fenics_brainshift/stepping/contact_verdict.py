@@ -14,12 +14,15 @@ log = get_logger("newton")
 
 # a Newton solve that would fail (no descent; its watchdog's or all its iterations spent) has settled
 # when Newton's own step from there (the tangent's answer to the residual left, the skull's hold of
-# the pressed nodes in it) would move no dof by more than this share of [skull] tolerance: the
-# displacement-correction criterion of nonlinear finite element codes, kept to where the residual
-# criterion cannot be met. A node pressed where the skull's facets meet (the distance's gradient
-# turns there) can hold |R| where no step lowers it, or lowers it by a percent an iteration: on the
-# real cases of benchmarks/prepare_cases.py --chain those steps were 0.5-11 um (ixi012_t1, trio_t1,
-# chris_t1: exit 3 before; docs/limits.md), against the 100 um of penetration the tolerance accepts
+# the pressed nodes in it) would move no node by more than this share of [skull] tolerance along any
+# axis: an absolute bound on Newton's correction, asked only where the residual's target cannot be
+# met. A node pressed where the skull's facets meet (the distance's gradient turns there) can hold |R|
+# where no step lowers it, or lowers it by a percent an iteration, Newton's step from there a few
+# micrometres: the synthetic operations of benchmarks/prepare_cases.py --chain exited 3 so
+# (docs/limits.md; summary.json's skull_contact.settled_largest_step_m records the largest let settle).
+# Its limits: at a pressed node the penalty's stiffness is in the tangent, so a force error there
+# shows as a step of about R / k_pen; and where no step descends the linearisation is poor, so the
+# step bounds the distance to equilibrium only roughly.
 SETTLED_MOVE = 0.2
 
 
@@ -31,14 +34,17 @@ class SettledMeasure:
     def __init__(self, tolerance: float, comm):
         self.limit, self.comm = SETTLED_MOVE * tolerance, comm
         self.settled = 0
+        self.largest_settled = 0.0  # the largest step of a state let settle (m)
 
     def __call__(self, step) -> bool:
         local = step.getArray(readonly=True) if isinstance(step, PETSc.Vec) else np.asarray(step)
-        largest = self.comm.allreduce(float(np.abs(local).max(initial=0.0)), op=MPI.MAX)
-        if not largest <= self.limit:  # (NaN: not settled)
+        mine = float(np.abs(local).max(initial=0.0))
+        largest = self.comm.allreduce(mine if np.isfinite(mine) else np.inf, op=MPI.MAX)  # (MAX drops a NaN)
+        if not largest <= self.limit:
             log.debug("  Newton: stuck, its step would move a node by %.3g um: not settled", largest * 1e6)
             return False
         self.settled += 1
+        self.largest_settled = max(self.largest_settled, largest)
         log.debug("  Newton: stuck, its step moves no node by more than %.3g um: settled", largest * 1e6)
         return True
 

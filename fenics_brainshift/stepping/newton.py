@@ -251,7 +251,7 @@ class NewtonStatic:
         )
 
     def _immaterial(self) -> bool:
-        """Is Newton's step from here (into du: Newton stops either way) tiny (contact_verdict)?"""
+        """Is Newton's step from here (into du; newton_iterate keeps its own) tiny (contact_verdict)?"""
         try:
             self._solve_step(self._loads[1], self._loads[0], self.solves.settings["rtol"])
         except SolverError:
@@ -259,9 +259,9 @@ class NewtonStatic:
         return self._settled(compat.petsc_vec(self._du))
 
     @property
-    def settled_by_move(self) -> int:
-        """Newton solves that would have failed, counted settled: their step tiny."""
-        return self._settled.settled if self._settled is not None else 0
+    def settled_measure(self) -> contact_verdict.SettledMeasure | None:
+        """What let Newton solves that would have failed settle (their step tiny), with contact."""
+        return self._settled
 
     # -- a settled state, with load stepping ------------------------------------------------------
     def forget_settled(self) -> None:

@@ -63,8 +63,14 @@ def newton_iterate(
     def target():
         return rtol * max(scale(), 1e-300)
 
-    def settled() -> bool:
-        return immaterial is not None and immaterial()
+    def settled() -> bool:  # (it may solve into dx: the step it does not take is kept)
+        if immaterial is None:
+            return False
+        kept = dx.x.array.copy()
+        try:
+            return immaterial()
+        finally:
+            dx.x.array[:] = kept
 
     norm = residual()
     history = [norm]
@@ -91,7 +97,7 @@ def newton_iterate(
             if trial < (1.0 - 1e-4 * alpha) * norm:
                 break
         else:  # no descent: fine if already at round-off (within ``stall`` targets) or immaterial
-            if trial <= stall * target() or settled():
+            if trial <= stall * target() or (np.isfinite(trial) and settled()):
                 return True, history + [trial]
             if not watchdog or watched is not None:
                 return False, history
