@@ -54,7 +54,14 @@ CASES = {
     ),
     "glioma2_t1c": (
         "t1gd_tumour/pyradiomics_brain2_T1post.nrrd",
-        ["--tumour", "t1gd_tumour/pyradiomics_brain2_label.nrrd", "--craniotomy", "tumour"],
+        [
+            "--tumour",
+            "t1gd_tumour/pyradiomics_brain2_label.nrrd",
+            "--craniotomy",
+            "tumour",
+            "--position",
+            "craniotomy-up",
+        ],
         "post-contrast 2-D axial T1, 256 x 256 x 23 at 0.78 x 0.78 x 6.5 mm, a small lesion",
         "AIM-Harvard/pyradiomics data/brain2_image.nrrd, brain2_label.nrrd",
     ),
@@ -82,6 +89,20 @@ CASES = {
         "native T1 at 2 mm, 120 x 120 x 90, IXI volunteer",
         "IXI (CC BY-SA 3.0), as CBICA/NiChart_Project test_data/nifti/IXI_Small/t1",
     ),
+    "fg6692_t1c": (
+        "same_head/fg6692_t1c.nii.gz",
+        ["--contrast", "t1c"],
+        "post-contrast 2-D axial T1 (spin echo), 256 x 224 x 26 at 0.9 x 0.9 x 5.5 mm, glioma (the head of fg6692_t2)",
+        "TCIA TCGA-FG-6692 (a TCGA glioma), as BrainLesion/preprocessing example/example_data/OtherEXampleFromTCIA "
+        "MRHR_T1_AX_POST_GAD_..._t1c.nii.gz",
+    ),
+    "fg6692_t2": (
+        "same_head/fg6692_t2.nii.gz",
+        ["--contrast", "t2"],
+        "2-D axial T2 (TSE), 224 x 256 x 26 at 0.9 x 0.9 x 5.5 mm, glioma (the head of fg6692_t1c)",
+        "TCIA TCGA-FG-6692 (a TCGA glioma), as BrainLesion/preprocessing example/example_data/OtherEXampleFromTCIA "
+        "MRHR_T2_AX_..._t2.nii.gz",
+    ),
     "t2w": (
         "t2_flair_pd/niivue_register_T2w.nii.gz",
         [],
@@ -89,6 +110,7 @@ CASES = {
         "niivue/niivue-demo-images register/T2w.nii.gz",
     ),
 }
+SAME_HEAD = [("chris_t1", "chris_pd"), ("fg6692_t1c", "fg6692_t2")]  # two contrasts of one head: their brains
 MOVES = [("x", 10.0, 0.0), ("y", 10.0, 0.0), ("z", 10.0, 0.0), ("x", 0.0, 10.0), ("y", 0.0, 10.0), ("z", 0.0, 10.0)]
 
 
@@ -198,12 +220,13 @@ def one_case(name: str, data: Path, chain: bool, work: Path, ranks: int = 1) -> 
     folder = work / name
     log = work / f"{name}.log"
     earlier = RESULTS / f"{name}.json"
-    if chain and (folder / "scene.toml").is_file() and earlier.is_file():  # prepared by an earlier call: on from there
-        return chain_steps(json.loads(earlier.read_text()), folder, log, ranks)
+    before = json.loads(earlier.read_text()) if earlier.is_file() else {}
+    if chain and (folder / "scene.toml").is_file() and before.get("prepare_args") == CASES[name][1]:
+        return chain_steps(before, folder, log, ranks)  # prepared by an earlier call, as CASES says now: on from there
     log.unlink(missing_ok=True)
     from fenics_brainshift.bench import machine_line
 
-    record = {"case": name, "what": what, "source": source, "machine": machine_line()}
+    record = {"case": name, "what": what, "source": source, "machine": machine_line(), "prepare_args": CASES[name][1]}
     code, seconds = brainshift(["prepare", str(data / path), "-o", str(folder), *extra], log)
     prepared = json.loads((folder / "prepare.json").read_text()) if (folder / "prepare.json").is_file() else {}
     record.update(
@@ -226,6 +249,8 @@ def one_case(name: str, data: Path, chain: bool, work: Path, ranks: int = 1) -> 
     return chain_steps(record, folder, log, ranks) if chain else record
 
 
+CHAIN_KEYS = ("chain", "run_s", "update_s", "warp_s", "update", "update_fit_ms")
+CHAIN_KEYS += ("error_near_craniotomy_mm", "operation_skull")
 TRUTH_BELOW_RIM_M = 0.012  # the synthetic operation: drained this far below the scene's level,
 TRUTH_SOFTER = 0.8  # with a brain this much softer than the scene's
 
@@ -238,6 +263,8 @@ def chain_steps(record: dict, folder: Path, log: Path, ranks: int = 1) -> dict:
     within 25 mm of the craniotomy. The atlas on ``ranks`` MPI ranks (its modes shared among them)."""
     import tomllib
 
+    for key in CHAIN_KEYS:  # (an earlier call's chain: not this one's)
+        record.pop(key, None)
     prepared = json.loads((folder / "prepare.json").read_text())
     cut = prepared["craniotomy"]
     scene = tomllib.loads((folder / "scene.toml").read_text())
@@ -308,8 +335,20 @@ def chain_steps(record: dict, folder: Path, log: Path, ranks: int = 1) -> dict:
         },
         update_fit_ms=round(update["timings_ms"]["weights_ms"], 1),
         error_near_craniotomy_mm=near_craniotomy_error(folder, centre),
+        operation_skull=operation_skull(folder),
     )
     return record
+
+
+def operation_skull(folder: Path) -> dict:
+    """What the synthetic operation's run says of the skull: the deepest node past it (mm)
+    and the contact Newton solves counted settled though their residual was not at its target."""
+    contact = json.loads((folder / "operation" / "summary.json").read_text())["skull_contact"]
+    return {
+        "deepest_past_mm": round(contact["max_penetration_m"] * 1e3, 4),
+        "settled_without_descent": contact.get("settled_without_descent", 0),
+        "settled_largest_step_um": round(contact.get("settled_largest_step_m", float("nan")) * 1e6, 2),
+    }
 
 
 def near_craniotomy_error(folder: Path, centre_mm: np.ndarray) -> dict:
@@ -389,6 +428,30 @@ def report() -> None:
         )
     lines += [
         "",
+        "The synthetic operation (the cortex within 25 mm of the craniotomy: the scene's prediction and the "
+        "update against it, RMS) and what its run says of the skull (the deepest node past it; contact "
+        "Newton solves counted settled though their residual was not at its target):",
+        "",
+        "| case | head turned from supine | cortex near the craniotomy: scene / update | skull: deepest past, "
+        "settled without descent |",
+        "|---|---|---|---|",
+    ]
+    for r in rows:
+        near, skull = r.get("error_near_craniotomy_mm"), r.get("operation_skull")
+        if near and r.get("chain") == "ok":
+            turned = (r.get("craniotomy") or {}).get("head_turned_from_supine_deg")
+            turned = "-" if turned is None else f"{turned:.0f} degrees"
+            past = "-"
+            if skull:
+                past = f"{skull['deepest_past_mm']:.3f} mm, {skull['settled_without_descent']}"
+                if skull.get("settled_largest_step_um") is not None:
+                    past += f" (largest step {skull['settled_largest_step_um']:g} um)"
+            lines.append(
+                f"| {r['case']} | {turned} | {near['scene']:.2f} / {near['update']:.2f} mm "
+                f"({near['points']} points) | {past} |"
+            )
+    lines += [
+        "",
         "The gate's measure (the share of the scan's variance in the deep brain found that the template "
         "explains, the correlation ratio) with each prepared registration moved on purpose (the patient point "
         "moved first; turned about the scan's centre):",
@@ -415,6 +478,15 @@ def report() -> None:
             lines.append(
                 f"| {r['case']} | {c['exact_s']} | {c['field_s']} | {c['voxels_differing']} / {c['brain_voxels']} |"
             )
+    by_case = {r["case"]: r for r in rows}
+    pairs = []
+    for a, b in SAME_HEAD:
+        va, vb = (by_case.get(n, {}).get("brain_litres") for n in (a, b))
+        if va and vb:
+            pairs.append(f"| {a} / {b} | {va:.3f} / {vb:.3f} | {100 * abs(va - vb) / max(va, vb):.1f} % |")
+    if pairs:
+        lines += ["", "The brain found on two contrasts of the same head:", ""]
+        lines += ["| cases | brain l | difference |", "|---|---|---|", *pairs]
     lines += ["", "Cases: " + "; ".join(f"**{n}** {CASES[n][2]} ({CASES[n][3]})" for n in CASES) + "."]
     (RESULTS.parent / "prepare_cases.md").write_text("\n".join(lines) + "\n")
 
