@@ -770,6 +770,33 @@ def test_a_lateral_craniotomy_is_warned_of_and_brought_up_by_turning_the_head(pa
     assert f"the head turned {turn:.0f} degrees from supine" in (tmp_path / "T" / "scene.toml").read_text()
 
 
+@pytest.mark.usefixtures("serial_only")
+def test_a_craniotomy_brought_up_from_the_skull_base_is_warned_of(patient, tmp_path, caplog):
+    """--position craniotomy-up with the craniotomy at the brain's lowest point (superior-inferior):
+    the head would stand on its vertex; prepared, with a warning naming the centre."""
+    import logging
+
+    from fenics_brainshift.images.frames import LPS_TO_RAS
+    from fenics_brainshift.patients.carry import index_to_lps
+
+    t1 = sitk.ReadImage(str(patient / "P" / "t1.nii.gz"))
+    brain = _found_mask(patient)
+    shell = brain & ~ndimage.binary_erosion(brain)
+    voxels = index_to_lps(t1, np.argwhere(shell)[:, ::-1].astype(float)) @ LPS_TO_RAS
+    rotation = np.load(patient / "rotation.npy")  # template <- patient, LPS
+    superior = np.diag([-1.0, -1.0, 1.0]) @ rotation.T @ np.diag([-1.0, -1.0, 1.0]) @ np.array([0.0, 0.0, 1.0])
+    base = voxels[np.argmin(voxels @ superior)]
+    argv = ["--voxel", "8", "--affine-only", "--position", "craniotomy-up"]
+    argv += ["--craniotomy", ",".join(f"{v:.1f}" for v in base)]
+    logger = logging.getLogger("fenics_brainshift")
+    logger.addHandler(caplog.handler)
+    try:
+        assert _prepare([str(patient / "dicom"), "-o", str(tmp_path / "B"), *argv]) == 0
+    finally:
+        logger.removeHandler(caplog.handler)
+    assert any("its vertex below the horizontal" in r.getMessage() for r in caplog.records)
+
+
 def test_over_the_tumour_anywhere_when_the_head_is_turned():
     """over_tumour_centre: with the head as it lies, the surface point nearest the tumour above
     it; turned (up None), the nearest of all: a sphere's surface and a tumour below its equator."""
