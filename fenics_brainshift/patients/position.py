@@ -95,11 +95,16 @@ def craniotomy_levels(
     }
 
 
+def mask_centroid(mask: np.ndarray, grid) -> np.ndarray:
+    """The centroid (RAS mm) of a mask on the grid's voxels ([k, j, i])."""
+    return index_to_lps(grid, np.argwhere(mask)[:, ::-1].mean(axis=0)[None, :])[0] @ LPS_TO_RAS
+
+
 def over_tumour_centre(tumour: np.ndarray, patient, surface_ras_mm: np.ndarray, up: np.ndarray | None) -> np.ndarray:
     """The craniotomy's centre over the tumour: the brain surface's point nearest to the
     tumour's centroid among those above it as the head lies (RAS mm); with ``up`` None (the
     head is turned to bring the craniotomy up), among all."""
-    centroid = index_to_lps(patient, np.argwhere(tumour)[:, ::-1].mean(axis=0)[None, :])[0] @ LPS_TO_RAS
+    centroid = mask_centroid(tumour, patient)
     candidates = surface_ras_mm
     if up is not None:
         heights = surface_ras_mm @ (up / np.linalg.norm(up))
@@ -116,7 +121,7 @@ def craniotomy_up_direction(centre_ras_mm: np.ndarray, brain, patient) -> np.nda
     """Up (unit, patient RAS) with the head turned so the craniotomy is uppermost: from the
     centroid of the brain (a mask on the patient's grid, [k, j, i]) through the craniotomy's
     centre."""
-    centroid = index_to_lps(patient, np.argwhere(brain)[:, ::-1].mean(axis=0)[None, :])[0] @ LPS_TO_RAS
+    centroid = mask_centroid(brain, patient)
     up = np.asarray(centre_ras_mm, dtype=float) - centroid
     if np.linalg.norm(up) < 20.0:  # (the surface's checks come later: a centre inside would turn anywhere)
         raise InputError(

@@ -18,7 +18,7 @@ log = get_logger("newton")
 # axis: an absolute bound on Newton's correction, asked only where the residual's target cannot be
 # met. A node pressed where the skull's facets meet (the distance's gradient turns there) can hold |R|
 # where no step lowers it, or lowers it by a percent an iteration, Newton's step from there a few
-# micrometres: the synthetic operations of benchmarks/prepare_cases.py --chain exited 3 so
+# micrometres: the synthetic operations of benchmarks/prepare_cases.py --chain exited 3 so at 551fbbc
 # (docs/limits.md; summary.json's skull_contact.settled_largest_step_m records the largest let settle).
 # Its limits: at a pressed node the penalty's stiffness is in the tangent, so a force error there
 # shows as a step of about R / k_pen; and where no step descends the linearisation is poor, so the
